@@ -1,0 +1,374 @@
+"""The god-object coupling (paper Eq. 2): a damped zero-length spring to the target.
+
+The held body B is pulled toward the device's target by a translational and
+a rotational spring-damper. G is the god-object frame: origin Go at B's
+centre of mass Bcm, axes of B. Acting at Go decouples translation from
+rotation, so in free space each axis obeys paper Eq. 3 exactly.
+
+Gains are given by bandwidth and damping ratio and scaled by the held body's
+own mass and rotational inertia (about Bcm, expressed in W)::
+
+    F = m (ωn² e_t + 2 ζ ωn (v_T − v_G))                 [+ m g compensation]
+    T = I_W (ωr² α u + 2 ζr ωr (w_T − w_G))
+
+so ``k = m ωn²``, ``γ = 2 ζ m ωn`` and ``γ/√(mk) = 2ζ`` (the paper's
+1.4 … 2 is ζ ∈ [0.7, 1]). The force enters the plant through
+``applied_spatial_force`` and is therefore explicit: the discrete plant
+integrates the coupled body with symplectic Euler, stable only while
+``ωn h < 2(√(1+ζ²) − ζ)`` (THEORY.md §1). The constructor refuses gains
+past that limit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
+from pydrake.multibody.tree import BodyIndex
+from pydrake.systems.framework import LeafSystem, ValueProducer
+
+from godobject_drake.spatial import (
+    pose_arrays,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_rotation,
+    rotation_error,
+)
+
+PAPER_DAMPING_RATIO_RANGE = (0.7, 1.0)  # paper: 1.4 ≤ γ/√(mk) ≤ 2, i.e. 2ζ.
+
+
+class CouplingGainError(ValueError):
+    """Gains that the explicit (symplectic Euler) coupling cannot integrate stably."""
+
+
+class CouplingGainWarning(UserWarning):
+    """Gains outside the paper's recommended damping range."""
+
+
+def explicit_limit_omega_h(zeta: float) -> float:
+    """Largest stable ``ωn h`` of symplectic Euler with explicit spring-damper.
+
+    From the characteristic polynomial ``z² − (2 − κ − β) z + (1 − β)`` with
+    ``κ = (ωn h)²`` and ``β = 2 ζ ωn h``: stable iff ``κ + 2β < 4`` and
+    ``β < 2``, i.e. ``ωn h < 2(√(1+ζ²) − ζ)`` (≈ 1.04 at ζ = 0.7, 0.83 at ζ = 1).
+    """
+    return 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta)
+
+
+@dataclasses.dataclass(frozen=True)
+class CouplingGains:
+    """Coupling gains by bandwidth, scaled per body by its mass and inertia.
+
+    Attributes
+    ----------
+    omega_n : float
+        Translational natural frequency ωn (rad/s): ``k = m ωn²``.
+    zeta : float
+        Translational damping ratio ζ: ``γ = 2 ζ m ωn``.
+    omega_n_rot : float | None
+        Rotational natural frequency (rad/s), ``kr = I ωr²``; None = omega_n.
+    zeta_rot : float | None
+        Rotational damping ratio; None = zeta.
+    """
+
+    omega_n: float = 40.0
+    zeta: float = 1.0
+    omega_n_rot: float | None = None
+    zeta_rot: float | None = None
+
+    @property
+    def omega_r(self) -> float:
+        return self.omega_n if self.omega_n_rot is None else self.omega_n_rot
+
+    @property
+    def zeta_r(self) -> float:
+        return self.zeta if self.zeta_rot is None else self.zeta_rot
+
+    def translational(self, mass: float) -> tuple[float, float]:
+        """``(k, γ)`` in N/m and N·s/m for a body of ``mass`` kg."""
+        return mass * self.omega_n**2, 2.0 * self.zeta * mass * self.omega_n
+
+    def check(self, time_step: float) -> None:
+        """Raise :class:`CouplingGainError` past the explicit stability limit.
+
+        Also warns (:class:`CouplingGainWarning`) when a damping ratio is
+        outside the paper's ``[0.7, 1]``. ``time_step = 0`` (continuous plant)
+        skips the step-size check.
+        """
+        for label, w, z in (
+            ("omega_n", self.omega_n, self.zeta),
+            ("omega_n_rot", self.omega_r, self.zeta_r),
+        ):
+            if not (math.isfinite(w) and w > 0.0):
+                raise CouplingGainError(f"{label}={w!r} rad/s must be a positive number")
+            if not (math.isfinite(z) and z >= 0.0):
+                raise CouplingGainError(f"damping ratio {z!r} for {label} must be ≥ 0")
+            lo, hi = PAPER_DAMPING_RATIO_RANGE
+            if not lo <= z <= hi:
+                warnings.warn(
+                    f"damping ratio ζ={z:g} for {label} is outside the paper's "
+                    f"[{lo}, {hi}] (1.4 ≤ γ/√(mk) ≤ 2); the god-object will "
+                    f"{'overshoot and ring' if z < lo else 'lag'}",
+                    CouplingGainWarning,
+                    stacklevel=3,
+                )
+            if time_step > 0.0:
+                limit = explicit_limit_omega_h(z)
+                if w * time_step >= limit:
+                    raise CouplingGainError(
+                        f"{label}={w:g} rad/s at time_step={time_step:g} s gives "
+                        f"ωn·h={w * time_step:.4g}, past the explicit (symplectic Euler) "
+                        f"stability limit 2(√(1+ζ²)−ζ)={limit:.4g} for ζ={z:g}. Use "
+                        f"{label} < {limit / time_step:.4g} rad/s or time_step < "
+                        f"{limit / w:.4g} s."
+                    )
+
+
+@dataclasses.dataclass(frozen=True)
+class GraspableBody:
+    """What the coupling needs of a free body, read once from the plant."""
+
+    name: str
+    index: int
+    mass: float  # kg
+    p_BoBcm_B: np.ndarray  # m
+    I_Bcm_B: np.ndarray  # kg·m², 3×3
+    q_start: int  # first of [qw qx qy qz x y z] in the plant's q
+    v_start: int  # first of [wx wy wz vx vy vz] in the plant's v
+
+
+def graspable_bodies(plant: MultibodyPlant) -> dict[str, GraspableBody]:
+    """Free bodies of a finalized plant, by every name a device may use.
+
+    A body is reachable as ``model::body`` and, where unambiguous, by its
+    body name and by its model instance name when the instance has one body
+    (so ``brick_0`` names the body of model instance ``brick_0``).
+    """
+    if not plant.is_finalized():
+        raise RuntimeError("graspable_bodies() needs a finalized plant; call plant.Finalize() first")
+    found: dict[str, GraspableBody] = {}
+    counts: dict[str, int] = {}
+    nq = plant.num_positions()
+    for i in range(plant.num_bodies()):
+        body = plant.get_body(BodyIndex(i))
+        if not body.is_floating_base_body() or not body.has_quaternion_dofs():
+            continue
+        M = body.default_spatial_inertia()
+        p = np.asarray(M.get_com()).copy()
+        info = GraspableBody(
+            name=body.scoped_name().get_full(),
+            index=int(body.index()),
+            mass=float(body.default_mass()),
+            p_BoBcm_B=p,
+            I_Bcm_B=M.Shift(p).CalcRotationalInertia().CopyToFullMatrix3(),
+            q_start=int(body.floating_positions_start()),
+            v_start=nq + int(body.floating_velocities_start_in_v()),
+        )
+        if not info.mass > 0.0:
+            raise ValueError(f"free body {info.name} has mass {info.mass}; a god-object needs m > 0")
+        instance = plant.GetModelInstanceName(body.model_instance())
+        aliases = [info.name, body.name()]
+        if len(plant.GetBodyIndices(body.model_instance())) == 1:
+            aliases.append(instance)
+        for alias in dict.fromkeys(aliases):
+            counts[alias] = counts.get(alias, 0) + 1
+            found[alias] = info
+    return {k: v for k, v in found.items() if counts[k] == 1 or k == v.name}
+
+
+# Layout of the coupling's cached result vector.
+_IDX, _XT, _VT, _XG, _VG, _F = 0, slice(1, 8), slice(8, 14), slice(14, 21), slice(21, 27), slice(27, 33)
+_TERMS = 33
+
+
+class GodObjectCoupling(LeafSystem):
+    """PD coupling of a held free body to the device's target (paper Eq. 2).
+
+    .. pydrake_system::
+
+        name: GodObjectCoupling
+        input_ports:
+        - plant_state
+        - X_WD
+        - V_WD
+        - grasp
+        output_ports:
+        - spatial_forces
+        - F_Go_W
+        - X_WT
+        - V_WT
+        - X_WG
+        - V_WG
+        - held_body
+
+    ``plant_state`` is the plant's ``[q; v]``; ``X_WD``/``V_WD``/``grasp``
+    come from a :class:`~godobject_drake.devices.DeviceSource`.
+    ``spatial_forces`` goes to the plant's ``applied_spatial_force``.
+    ``F_Go_W`` is the coupling wrench ``[τ; f]`` (N·m, N) on G at Go in W,
+    gravity compensation included. ``X_WT``/``X_WG`` are the target's and
+    the god-object's poses ``[qw qx qy qz x y z]``, ``V_WT``/``V_WG`` their
+    spatial velocities ``[w; v]``. ``held_body`` is the held BodyIndex, or −1.
+    With nothing held, T and G both equal the device frame D and the wrench
+    is zero.
+
+    Grasping: when ``grasp`` changes, the coupling stores the pose of G in D
+    at that instant (``X_DG``), so grasping does not move the target and
+    the spring starts unstretched; ``""`` releases. The check runs once per
+    device period, half a plant step after the device samples.
+
+    Parameters
+    ----------
+    plant : MultibodyPlant
+        A finalized plant; every free body in it can be grasped.
+    gains : CouplingGains
+        Bandwidth and damping; checked against ``plant.time_step()``.
+    device_period_s : float | None
+        How often to look at ``grasp`` (s); None = every plant step.
+    gravity_compensation : bool
+        Add ``−m g`` so the held body hangs at its target instead of
+        sagging by ``g/ωn²`` (6 mm at ωn = 40 rad/s).
+    """
+
+    def __init__(
+        self,
+        plant: MultibodyPlant,
+        gains: CouplingGains,
+        device_period_s: float | None = None,
+        gravity_compensation: bool = True,
+    ):
+        super().__init__()
+        h = plant.time_step()
+        gains.check(h)
+        self.gains = gains
+        self.bodies = graspable_bodies(plant)
+        self._by_index = {b.index: b for b in self.bodies.values()}
+        g = np.asarray(plant.gravity_field().gravity_vector())
+        self._g = g if gravity_compensation else np.zeros(3)
+        self._wn2, self._2zwn = gains.omega_n**2, 2.0 * gains.zeta * gains.omega_n
+        self._wr2, self._2zwr = gains.omega_r**2, 2.0 * gains.zeta_r * gains.omega_r
+        self._force = ExternallyAppliedSpatialForce()
+
+        n = plant.num_multibody_states()
+        self._state_port = self.DeclareVectorInputPort("plant_state", n)
+        self._X_WD_port = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
+        self._V_WD_port = self.DeclareVectorInputPort("V_WD", 6)
+        self._grasp_port = self.DeclareAbstractInputPort("grasp", AbstractValue.Make(""))
+
+        # [held BodyIndex or −1, q_DG (4), p_DoGo_D (3)]
+        self._grasp_state = self.DeclareDiscreteState(np.array([-1.0, 1, 0, 0, 0, 0, 0, 0]))
+        period = device_period_s if device_period_s else (h if h > 0 else 1e-3)
+        offset = 0.5 * h if h > 0 else 1e-6
+        self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update_grasp)
+
+        self._terms = self.DeclareCacheEntry(
+            "coupling terms",
+            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(_TERMS)), calc=self._calc_terms),
+            {self.all_input_ports_ticket(), self.xd_ticket()},
+        )
+        self.DeclareAbstractOutputPort(
+            "spatial_forces",
+            lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
+            self._calc_spatial_forces,
+            {self._terms.ticket()},
+        )
+        for name, sl in (("F_Go_W", _F), ("X_WT", _XT), ("V_WT", _VT), ("X_WG", _XG), ("V_WG", _VG)):
+            self.DeclareVectorOutputPort(
+                name, sl.stop - sl.start, self._slice_calc(sl), {self._terms.ticket()}
+            )
+        self.DeclareVectorOutputPort("held_body", 1, self._slice_calc(slice(0, 1)), {self.xd_ticket()})
+
+    # -- grasping -------------------------------------------------------------
+    def body_for_grasp(self, name: str) -> GraspableBody | None:
+        """The body a grasp name selects; None for ``""``. Raises for unknown names."""
+        if not name:
+            return None
+        try:
+            return self.bodies[name]
+        except KeyError:
+            known = sorted(k for k in self.bodies if "::" not in k) or sorted(self.bodies)
+            raise ValueError(
+                f"grasp names unknown body {name!r}; graspable (free) bodies are {known}. "
+                "Fix the device path or log."
+            ) from None
+
+    def validate_grasp_names(self, names) -> None:
+        """Raise early if any of ``names`` is not a graspable body."""
+        for name in names:
+            self.body_for_grasp(name)
+
+    def _update_grasp(self, context, discrete_state):
+        held = int(context.get_discrete_state(self._grasp_state).get_value()[0])
+        body = self.body_for_grasp(self._grasp_port.Eval(context))
+        if (body.index if body else -1) == held:
+            return
+        new = np.array([-1.0, 1, 0, 0, 0, 0, 0, 0])
+        if body is not None:
+            q_WD, p_WD, R_WD = pose_arrays(self._X_WD_port.Eval(context))
+            q_WG, p_WG, _, _, _ = self._body_state(body, self._state_port.Eval(context))
+            new[0] = body.index
+            new[1:5] = quat_multiply(quat_conjugate(q_WD), q_WG)
+            new[5:8] = R_WD.T @ (p_WG - p_WD)
+        discrete_state.get_mutable_vector(self._grasp_state).SetFromVector(new)
+
+    # -- the hot path -----------------------------------------------------------
+    @staticmethod
+    def _body_state(body: GraspableBody, x: np.ndarray):
+        q = x[body.q_start : body.q_start + 4]
+        R_WB = quat_to_rotation(q)
+        p_BoBcm_W = R_WB @ body.p_BoBcm_B
+        w = x[body.v_start : body.v_start + 3]
+        p_WG = x[body.q_start + 4 : body.q_start + 7] + p_BoBcm_W
+        v_WG = x[body.v_start + 3 : body.v_start + 6] + np.cross(w, p_BoBcm_W)
+        return q, p_WG, w, v_WG, R_WB
+
+    def _calc_terms(self, context, value):
+        out = value.get_mutable_value()
+        s = context.get_discrete_state(self._grasp_state).get_value()
+        q_WD, p_WD, R_WD = pose_arrays(self._X_WD_port.Eval(context))
+        V_WD = self._V_WD_port.Eval(context)
+        held = int(s[0])
+        out[_IDX] = held
+        if held < 0:
+            out[_XT] = out[_XG] = np.concatenate([q_WD, p_WD])
+            out[_VT] = out[_VG] = V_WD
+            out[_F] = 0.0
+            return
+        body = self._by_index[held]
+        q_WG, p_WG, w_WG, v_WG, R_WB = self._body_state(body, self._state_port.Eval(context))
+        q_WT = quat_multiply(q_WD, s[1:5])
+        p_WT = p_WD + R_WD @ s[5:8]
+        w_WT = V_WD[:3]
+        v_WT = V_WD[3:] + np.cross(w_WT, p_WT - p_WD)
+        f = body.mass * (self._wn2 * (p_WT - p_WG) + self._2zwn * (v_WT - v_WG) - self._g)
+        I_W = R_WB @ body.I_Bcm_B @ R_WB.T
+        tau = I_W @ (self._wr2 * rotation_error(q_WT, q_WG) + self._2zwr * (w_WT - w_WG))
+        out[_XT] = np.concatenate([q_WT, p_WT])
+        out[_VT] = np.concatenate([w_WT, v_WT])
+        out[_XG] = np.concatenate([q_WG, p_WG])
+        out[_VG] = np.concatenate([w_WG, v_WG])
+        out[_F] = np.concatenate([tau, f])
+
+    def _calc_spatial_forces(self, context, output):
+        t = self._terms.Eval(context)
+        held = int(t[_IDX])
+        if held < 0:
+            output.set_value([])
+            return
+        force = self._force
+        force.body_index = BodyIndex(held)
+        force.p_BoBq_B = self._by_index[held].p_BoBcm_B
+        force.F_Bq_W = SpatialForce(t[_F][:3], t[_F][3:])
+        output.set_value([force])
+
+    def _slice_calc(self, sl: slice):
+        def calc(context, output):
+            output.SetFromVector(self._terms.Eval(context)[sl])
+
+        return calc

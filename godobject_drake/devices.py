@@ -1,0 +1,314 @@
+"""Device sources: the target a user's device gives, sampled at its own rate.
+
+A device reports a pose ``X_WD`` of its frame D in the world W at a fixed
+period (60 Hz by default), optionally late by a latency. Between two samples
+the output holds (zero-order hold), so the target jumps from sample to
+sample: the paper's uncorrelated "hand of God" samples. The velocity
+``V_WD = [w; v]`` is the backward difference of the last two samples, which
+is what a tracker that only knows its samples can report.
+
+Two sources share that sampling: :class:`ScriptedDevice` (waypoints,
+linear in position and slerp in orientation) and :class:`ReplayDevice`
+(a CSV log ``t,x,y,z,qw,qx,qy,qz,grasp``).
+"""
+
+import csv
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.common.value import AbstractValue
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.trajectories import PiecewisePolynomial, PiecewiseQuaternionSlerp
+
+from godobject_drake.spatial import normalized_quaternion, rotation_error
+
+CSV_HEADER = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "grasp")
+DEFAULT_DEVICE_RATE_HZ = 60.0
+
+# A sample: position p_WD (m), quaternion q_WD [w, x, y, z], grasp ("" = none).
+Sample = tuple[np.ndarray, np.ndarray, str]
+
+
+class DeviceSource(LeafSystem):
+    """Samples a device at its own period and holds the sample.
+
+    .. pydrake_system::
+
+        name: DeviceSource
+        output_ports:
+        - X_WD
+        - V_WD
+        - grasp
+
+    ``X_WD`` is an abstract ``RigidTransform``; ``V_WD`` the 6-vector
+    ``[w_WD; v_WD]`` (rad/s, m/s) expressed in W; ``grasp`` an abstract
+    ``str``, the name of the body to hold or ``""`` for none.
+
+    Parameters
+    ----------
+    sampler : callable
+        ``sampler(t) -> (p_WD, q_WD, grasp)`` for a device time ``t`` (s).
+    period_s : float
+        Device sampling period T (s); 1/60 s by default.
+    latency_s : float
+        The sample taken at ``t_k`` reports the device at ``t_k − latency``.
+    noise_m : float
+        Standard deviation (m) of Gaussian noise added to each position
+        sample, as a tracker's jitter. The draw of sample k depends only on
+        ``(seed, k)``, so a run is reproducible whatever order samples are taken in.
+    seed : int
+        Seed of the noise.
+    """
+
+    def __init__(
+        self,
+        sampler: Callable[[float], Sample],
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+        noise_m: float = 0.0,
+        seed: int = 0,
+    ):
+        super().__init__()
+        if not (period_s > 0.0 and math.isfinite(period_s)):
+            raise ValueError(f"device period_s={period_s!r} must be a positive number of seconds")
+        if not (latency_s >= 0.0 and math.isfinite(latency_s)):
+            raise ValueError(f"device latency_s={latency_s!r} must be ≥ 0 s")
+        if not (noise_m >= 0.0 and math.isfinite(noise_m)):
+            raise ValueError(f"device noise_m={noise_m!r} must be ≥ 0 m")
+        self.noise_m = float(noise_m)
+        self.seed = int(seed)
+        self.period_s = float(period_s)
+        self.latency_s = float(latency_s)
+        self._sampler = sampler
+        p0, q0, g0 = self._sample(0.0)
+        # State: [q_cur(4), p_cur(3), q_prev(4), p_prev(3)]; grasp is abstract.
+        x0 = np.concatenate([q0, p0, q0, p0])
+        self._pose_index = self.DeclareDiscreteState(x0)
+        self._grasp_index = self.DeclareAbstractState(AbstractValue.Make(g0))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self.period_s, 0.0, self._update)
+        self.DeclareAbstractOutputPort(
+            "X_WD",
+            lambda: AbstractValue.Make(RigidTransform()),
+            self._calc_X_WD,
+            prerequisites_of_calc={self.xd_ticket()},
+        )
+        self.DeclareVectorOutputPort("V_WD", 6, self._calc_V_WD, prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareStateOutputPort("grasp", self._grasp_index)
+
+    def _sample(self, t: float) -> Sample:
+        p, q, grasp = self._sampler(max(0.0, t - self.latency_s))
+        p = np.asarray(p, float)
+        if self.noise_m > 0.0:
+            k = round(t / self.period_s)
+            p = p + self.noise_m * np.random.default_rng([self.seed, k]).standard_normal(3)
+        return p, np.asarray(q, float), grasp or ""
+
+    def _update(self, context, state):
+        x = context.get_discrete_state(self._pose_index).get_value()
+        p, q, grasp = self._sample(context.get_time())
+        state.get_mutable_discrete_state(self._pose_index).set_value(np.concatenate([q, p, x[:7]]))
+        state.get_mutable_abstract_state(self._grasp_index).set_value(grasp)
+
+    def _calc_X_WD(self, context, output):
+        x = context.get_discrete_state(self._pose_index).get_value()
+        output.set_value(RigidTransform(Quaternion(x[:4] / np.linalg.norm(x[:4])), x[4:7]))
+
+    def _calc_V_WD(self, context, output: BasicVector):
+        x = context.get_discrete_state(self._pose_index).get_value()
+        w = rotation_error(x[:4], x[7:11]) / self.period_s
+        v = (x[4:7] - x[11:14]) / self.period_s
+        output.SetFromVector(np.concatenate([w, v]))
+
+    def samples(self, duration_s: float) -> list[tuple[float, Sample]]:
+        """The samples this device reports on ``[0, duration_s]``, as ``(t_k, sample)``."""
+        n = math.floor(duration_s / self.period_s + 1e-9)
+        return [(k * self.period_s, self._sample(k * self.period_s)) for k in range(n + 1)]
+
+    def grasp_names(self, duration_s: float) -> set[str]:
+        """Every non-empty grasp name the device reports on ``[0, duration_s]``."""
+        return {s[2] for _, s in self.samples(duration_s) if s[2]}
+
+
+@dataclasses.dataclass
+class Waypoint:
+    """One waypoint of a scripted device path.
+
+    Attributes
+    ----------
+    t : float
+        Time (s); strictly increasing along a path.
+    xyz : list[float]
+        Position p_WD of the device frame D in the world W (m).
+    rpy_deg : list[float]
+        Orientation of D in W as roll-pitch-yaw (degrees, Drake's RollPitchYaw).
+    grasp : str
+        Body to hold from this waypoint on ("" = hold nothing).
+    """
+
+    t: float = 0.0
+    xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    grasp: str = ""
+
+
+@dataclasses.dataclass
+class DevicePath:
+    """A scripted device path, as loaded from YAML (``waypoints: [...]``)."""
+
+    waypoints: list[Waypoint] = dataclasses.field(default_factory=list)
+
+
+def load_device_path(filename: str | Path) -> DevicePath:
+    """Load a :class:`DevicePath` from a YAML file."""
+    return yaml_load_typed(schema=DevicePath, filename=str(filename))
+
+
+class ScriptedDevice(DeviceSource):
+    """A device that follows waypoints: linear in position, slerp in orientation.
+
+    Grasp names are piecewise constant: the value of the latest waypoint
+    whose time has passed.
+    """
+
+    def __init__(
+        self,
+        waypoints: Sequence[Waypoint],
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+        noise_m: float = 0.0,
+        seed: int = 0,
+    ):
+        waypoints = list(waypoints)
+        if len(waypoints) < 2:
+            raise ValueError(f"a scripted device needs at least 2 waypoints, got {len(waypoints)}")
+        times = np.array([w.t for w in waypoints], dtype=float)
+        if not np.all(np.diff(times) > 0):
+            raise ValueError(
+                f"waypoint times must increase strictly; got {times.tolist()}. Sort them or drop duplicates."
+            )
+        positions = np.array([w.xyz for w in waypoints], dtype=float).T
+        rotations = [RollPitchYaw(np.radians(w.rpy_deg)).ToRotationMatrix() for w in waypoints]
+        self._position = PiecewisePolynomial.FirstOrderHold(times, positions)
+        self._orientation = PiecewiseQuaternionSlerp(times.tolist(), rotations)
+        self._times = times
+        self._grasps = [w.grasp or "" for w in waypoints]
+        self.end_time_s = float(times[-1])
+        super().__init__(self._sample_path, period_s, latency_s, noise_m, seed)
+
+    def _sample_path(self, t: float) -> Sample:
+        t = min(max(t, self._times[0]), self._times[-1])
+        p = self._position.value(t).ravel()
+        q = self._orientation.orientation(t).wxyz()
+        k = int(np.searchsorted(self._times, t, side="right")) - 1
+        return p, np.asarray(q), self._grasps[max(k, 0)]
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceLog:
+    """A device log: times (s), positions (m), quaternions [w,x,y,z], grasp names."""
+
+    t: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    grasp: list[str]
+
+
+def read_device_log(filename: str | Path) -> DeviceLog:
+    """Read and check a device CSV log with header ``t,x,y,z,qw,qx,qy,qz,grasp``.
+
+    Raises ``ValueError`` naming the file and line of the first bad row.
+    """
+    filename = Path(filename)
+    if not filename.is_file():
+        raise FileNotFoundError(f"device log {filename} does not exist")
+    with filename.open(newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or tuple(c.strip() for c in rows[0]) != CSV_HEADER:
+        got = rows[0] if rows else "an empty file"
+        raise ValueError(
+            f"{filename}:1: header must be {','.join(CSV_HEADER)}; got {got}. See the "
+            "README section 'Device log format'."
+        )
+    t, p, q, grasp = [], [], [], []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row:
+            continue
+        where = f"{filename}:{line}"
+        if len(row) not in (8, 9):
+            raise ValueError(f"{where}: expected 9 columns ({','.join(CSV_HEADER)}), got {len(row)}")
+        try:
+            values = [float(c) for c in row[:8]]
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{where}: non-finite value in {row[:8]}")
+        if t and values[0] <= t[-1]:
+            raise ValueError(
+                f"{where}: time {values[0]} is not after the previous row's {t[-1]}; rows "
+                "must be in strictly increasing time"
+            )
+        t.append(values[0])
+        p.append(values[1:4])
+        q.append(normalized_quaternion(values[4:8], what=where))
+        grasp.append(row[8].strip() if len(row) == 9 else "")
+    if not t:
+        raise ValueError(f"{filename}: the log has a header but no rows")
+    return DeviceLog(np.array(t), np.array(p), np.array(q), grasp)
+
+
+def write_device_log(filename: str | Path, samples: Sequence[tuple[float, Sample]]) -> None:
+    """Write samples ``(t, (p, q, grasp))`` as a device CSV log.
+
+    Values are written with ``repr`` precision, so a replay reproduces them exactly.
+    """
+    with Path(filename).open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(CSV_HEADER)
+        for t, (p, q, grasp) in samples:
+            writer.writerow([repr(float(t)), *map(repr, map(float, p)), *map(repr, map(float, q)), grasp])
+
+
+class ReplayDevice(DeviceSource):
+    """Replays a device CSV log, holding the latest row whose time has passed.
+
+    The log's own rows may come at any rate; this device samples them at its
+    period (zero-order hold of the latest row with ``t_row ≤ t``, 1 ns of
+    tolerance for logs written at the same ticks). Before the first row it
+    reports the first row.
+    """
+
+    def __init__(
+        self,
+        log: DeviceLog | str | Path,
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+        noise_m: float = 0.0,
+        seed: int = 0,
+    ):
+        self.log = log if isinstance(log, DeviceLog) else read_device_log(log)
+        self.end_time_s = float(self.log.t[-1])
+        super().__init__(self._sample_log, period_s, latency_s, noise_m, seed)
+
+    def _sample_log(self, t: float) -> Sample:
+        k = max(int(np.searchsorted(self.log.t, t + 1e-9, side="right")) - 1, 0)
+        return self.log.p[k], self.log.q[k], self.log.grasp[k]
+
+
+__all__ = [
+    "CSV_HEADER",
+    "DeviceLog",
+    "DevicePath",
+    "DeviceSource",
+    "ReplayDevice",
+    "ScriptedDevice",
+    "Waypoint",
+    "load_device_path",
+    "read_device_log",
+    "write_device_log",
+]

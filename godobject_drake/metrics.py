@@ -1,0 +1,220 @@
+"""Run metrics, measured on true shapes, and the table printed after a run.
+
+Penetration between true box shapes is computed by the separating-axis
+test over the 15 candidate axes of two boxes (3 + 3 face normals, 9 edge
+cross products). For overlapping convex polyhedra the smallest overlap over
+those axes *is* the penetration depth (minimum translational distance); for
+separated boxes the largest gap is a lower bound on their distance.
+``tests/test_metrics.py`` checks it against Drake's own signed distance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import Box, Role, SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
+
+from godobject_drake.coupling import GraspableBody, graspable_bodies
+from godobject_drake.scenes import is_proxy
+
+# Keys every scene's metrics JSON has, in table order (README "Metrics JSON").
+METRIC_KEYS = (
+    "scene",
+    "mode",
+    "time_step_s",
+    "sim_time_s",
+    "wall_time_s",
+    "real_time_factor",
+    "max_penetration_m",
+    "rms_tracking_error_m",
+    "max_other_body_speed_mps",
+    "diverged",
+)
+FREE_SPACE_MARGIN_M = 0.002  # "free space": ≥ 2 mm from every other true shape.
+
+
+@dataclasses.dataclass(frozen=True)
+class TrueBox:
+    """A true box shape: on body ``body_index`` (None = anchored), pose X_BG, half sizes."""
+
+    name: str
+    body_index: int | None
+    R_BG: np.ndarray
+    p_BG: np.ndarray
+    half: np.ndarray
+
+
+def true_boxes(plant: MultibodyPlant, scene_graph: SceneGraph) -> list[TrueBox]:
+    """Every non-proxy proximity geometry of ``plant`` (must be boxes)."""
+    inspector = scene_graph.model_inspector()
+    world = plant.world_body()
+    context = plant.CreateDefaultContext()
+    boxes = []
+    for gid in inspector.GetAllGeometryIds(Role.kProximity):
+        name = inspector.GetName(gid)
+        if is_proxy(name):
+            continue
+        shape = inspector.GetShape(gid)
+        if not isinstance(shape, Box):
+            raise NotImplementedError(
+                f"true shape {name} is a {type(shape).__name__}; penetration metrics "
+                "support boxes only (use box collision geometry for true shapes)"
+            )
+        body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+        X_BG = inspector.GetPoseInFrame(gid)
+        index = int(body.index())
+        if body.index() == world.index() or not body.is_floating_base_body():
+            # Anchored (welded): store its pose in the world once.
+            X_BG = body.EvalPoseInWorld(context).multiply(X_BG)
+            index = None
+        boxes.append(
+            TrueBox(name, index, X_BG.rotation().matrix(), X_BG.translation(), np.array(shape.size()) / 2)
+        )
+    return boxes
+
+
+def box_overlap(cA, RA, hA, cB, RB, hB) -> np.ndarray:
+    """Smallest overlap over the separating axes of boxes A and B, per sample.
+
+    Arrays carry a leading sample axis: centres ``(N, 3)``, rotations
+    ``(N, 3, 3)`` whose columns are the box axes in W, half sizes ``(3,)``.
+    A positive result is the penetration depth (m); a negative one is minus
+    a lower bound on the distance between the boxes.
+    """
+    d = cB - cA
+    axes = [RA[:, :, i] for i in range(3)] + [RB[:, :, j] for j in range(3)]
+    for i in range(3):
+        for j in range(3):
+            axes.append(np.cross(RA[:, :, i], RB[:, :, j]))
+    best = np.full(len(d), np.inf)
+    for L in axes:
+        n = np.linalg.norm(L, axis=1)
+        ok = n > 1e-9  # parallel edges give no new axis
+        L = L / np.where(ok, n, 1.0)[:, None]
+        rA = np.abs(np.einsum("ni,nij->nj", L, RA)) @ hA
+        rB = np.abs(np.einsum("ni,nij->nj", L, RB)) @ hB
+        overlap = rA + rB - np.abs(np.einsum("ni,ni->n", L, d))
+        best = np.where(ok, np.minimum(best, overlap), best)
+    return best
+
+
+def _quat_to_rotations(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(N, 3, 3)`` of quaternions ``(N, 4)`` [w, x, y, z]."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+class TrueShapeMetrics:
+    """Measures penetration and clearance of bodies on their true box shapes."""
+
+    def __init__(self, plant: MultibodyPlant, scene_graph: SceneGraph):
+        self.boxes = true_boxes(plant, scene_graph)
+        self.bodies: dict[int, GraspableBody] = {b.index: b for b in graspable_bodies(plant).values()}
+
+    def _box_in_world(self, box: TrueBox, states: np.ndarray):
+        n = len(states)
+        if box.body_index is None:
+            return np.broadcast_to(box.p_BG, (n, 3)), np.broadcast_to(box.R_BG, (n, 3, 3))
+        b = self.bodies[box.body_index]
+        R_WB = _quat_to_rotations(states[:, b.q_start : b.q_start + 4])
+        p_WB = states[:, b.q_start + 4 : b.q_start + 7]
+        return p_WB + R_WB @ box.p_BG, R_WB @ box.R_BG
+
+    def overlaps(self, body_index: int, states: np.ndarray) -> np.ndarray:
+        """``(N, M)`` overlaps of ``body_index``'s boxes against the M other boxes."""
+        own = [b for b in self.boxes if b.body_index == body_index]
+        others = [b for b in self.boxes if b.body_index != body_index]
+        out = np.full((len(states), len(others)), -np.inf)
+        for a in own:
+            cA, RA = self._box_in_world(a, states)
+            for j, o in enumerate(others):
+                cB, RB = self._box_in_world(o, states)
+                out[:, j] = np.maximum(out[:, j], box_overlap(cA, RA, a.half, cB, RB, o.half))
+        return out
+
+
+def compute_metrics(
+    shapes: TrueShapeMetrics,
+    states: np.ndarray,
+    held: np.ndarray,
+    p_WT: np.ndarray,
+) -> dict:
+    """Penetration, free-space tracking error and other bodies' speed from logs.
+
+    Parameters
+    ----------
+    states : (N, nq+nv)
+        Plant states at each logged step.
+    held : (N,)
+        Held BodyIndex at each step, −1 for none.
+    p_WT : (N, 3)
+        Target position of the held body's centre of mass (m).
+    """
+    max_pen, sq_err, n_free = 0.0, 0.0, 0
+    speed = np.zeros(len(states))
+    for index, body in shapes.bodies.items():
+        when = held == index
+        cm = _cm_positions(body, states[when]) if when.any() else None
+        if cm is not None:
+            ov = shapes.overlaps(index, states[when])
+            max_pen = max(max_pen, float(np.max(ov, initial=0.0)))
+            free = np.all(ov < -FREE_SPACE_MARGIN_M, axis=1)
+            sq_err += float(np.sum(np.sum((p_WT[when][free] - cm[free]) ** 2, axis=1)))
+            n_free += int(free.sum())
+        v = np.linalg.norm(_cm_velocities(body, states), axis=1)
+        speed = np.maximum(speed, np.where(held == index, 0.0, v))
+    return {
+        "max_penetration_m": max_pen,
+        "rms_tracking_error_m": math.sqrt(sq_err / n_free) if n_free else None,
+        "free_space_samples": n_free,
+        "max_other_body_speed_mps": float(speed.max(initial=0.0)),
+    }
+
+
+def _cm_positions(body: GraspableBody, states: np.ndarray) -> np.ndarray:
+    R = _quat_to_rotations(states[:, body.q_start : body.q_start + 4])
+    return states[:, body.q_start + 4 : body.q_start + 7] + R @ body.p_BoBcm_B
+
+
+def _cm_velocities(body: GraspableBody, states: np.ndarray) -> np.ndarray:
+    R = _quat_to_rotations(states[:, body.q_start : body.q_start + 4])
+    w = states[:, body.v_start : body.v_start + 3]
+    return states[:, body.v_start + 3 : body.v_start + 6] + np.cross(w, R @ body.p_BoBcm_B)
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of metrics, one column per run."""
+    keys = [k for k in METRIC_KEYS if any(k in r for r in rows)]
+    keys += sorted({k for r in rows for k in r} - set(keys))
+
+    def fmt(v):
+        if isinstance(v, bool) or v is None or isinstance(v, str):
+            return str(v)
+        if isinstance(v, int):
+            return str(v)
+        return f"{v:.4g}"
+
+    cells = [["metric"] + [str(r.get("mode", f"run {i}")) for i, r in enumerate(rows)]]
+    cells += [[k] + [fmt(r.get(k)) for r in rows] for k in keys]
+    widths = [max(len(c[i]) for c in cells) for i in range(len(cells[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in cells]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def write_metrics(path: str | Path, metrics: dict) -> None:
+    """Write metrics as JSON (NaN-free: ``None`` where undefined)."""
+    Path(path).write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")

@@ -1,0 +1,142 @@
+"""Scene building blocks: model loading, contact settings, proxy filtering.
+
+Collision geometry convention (see ``models/lego/brick_2x4.sdf``): a
+geometry whose name starts with ``proxy_`` is a contact proxy (the paper's
+spheres); every other proximity geometry is a *true shape*. Penetration is
+always measured on true shapes (:mod:`godobject_drake.metrics`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from pydrake.geometry import (
+    CollisionFilterDeclaration,
+    GeometrySet,
+    ProximityProperties,
+    Role,
+    RoleAssign,
+    SceneGraph,
+)
+from pydrake.multibody.parsing import LoadModelDirectives, Parser, ProcessModelDirectives
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+PROXY_PREFIX = "proxy_"
+CONTACT_MODELS = ("proxies", "hydroelastic")
+
+
+def make_parser(plant: MultibodyPlant) -> Parser:
+    """A Parser that resolves ``package://godobject_models/...``."""
+    package_xml = MODELS_DIR / "package.xml"
+    if not package_xml.is_file():
+        raise FileNotFoundError(
+            f"{package_xml} not found: godobject_drake finds its models beside the package. "
+            "Install from a clone with `pip install -e .` (editable), as the README says."
+        )
+    parser = Parser(plant)
+    parser.package_map().AddPackageXml(str(package_xml))
+    return parser
+
+
+def is_proxy(name: str) -> bool:
+    """True for a contact-proxy geometry name (scoped or not)."""
+    return name.rsplit("/", 1)[-1].rsplit("::", 1)[-1].startswith(PROXY_PREFIX)
+
+
+def set_relaxation_time(plant: MultibodyPlant, scene_graph: SceneGraph, tau: float) -> None:
+    """Set SAP's ``relaxation_time`` (s) on every proximity geometry of ``plant``.
+
+    SAP's default (0.1 s) makes point contact far softer than its nominal
+    stiffness (DESIGN.md); ``tau ≈ h`` keeps the nominal stiffness.
+    """
+    inspector = scene_graph.model_inspector()
+    for gid in inspector.GetAllGeometryIds(Role.kProximity):
+        props = ProximityProperties(inspector.GetProximityProperties(gid))
+        if props.HasProperty("material", "relaxation_time"):
+            props.UpdateProperty("material", "relaxation_time", tau)
+        else:
+            props.AddProperty("material", "relaxation_time", tau)
+        scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+
+def apply_contact_model(plant: MultibodyPlant, scene_graph: SceneGraph, contact: str) -> None:
+    """Filter collision pairs for ``contact`` ∈ ``CONTACT_MODELS``.
+
+    ``proxies``: proxies touch true shapes only, never other proxies. Two
+    bodies that both have proxies touch only through them (a brick's proxies
+    on another brick's box, so bricks stack flat); a body with proxies keeps
+    its true shape against bodies without (the welded table), as a backstop
+    where an edge could slip between two proxies.
+    ``hydroelastic``: proxies are removed from contact; true shapes touch
+    each other (use with a hydroelastic contact model).
+    """
+    if contact not in CONTACT_MODELS:
+        raise ValueError(f"contact={contact!r}; choose one of {CONTACT_MODELS}")
+    inspector = scene_graph.model_inspector()
+    ids = inspector.GetAllGeometryIds(Role.kProximity)
+    proxies = [g for g in ids if is_proxy(inspector.GetName(g))]
+    true_shapes = [g for g in ids if not is_proxy(inspector.GetName(g))]
+    manager = scene_graph.collision_filter_manager()
+    if contact == "hydroelastic":
+        manager.Apply(CollisionFilterDeclaration().ExcludeBetween(GeometrySet(proxies), GeometrySet(ids)))
+        return
+    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(proxies)))
+    frames_with_proxies = {inspector.GetFrameId(g) for g in proxies}
+    shapes_with_proxies = [g for g in true_shapes if inspector.GetFrameId(g) in frames_with_proxies]
+    manager.Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(shapes_with_proxies)))
+
+
+@dataclasses.dataclass
+class SceneParts:
+    """What a scene builder returns: the plant, its SceneGraph and the scene's names."""
+
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    contact: str
+
+
+def add_scene_from_directives(
+    builder: DiagramBuilder,
+    directives: str | Path,
+    time_step: float,
+    contact: str = "proxies",
+    relaxation_time: float | None = None,
+    near_rigid_threshold: float | None = None,
+) -> SceneParts:
+    """Add a SAP MultibodyPlant loaded from model directives and finalize it.
+
+    Parameters
+    ----------
+    directives : str | Path
+        A ``*.dmd.yaml`` path or ``package://godobject_models/...`` URL.
+    time_step : float
+        Plant step h (s); must be > 0 (SAP is discrete).
+    contact : str
+        ``proxies`` (point contact on sphere proxies) or ``hydroelastic``.
+    relaxation_time : float | None
+        SAP relaxation time (s) for every contact; None = ``time_step``.
+    near_rigid_threshold : float | None
+        SAP near-rigid threshold; None keeps Drake's default.
+    """
+    if not time_step > 0.0:
+        raise ValueError(f"time_step={time_step!r} s: SAP needs a discrete plant, give h > 0")
+    config = MultibodyPlantConfig(
+        time_step=time_step,
+        discrete_contact_approximation="sap",
+        contact_model="point" if contact == "proxies" else "hydroelastic_with_fallback",
+    )
+    if near_rigid_threshold is not None:
+        config.sap_near_rigid_threshold = near_rigid_threshold
+    plant, scene_graph = AddMultibodyPlant(config, builder)
+    parser = make_parser(plant)
+    path = str(directives)
+    if path.startswith("package://"):
+        path = parser.package_map().ResolveUrl(path)
+    ProcessModelDirectives(LoadModelDirectives(path), plant, parser)
+    plant.Finalize()
+    set_relaxation_time(plant, scene_graph, time_step if relaxation_time is None else relaxation_time)
+    apply_contact_model(plant, scene_graph, contact)
+    return SceneParts(plant, scene_graph, contact)
