@@ -13,7 +13,7 @@ import sys
 
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.coupling import GodObjectCoupling
+from godobject_drake.coupling import CouplingGainError, GodObjectCoupling
 from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.runner import (
     add_common_arguments,
@@ -79,7 +79,10 @@ def main(argv=None):
     add_common_arguments(parser, default_duration=8.5)
     parser.add_argument("--contact", choices=CONTACT_MODELS, default="proxies", help="collision geometry")
     args = parser.parse_args(argv)
-    result = run(args)
+    try:
+        result = run(args)
+    except (CouplingGainError, ValueError, FileNotFoundError) as e:
+        parser.error(str(e))
     report([result.metrics], args.metrics)
     if args.record:
         print(f"recording written to {args.record}")

@@ -34,6 +34,7 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from godobject_drake.spatial import (
+    cross3,
     pose_arrays,
     quat_conjugate,
     quat_multiply,
@@ -325,7 +326,7 @@ class GodObjectCoupling(LeafSystem):
         p_BoBcm_W = R_WB @ body.p_BoBcm_B
         w = x[body.v_start : body.v_start + 3]
         p_WG = x[body.q_start + 4 : body.q_start + 7] + p_BoBcm_W
-        v_WG = x[body.v_start + 3 : body.v_start + 6] + np.cross(w, p_BoBcm_W)
+        v_WG = x[body.v_start + 3 : body.v_start + 6] + cross3(w, p_BoBcm_W)
         return q, p_WG, w, v_WG, R_WB
 
     def _calc_terms(self, context, value):
@@ -345,7 +346,7 @@ class GodObjectCoupling(LeafSystem):
         q_WT = quat_multiply(q_WD, s[1:5])
         p_WT = p_WD + R_WD @ s[5:8]
         w_WT = V_WD[:3]
-        v_WT = V_WD[3:] + np.cross(w_WT, p_WT - p_WD)
+        v_WT = V_WD[3:] + cross3(w_WT, p_WT - p_WD)
         f = body.mass * (self._wn2 * (p_WT - p_WG) + self._2zwn * (v_WT - v_WG) - self._g)
         I_W = R_WB @ body.I_Bcm_B @ R_WB.T
         tau = I_W @ (self._wr2 * rotation_error(q_WT, q_WG) + self._2zwr * (w_WT - w_WG))

@@ -23,7 +23,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from godobject_drake.spatial import pose_arrays, rotation_error
+from godobject_drake.spatial import cross3, pose_arrays, rotation_error
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,4 +92,4 @@ class FeedbackPort(LeafSystem):
         f = g.kd * (X_WG[4:] - X_WT[4:]) + g.gamma_d * (V_WG[3:] - V_WT[3:])
         tau_T = g.kd_rot * rotation_error(X_WG[:4], X_WT[:4]) + g.gamma_d_rot * (V_WG[:3] - V_WT[:3])
         _, p_WD, _ = pose_arrays(self._X_WD.Eval(context))
-        output.SetFromVector(np.concatenate([tau_T + np.cross(X_WT[4:] - p_WD, f), f]))
+        output.SetFromVector(np.concatenate([tau_T + cross3(X_WT[4:] - p_WD, f), f]))

@@ -1,0 +1,95 @@
+"""Device sources: sampling, hold, latency, velocity, CSV replay and its errors."""
+
+import numpy as np
+import pytest
+
+from godobject_drake.devices import (
+    ReplayDevice,
+    ScriptedDevice,
+    Waypoint,
+    read_device_log,
+    write_device_log,
+)
+
+PATH = [
+    Waypoint(t=0.0, xyz=[0.0, 0.0, 0.0], grasp=""),
+    Waypoint(t=1.0, xyz=[0.6, 0.0, 0.0], rpy_deg=[0, 0, 90], grasp="brick_0"),
+    Waypoint(t=2.0, xyz=[0.6, 0.3, 0.0], rpy_deg=[0, 0, 90], grasp=""),
+]
+
+
+def outputs_at(device, t):
+    """Device outputs after simulating it alone to time t."""
+    from pydrake.systems.analysis import Simulator
+
+    simulator = Simulator(device)
+    simulator.AdvanceTo(t)
+    context = simulator.get_context()
+    X = device.GetOutputPort("X_WD").Eval(context)
+    return X, device.GetOutputPort("V_WD").Eval(context), device.GetOutputPort("grasp").Eval(context)
+
+
+def test_scripted_device_samples_and_holds():
+    device = ScriptedDevice(PATH, period_s=0.1)
+    # Between samples the output holds the sample of t = 0.5 (0.3 m, 45°): zero-order hold.
+    X, V, grasp = outputs_at(device, 0.55)
+    np.testing.assert_allclose(X.translation(), [0.3, 0, 0], atol=1e-12)
+    assert X.rotation().ToRollPitchYaw().yaw_angle() == pytest.approx(np.pi / 4)
+    # Backward difference of the last two samples: 0.06 m and 9° per 0.1 s.
+    np.testing.assert_allclose(V, [0, 0, np.radians(90) / 10 / 0.1, 0.6, 0, 0], atol=1e-9)
+    assert grasp == ""
+    assert outputs_at(device, 1.05)[2] == "brick_0"
+
+
+def test_latency_delays_the_samples():
+    X, _, _ = outputs_at(ScriptedDevice(PATH, period_s=0.1, latency_s=0.2), 0.55)
+    np.testing.assert_allclose(X.translation(), [0.18, 0, 0], atol=1e-12)  # the path at t = 0.3
+
+
+def test_noise_is_seeded():
+    a = ScriptedDevice(PATH, noise_m=1e-3, seed=3).samples(0.5)
+    b = ScriptedDevice(PATH, noise_m=1e-3, seed=3).samples(0.5)
+    c = ScriptedDevice(PATH, noise_m=1e-3, seed=4).samples(0.5)
+    clean = ScriptedDevice(PATH).samples(0.5)
+    pa, pb, pc, p0 = (np.array([s[1][0] for s in x]) for x in (a, b, c, clean))
+    assert np.array_equal(pa, pb) and not np.allclose(pa, pc)
+    assert 0.5e-3 < np.std(pa - p0) < 2e-3
+
+
+def test_csv_round_trip_replays_exactly(tmp_path):
+    scripted = ScriptedDevice(PATH, period_s=1 / 60)
+    log = tmp_path / "path.csv"
+    write_device_log(log, scripted.samples(2.0))
+    replay = ReplayDevice(log, period_s=1 / 60)
+    for (t, (p, q, g)), (_, (p2, q2, g2)) in zip(scripted.samples(2.0), replay.samples(2.0), strict=True):
+        assert np.array_equal(p, p2) and np.allclose(q, q2, atol=1e-15) and g == g2, t
+
+
+def write(tmp_path, text):
+    path = tmp_path / "log.csv"
+    path.write_text(text)
+    return path
+
+
+HEADER = "t,x,y,z,qw,qx,qy,qz,grasp\n"
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("t,x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n", r"log\.csv:1: header must be t,x,y,z,qw,qx,qy,qz,grasp"),
+        (HEADER + "0,0,0,0,1,0,0,0,\n0,0,0,0,1,0,0,0,\n", r"log\.csv:3: time 0\.0 is not after"),
+        (HEADER + "0,0,0,0,0.5,0,0,0,\n", r"log\.csv:2: quaternion .* norm 0\.5"),
+        (HEADER + "0,nan,0,0,1,0,0,0,\n", r"log\.csv:2: non-finite"),
+        (HEADER + "0,0,0\n", r"log\.csv:2: expected 9 columns"),
+    ],
+    ids=["missing-column", "duplicate-time", "non-unit-quaternion", "nan", "short-row"],
+)
+def test_bad_logs_name_file_and_line(tmp_path, text, message):
+    with pytest.raises(ValueError, match=message):
+        read_device_log(write(tmp_path, text))
+
+
+def test_unsorted_waypoints_are_refused():
+    with pytest.raises(ValueError, match="increase strictly"):
+        ScriptedDevice([PATH[1], PATH[0]])

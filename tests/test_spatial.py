@@ -1,0 +1,54 @@
+"""Quaternion math against hand values and against Drake's own conversions."""
+
+import numpy as np
+import pytest
+from pydrake.common.eigen_geometry import AngleAxis, Quaternion
+from pydrake.math import RotationMatrix
+
+from godobject_drake.spatial import cross3, quat_multiply, quat_to_rotation, rotation_error, rotation_to_quat
+
+
+def q_about_z(deg):
+    a = np.radians(deg)
+    return np.array([np.cos(a / 2), 0, 0, np.sin(a / 2)])
+
+
+def test_ninety_degrees_about_z():
+    np.testing.assert_allclose(rotation_error(q_about_z(90), [1, 0, 0, 0]), [0, 0, np.pi / 2], atol=1e-12)
+
+
+def test_179_and_181_degrees_turn_opposite_ways():
+    e179 = rotation_error(q_about_z(179), [1, 0, 0, 0])
+    e181 = rotation_error(q_about_z(181), [1, 0, 0, 0])
+    np.testing.assert_allclose(e179, [0, 0, np.radians(179)], atol=1e-12)
+    np.testing.assert_allclose(e181, [0, 0, -np.radians(179)], atol=1e-12)  # short way: 179° about −z
+
+
+def test_sign_of_quaternion_does_not_matter():
+    q = q_about_z(120)
+    np.testing.assert_allclose(rotation_error(q, [1, 0, 0, 0]), rotation_error(-q, [1, 0, 0, 0]), atol=1e-12)
+
+
+def test_tiny_error_is_continuous():
+    np.testing.assert_allclose(
+        rotation_error(q_about_z(1e-9), [1, 0, 0, 0]), [0, 0, np.radians(1e-9)], rtol=1e-6
+    )
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_against_drake(seed):
+    rng = np.random.default_rng(seed)
+    qa, qb = (q / np.linalg.norm(q) for q in rng.standard_normal((2, 4)))
+    Ra, Rb = RotationMatrix(Quaternion(qa)), RotationMatrix(Quaternion(qb))
+    np.testing.assert_allclose(quat_to_rotation(qa), Ra.matrix(), atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotation(quat_multiply(qa, qb)), Ra.multiply(Rb).matrix(), atol=1e-12)
+    R_err = Ra.multiply(Rb.inverse())  # error expressed in the world, as the coupling uses it
+    aa = AngleAxis(R_err.matrix())
+    np.testing.assert_allclose(rotation_error(qa, qb), aa.angle() * aa.axis(), atol=1e-9)
+    q = rotation_to_quat(Ra.matrix())
+    np.testing.assert_allclose(q * np.sign(qa[0]), qa, atol=1e-12)
+
+
+def test_cross3_matches_numpy():
+    a, b = np.array([0.3, -1.2, 2.0]), np.array([-0.7, 0.1, 0.4])
+    np.testing.assert_array_equal(cross3(a, b), np.cross(a, b))
