@@ -72,12 +72,18 @@ def run(args):
     )  # fmt: skip
 
 
-def main(argv=None):
+def make_parser():
+    """The scene's command line: the common flags and ``--contact``."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add_common_arguments(parser, default_duration=8.5)
     parser.add_argument("--contact", choices=CONTACT_MODELS, default="proxies", help="collision geometry")
+    return parser
+
+
+def main(argv=None):
+    parser = make_parser()
     args = parser.parse_args(argv)
     try:
         result = run(args)

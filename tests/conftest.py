@@ -11,8 +11,6 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia, UnitInertia
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.runner import add_common_arguments
-
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -31,11 +29,8 @@ def lego():
 
 
 def lego_args(*argv: str) -> argparse.Namespace:
-    """The brick scene's flags as its command line would parse them."""
-    parser = argparse.ArgumentParser()
-    add_common_arguments(parser, default_duration=8.5)
-    parser.add_argument("--contact", default="proxies")
-    return parser.parse_args([*argv, "--no-progress"])
+    """The brick scene's flags as its command line parses them."""
+    return load_script("diagrams/lego.py").make_parser().parse_args([*argv, "--no-progress"])
 
 
 def add_free_boxes(

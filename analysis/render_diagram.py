@@ -1,0 +1,41 @@
+#!/usr/bin/env python3
+"""Render the brick scene's Diagram (``GetGraphvizString``) to a PNG for the README.
+
+    python analysis/render_diagram.py [--out docs/lego_diagram.png]
+
+Needs Graphviz's ``dot`` (Debian: ``apt-get install graphviz``).
+"""
+
+import argparse
+import importlib.util
+import shutil
+import subprocess
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def load_lego():
+    spec = importlib.util.spec_from_file_location("lego", REPO / "diagrams" / "lego.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", type=Path, default=REPO / "docs" / "lego_diagram.png")
+    args = parser.parse_args(argv)
+    dot = shutil.which("dot")
+    if dot is None:
+        raise SystemExit("Graphviz's `dot` is not on PATH; install it (Debian: apt-get install graphviz)")
+    lego = load_lego()
+    diagram = lego.build(lego.make_parser().parse_args([]))[0]
+    graph = diagram.GetGraphvizString(max_depth=1)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    subprocess.run([dot, "-Tpng", "-Gdpi=110", "-o", str(args.out)], input=graph.encode(), check=True)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
