@@ -113,12 +113,17 @@ class Loggers:
 def add_loggers(builder: DiagramBuilder, plant: MultibodyPlant, coupling: GodObjectCoupling) -> Loggers:
     """Log what the metrics need once per plant step."""
     h = plant.time_step()
-    return Loggers(
-        state=LogVectorOutput(plant.get_state_output_port(), builder, h),
-        held=LogVectorOutput(coupling.GetOutputPort("held_body"), builder, h),
-        X_WT=LogVectorOutput(coupling.GetOutputPort("X_WT"), builder, h),
-        F_Go_W=LogVectorOutput(coupling.GetOutputPort("F_Go_W"), builder, h),
-    )
+    ports = {
+        "state": plant.get_state_output_port(),
+        "held": coupling.GetOutputPort("held_body"),
+        "X_WT": coupling.GetOutputPort("X_WT"),
+        "F_Go_W": coupling.GetOutputPort("F_Go_W"),
+    }
+    loggers = {}
+    for name, port in ports.items():
+        loggers[name] = LogVectorOutput(port, builder, h)
+        loggers[name].set_name(f"{name}_log")  # named, so GetGraphvizString reads well
+    return Loggers(**loggers)
 
 
 def add_visualization(
