@@ -186,17 +186,15 @@ def simulate(
     if not (duration > 0 and math.isfinite(duration)):
         raise ValueError(f"duration={duration!r} s must be > 0")
     h = plant.time_step()
-    forces_connected = plant.get_applied_spatial_force_input_port().HasValue(
-        plant.GetMyContextFromRoot(diagram.CreateDefaultContext())
-    )
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    forces_connected = plant.get_applied_spatial_force_input_port().HasValue(plant_context)
     if (mode == "god_object") != forces_connected:
         raise ValueError(
             f"mode={mode} but the coupling's spatial_forces are "
             f"{'' if forces_connected else 'not '}connected to the plant"
         )
-    simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
     coupling_context = coupling.GetMyContextFromRoot(context)
     simulator.set_target_realtime_rate(1.0 if realtime else 0.0)
     simulator.Initialize()
