@@ -235,6 +235,10 @@ class GodObjectCoupling(LeafSystem):
     gravity_compensation : bool
         Add ``−m g`` so the held body hangs at its target instead of
         sagging by ``g/ωn²`` (6 mm at ωn = 40 rad/s).
+    check_gains : bool
+        Refuse gains past the explicit limit (:meth:`CouplingGains.check`).
+        Only the stability analysis turns this off, to cross the limit on
+        purpose (``godobject_drake.validation``).
     """
 
     def __init__(
@@ -243,10 +247,12 @@ class GodObjectCoupling(LeafSystem):
         gains: CouplingGains,
         device_period_s: float | None = None,
         gravity_compensation: bool = True,
+        check_gains: bool = True,
     ):
         super().__init__()
         h = plant.time_step()
-        gains.check(h)
+        if check_gains:
+            gains.check(h)
         self.gains = gains
         self.bodies = graspable_bodies(plant)
         self._by_index = {b.index: b for b in self.bodies.values()}
