@@ -486,7 +486,7 @@ def margin_maps(out: Path, quick: bool) -> list[str]:
         "![margin maps](margin_maps.png)",
         "",
         "Blue: passive (margin > 0), red: active; black line: margin 0; magenta dashes: the "
-        "closed-loop stability boundary of the isolated device (inside it is stable even if active). "
+        "stability boundary of the device loop without a user (stable on the low-kd side). "
         "Probe on soft tissue, device b_d = 2 N·s/m. How to read: choose (kd, γd) in the blue for "
         "your device's b_d and rate. The safe gains are those below the black line: for small kd any "
         "γd below about b_d works; for large kd the tissue's activity (γd = 0 side) and the sampling "
