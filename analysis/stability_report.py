@@ -54,6 +54,13 @@ def probe_gains() -> tuple[float, float]:
     return PROBE_OMEGA_N**2, 2 * PROBE_ZETA * PROBE_OMEGA_N
 
 
+def save(fig, out: Path, name: str) -> None:
+    """Write ``out/name.png`` and free the figure."""
+    fig.tight_layout()
+    fig.savefig(out / f"{name}.png", dpi=90)
+    plt.close(fig)
+
+
 def table(rows: list[list], header: list[str]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(_fmt(v) for v in r) + " |" for r in rows]
@@ -94,9 +101,7 @@ def body_side(out: Path, quick: bool, summary: dict) -> str:
     axes[0].set_ylabel("β = B h/m")
     axes[0].legend(fontsize=7, loc="upper right")
     fig.suptitle("Stable (green) regions of the coupled body, K = k + k_w, B = γ + b_w")
-    fig.tight_layout()
-    fig.savefig(out / "body_regions.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "body_regions")
     md += [
         "![stability regions](body_regions.png)",
         "",
@@ -175,9 +180,7 @@ def body_side(out: Path, quick: bool, summary: dict) -> str:
     ax.set_ylabel("largest wall stiffness k_w (N/m)")
     ax.set_title("Wall integrated like the coupling (1 kg, ωn=40, ζ=1)", fontsize=9)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "k_crit.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "k_crit")
     md += [
         "![k vs h](k_crit.png)",
         "",
@@ -358,9 +361,7 @@ def device_side(out: Path, quick: bool, summary: dict) -> str:
     ax.set_ylim(-2, 6)
     ax.legend(fontsize=6)
     ax.set_title("Colgate & Schenkel: passive iff b_d exceeds the curve everywhere", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(out / "colgate.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "colgate")
     summary["colgate"] = entries
     md += [
         "### Required device damping (Colgate & Schenkel)",
@@ -418,9 +419,7 @@ def device_side(out: Path, quick: bool, summary: dict) -> str:
     ax.set_ylabel("Llewellyn η(ω)")
     ax.set_ylim(0, 1.2)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "llewellyn.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "llewellyn")
     summary["llewellyn"] = lw
     md += [
         "### Two-port absolute stability (Llewellyn)",
@@ -477,9 +476,7 @@ def margin_maps(out: Path, quick: bool) -> list[str]:
         fig.colorbar(pc, ax=ax, label="b_d − required_b (N·s/m), clipped at ±3")
     axes[0].set_ylabel("γd (N·s/m)")
     axes[0].legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(out / "margin_maps.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "margin_maps")
     return [
         "### Passivity margin maps over (kd, γd, T)",
         "",
@@ -527,9 +524,7 @@ def impedance_plots(out: Path) -> list[str]:
     axes[1].set_ylim(-1.5, 1.5)
     axes[1].set_title("Nyquist of the sampled loop L = G_device·H (−1 in red)", fontsize=9)
     axes[1].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "impedance.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "impedance")
     return [
         "### Rendered impedance and stability margins",
         "",
@@ -687,9 +682,7 @@ def energy(out: Path, quick: bool, summary: dict) -> list[str]:
     ax.set_ylabel("energy the device gave the user (J)")
     ax.set_ylim(-0.05, 0.05)
     ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(out / "energy.png", dpi=90)
-    plt.close(fig)
+    save(fig, out, "energy")
     summary["passivity"] = entries
     return [
         "### Passive or active: energy in simulation",

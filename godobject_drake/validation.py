@@ -20,6 +20,7 @@ import math
 import numpy as np
 from pydrake.geometry import ProximityProperties, Role, RoleAssign
 from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.analysis import Simulator
@@ -103,17 +104,11 @@ def free_body_error(
     diagram = builder.Build()
     sim = Simulator(diagram)
     ctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
-    plant.SetFreeBodySpatialVelocity(ctx, body, _spatial_velocity([0.01, 0, 0]))
+    plant.SetFreeBodySpatialVelocity(ctx, body, SpatialVelocity(np.zeros(3), np.array([0.01, 0.0, 0.0])))
     sim.AdvanceTo(steps * time_step)
     c = sim.get_context()
     e = log_G.FindLog(c).data()[4] - log_T.FindLog(c).data()[4]
     return e[2:]  # from the first logged sample after the grasp
-
-
-def _spatial_velocity(v):
-    from pydrake.multibody.math import SpatialVelocity
-
-    return SpatialVelocity(np.zeros(3), np.asarray(v, float))
 
 
 def drake_k_crit(mass: float, zeta: float, time_step: float, guess: float, rel_tol: float = 1e-3) -> float:
