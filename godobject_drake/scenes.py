@@ -46,20 +46,29 @@ def is_proxy(name: str) -> bool:
     return name.rsplit("/", 1)[-1].rsplit("::", 1)[-1].startswith(PROXY_PREFIX)
 
 
+def set_contact_material(plant: MultibodyPlant, scene_graph: SceneGraph, **values: float) -> None:
+    """Set ``("material", name)`` proximity properties on every proximity geometry of ``plant``.
+
+    E.g. ``relaxation_time=1e-3`` (s) or ``point_contact_stiffness=2e4`` (N/m).
+    """
+    inspector = scene_graph.model_inspector()
+    for gid in inspector.GetAllGeometryIds(Role.kProximity):
+        props = ProximityProperties(inspector.GetProximityProperties(gid))
+        for name, value in values.items():
+            if props.HasProperty("material", name):
+                props.UpdateProperty("material", name, value)
+            else:
+                props.AddProperty("material", name, value)
+        scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+
 def set_relaxation_time(plant: MultibodyPlant, scene_graph: SceneGraph, tau: float) -> None:
     """Set SAP's ``relaxation_time`` (s) on every proximity geometry of ``plant``.
 
     SAP's default (0.1 s) makes point contact far softer than its nominal
     stiffness (DESIGN.md); ``tau ≈ h`` keeps the nominal stiffness.
     """
-    inspector = scene_graph.model_inspector()
-    for gid in inspector.GetAllGeometryIds(Role.kProximity):
-        props = ProximityProperties(inspector.GetProximityProperties(gid))
-        if props.HasProperty("material", "relaxation_time"):
-            props.UpdateProperty("material", "relaxation_time", tau)
-        else:
-            props.AddProperty("material", "relaxation_time", tau)
-        scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+    set_contact_material(plant, scene_graph, relaxation_time=tau)
 
 
 def apply_contact_model(plant: MultibodyPlant, scene_graph: SceneGraph, contact: str) -> None:

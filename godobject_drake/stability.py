@@ -38,6 +38,8 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
+from godobject_drake.coupling import explicit_limit_omega_h
+
 # -- simulation side -------------------------------------------------------------------------------------
 
 SCHEMES = {
@@ -108,11 +110,6 @@ def stable_by_table(kappa, beta, scheme: str) -> np.ndarray:
             ratio = k / b
         return (ratio > 0) & (ratio < 2)
     raise ValueError(f"unknown scheme {scheme!r}; choose one of {sorted(SCHEMES)}")
-
-
-def explicit_limit_omega_h(zeta: float) -> float:
-    """Largest stable ``ωn h`` of symplectic Euler with an explicit spring-damper: ``2(√(1+ζ²) − ζ)``."""
-    return 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta)
 
 
 def explicit_h_max(mass: float, K: float, B: float) -> float:

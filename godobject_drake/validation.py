@@ -18,7 +18,6 @@ import dataclasses
 import math
 
 import numpy as np
-from pydrake.geometry import ProximityProperties, Role, RoleAssign
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
@@ -31,7 +30,7 @@ from godobject_drake.coupling import CouplingGains, GodObjectCoupling
 from godobject_drake.devices import ScriptedDevice, Waypoint
 from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.haptic import HapticDevice
-from godobject_drake.scenes import SceneParts, add_scene_from_directives
+from godobject_drake.scenes import SceneParts, add_scene_from_directives, set_contact_material
 from godobject_drake.stability import (
     BodyLoop,
     DeviceParams,
@@ -180,12 +179,12 @@ def set_point_contact(scene: SceneParts, stiffness: float, relaxation_time: floa
     their relaxation times (measured), so a pair of such geometries contacts
     with ``stiffness`` and ``relaxation_time``.
     """
-    inspector = scene.scene_graph.model_inspector()
-    for gid in inspector.GetAllGeometryIds(Role.kProximity):
-        props = ProximityProperties(inspector.GetProximityProperties(gid))
-        props.UpdateProperty("material", "point_contact_stiffness", 2.0 * stiffness)
-        props.UpdateProperty("material", "relaxation_time", 0.5 * relaxation_time)
-        scene.scene_graph.AssignRole(scene.plant.get_source_id(), gid, props, RoleAssign.kReplace)
+    set_contact_material(
+        scene.plant,
+        scene.scene_graph,
+        point_contact_stiffness=2.0 * stiffness,
+        relaxation_time=0.5 * relaxation_time,
+    )
 
 
 @dataclasses.dataclass
