@@ -300,15 +300,225 @@ class ReplayDevice(DeviceSource):
         return self.log.p[k], self.log.q[k], self.log.grasp[k]
 
 
+class JointDevice(LeafSystem):
+    """Samples a joint-space device (an articulated interface) at its own period.
+
+    .. pydrake_system::
+
+        name: JointDevice
+        output_ports:
+        - q_device
+        - v_device
+
+    The device reports values of named *channels* (e.g. a laparoscopic
+    interface's ``yaw, pitch, insertion, roll, jaw``: rad, m) at a fixed
+    period, zero-order held like :class:`DeviceSource`. ``q_device`` are the
+    positions of the tool's driven joints, ``A · channels`` with the
+    ``mix`` matrix A (identity by default; the grasper maps one ``jaw``
+    opening to its two jaw joints at ½ each). ``v_device`` is the backward
+    difference of the last two ``q_device`` samples divided by the period:
+    the time derivative of the joint positions (``q̇``, equal to the joint
+    velocity for revolute and prismatic joints).
+
+    Parameters
+    ----------
+    sampler : callable
+        ``sampler(t) -> channel values`` at device time ``t`` (s).
+    channels : sequence of str
+        Channel names, in the order ``sampler`` returns them.
+    mix : array_like | None
+        ``(n_q, n_channels)`` matrix from channels to joint positions.
+    period_s, latency_s : float
+        Sampling period and latency (s), as for :class:`DeviceSource`.
+    """
+
+    def __init__(
+        self,
+        sampler: Callable[[float], np.ndarray],
+        channels: Sequence[str],
+        mix=None,
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+    ):
+        super().__init__()
+        if not (period_s > 0.0 and math.isfinite(period_s)):
+            raise ValueError(f"device period_s={period_s!r} must be a positive number of seconds")
+        if not (latency_s >= 0.0 and math.isfinite(latency_s)):
+            raise ValueError(f"device latency_s={latency_s!r} must be ≥ 0 s")
+        self.channels = tuple(channels)
+        n = len(self.channels)
+        self.mix = np.eye(n) if mix is None else np.asarray(mix, dtype=float)
+        if self.mix.ndim != 2 or self.mix.shape[1] != n:
+            raise ValueError(f"mix has shape {self.mix.shape}; it needs {n} columns, one per channel")
+        self.period_s = float(period_s)
+        self.latency_s = float(latency_s)
+        self._sampler = sampler
+        q0 = self.sample(0.0)
+        self._nq = q0.size
+        self._state = self.DeclareDiscreteState(np.concatenate([q0, q0]))
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._update)
+        self.DeclareVectorOutputPort("q_device", self._nq, self._calc_q, {self.xd_ticket()})
+        self.DeclareVectorOutputPort("v_device", self._nq, self._calc_v, {self.xd_ticket()})
+
+    def channel_values(self, t: float) -> np.ndarray:
+        """The channels the device reports at time ``t`` (latency applied)."""
+        u = np.asarray(self._sampler(max(0.0, t - self.latency_s)), dtype=float).reshape(-1)
+        if u.size != len(self.channels):
+            raise ValueError(
+                f"the device gave {u.size} values for {len(self.channels)} channels {self.channels}"
+            )
+        return u
+
+    def sample(self, t: float) -> np.ndarray:
+        """Joint positions ``A · channels`` reported at time ``t``."""
+        return self.mix @ self.channel_values(t)
+
+    def samples(self, duration_s: float) -> np.ndarray:
+        """``q_device`` at every sample time on ``[0, duration_s]``, one row per sample."""
+        n = math.floor(duration_s / self.period_s + 1e-9)
+        return np.array([self.sample(k * self.period_s) for k in range(n + 1)])
+
+    def _update(self, context, discrete_state):
+        x = context.get_discrete_state(self._state).get_value()
+        q = self.sample(context.get_time())
+        discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([q, x[: self._nq]]))
+
+    def _calc_q(self, context, output):
+        output.SetFromVector(context.get_discrete_state(self._state).get_value()[: self._nq])
+
+    def _calc_v(self, context, output):
+        x = context.get_discrete_state(self._state).get_value()
+        output.SetFromVector((x[: self._nq] - x[self._nq :]) / self.period_s)
+
+
+@dataclasses.dataclass
+class JointWaypoint:
+    """One waypoint of a scripted joint-space path: time (s) and channel values (rad, m)."""
+
+    t: float = 0.0
+    values: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class JointPath:
+    """A scripted joint-space path, as loaded from YAML (``channels: [...]``, ``waypoints: [...]``)."""
+
+    channels: list[str] = dataclasses.field(default_factory=list)
+    waypoints: list[JointWaypoint] = dataclasses.field(default_factory=list)
+
+
+def load_joint_path(filename: str | Path) -> JointPath:
+    """Load a :class:`JointPath` from YAML; every waypoint must give every channel."""
+    path = yaml_load_typed(schema=JointPath, filename=str(filename))
+    for i, w in enumerate(path.waypoints):
+        if set(w.values) != set(path.channels):
+            raise ValueError(
+                f"{filename}: waypoint {i} (t={w.t}) gives {sorted(w.values)}; every waypoint must "
+                f"give exactly the channels {path.channels}"
+            )
+    return path
+
+
+class ScriptedJointDevice(JointDevice):
+    """A joint-space device following waypoints, linear between them."""
+
+    def __init__(self, path: JointPath, mix=None, period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+                 latency_s: float = 0.0):  # fmt: skip
+        if len(path.waypoints) < 2:
+            raise ValueError(f"a scripted device needs at least 2 waypoints, got {len(path.waypoints)}")
+        times = np.array([w.t for w in path.waypoints], dtype=float)
+        if not np.all(np.diff(times) > 0):
+            raise ValueError(
+                f"waypoint times must increase strictly; got {times.tolist()}. Sort them or drop duplicates."
+            )
+        values = np.array([[w.values[c] for c in path.channels] for w in path.waypoints]).T
+        self._trajectory = PiecewisePolynomial.FirstOrderHold(times, values)
+        self._t_range = (float(times[0]), float(times[-1]))
+        self.end_time_s = self._t_range[1]
+        super().__init__(self._value, path.channels, mix, period_s, latency_s)
+
+    def _value(self, t: float) -> np.ndarray:
+        return self._trajectory.value(min(max(t, self._t_range[0]), self._t_range[1])).ravel()
+
+
+def read_joint_log(filename: str | Path, channels: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Read a joint-space device CSV with header ``t,<channels>``: times (s) and values.
+
+    Raises ``ValueError`` naming the file and line of the first bad row.
+    """
+    filename = Path(filename)
+    header = ("t", *channels)
+    if not filename.is_file():
+        raise FileNotFoundError(f"device log {filename} does not exist")
+    with filename.open(newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or tuple(c.strip() for c in rows[0]) != header:
+        got = rows[0] if rows else "an empty file"
+        raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}")
+    t, u = [], []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row:
+            continue
+        where = f"{filename}:{line}"
+        if len(row) != len(header):
+            raise ValueError(f"{where}: expected {len(header)} columns ({','.join(header)}), got {len(row)}")
+        try:
+            values = [float(c) for c in row]
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{where}: non-finite value in {row}")
+        if t and values[0] <= t[-1]:
+            raise ValueError(
+                f"{where}: time {values[0]} is not after the previous row's {t[-1]}; rows "
+                "must be in strictly increasing time"
+            )
+        t.append(values[0])
+        u.append(values[1:])
+    if not t:
+        raise ValueError(f"{filename}: the log has a header but no rows")
+    return np.array(t), np.array(u)
+
+
+def write_joint_log(filename: str | Path, channels: Sequence[str], times, values) -> None:
+    """Write a joint-space device CSV (``t,<channels>``) at ``repr`` precision."""
+    with Path(filename).open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["t", *channels])
+        for t, row in zip(times, values, strict=True):
+            writer.writerow([repr(float(t)), *map(repr, map(float, row))])
+
+
+class ReplayJointDevice(JointDevice):
+    """Replays a joint-space CSV log, holding the latest row whose time has passed (1 ns tolerance)."""
+
+    def __init__(self, filename: str | Path, channels: Sequence[str], mix=None,
+                 period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ, latency_s: float = 0.0):  # fmt: skip
+        self._t, self._u = read_joint_log(filename, channels)
+        self.end_time_s = float(self._t[-1])
+        super().__init__(self._value, channels, mix, period_s, latency_s)
+
+    def _value(self, t: float) -> np.ndarray:
+        return self._u[max(int(np.searchsorted(self._t, t + 1e-9, side="right")) - 1, 0)]
+
+
 __all__ = [
     "CSV_HEADER",
     "DeviceLog",
     "DevicePath",
     "DeviceSource",
+    "JointDevice",
+    "JointPath",
+    "JointWaypoint",
     "ReplayDevice",
+    "ReplayJointDevice",
     "ScriptedDevice",
+    "ScriptedJointDevice",
     "Waypoint",
     "load_device_path",
+    "load_joint_path",
     "read_device_log",
+    "read_joint_log",
     "write_device_log",
+    "write_joint_log",
 ]

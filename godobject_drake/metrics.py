@@ -218,3 +218,78 @@ def format_table(rows: list[dict]) -> str:
 def write_metrics(path: str | Path, metrics: dict) -> None:
     """Write metrics as JSON (NaN-free: ``None`` where undefined)."""
     Path(path).write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
+
+
+def tool_metrics(
+    diagram,
+    plant: MultibodyPlant,
+    scene_graph: SceneGraph,
+    tool,
+    states: np.ndarray,
+    q_device: np.ndarray,
+    tip_body: str,
+    pivot_body: str | None = None,
+) -> dict:
+    """Penetration, tip tracking and trocar offset of an articulated tool, from logs.
+
+    Penetration is Drake's signed distance between the tool's collision
+    shapes and every other collision shape (capsules, ellipsoids and
+    spheres here: exact shapes, no proxies), the deepest over the run. A
+    step is in free space when every such distance is at least
+    ``FREE_SPACE_MARGIN_M``; there the tip (origin of ``tip_body``) is
+    compared with the device's tip (the same point on the kinematic copy at
+    ``q_device``). With ``pivot_body`` (welded at the insertion point P),
+    ``max_trocar_offset_m`` is the largest distance of P from the tip
+    body's z axis (the tube's axis).
+
+    Parameters
+    ----------
+    states : (N, nq+nv)
+        Plant states at each logged step.
+    q_device : (N, nq_device)
+        The device's joint values at the same steps.
+    """
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    query_port = plant.get_geometry_query_input_port()
+    inspector = scene_graph.model_inspector()
+    tool_frames = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(tool.model)}
+    tip = plant.GetBodyByName(tip_body, tool.model)
+    p_WP = None
+    if pivot_body is not None:
+        pivot = plant.GetBodyByName(pivot_body, tool.model)
+        p_WP = plant.EvalBodyPoseInWorld(plant_context, pivot).translation()
+    nq = plant.num_positions()
+    max_pen, sq_err, n_free, max_offset, k_max = 0.0, 0.0, 0, 0.0, 0
+    device_tip, last_q = None, None
+    for k, (x, qd) in enumerate(zip(states, q_device, strict=True)):
+        plant.SetPositions(plant_context, x[:nq])
+        query = query_port.Eval(plant_context)
+        closest = FREE_SPACE_MARGIN_M
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(FREE_SPACE_MARGIN_M):
+            a = inspector.GetFrameId(pair.id_A) in tool_frames
+            b = inspector.GetFrameId(pair.id_B) in tool_frames
+            if a != b:
+                closest = min(closest, pair.distance)
+        if -closest > max_pen:
+            max_pen, k_max = -closest, k
+        X_WTip = plant.EvalBodyPoseInWorld(plant_context, tip)
+        if p_WP is not None:
+            axis = X_WTip.rotation().col(2)
+            max_offset = max(max_offset, float(np.linalg.norm(np.cross(p_WP - X_WTip.translation(), axis))))
+        if closest >= FREE_SPACE_MARGIN_M:
+            if last_q is None or not np.array_equal(qd, last_q):
+                ctx = tool.set_device_state(qd, None, x)
+                device_tip = plant.EvalBodyPoseInWorld(ctx, tip).translation()
+                last_q = qd
+            sq_err += float(np.sum((X_WTip.translation() - device_tip) ** 2))
+            n_free += 1
+    out = {
+        "max_penetration_m": max_pen,
+        "max_penetration_step": k_max,
+        "tip_tracking_rms_m": math.sqrt(sq_err / n_free) if n_free else None,
+        "free_space_samples": n_free,
+    }
+    if p_WP is not None:
+        out["max_trocar_offset_m"] = max_offset
+    return out

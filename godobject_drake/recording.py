@@ -10,6 +10,9 @@ same recording (``time_in_recording``):
 - ``/godobject/spring``: a thin cylinder from Go to the target;
 - ``/godobject/device``: a small sphere at the device target when nothing
   is held.
+
+For an articulated tool, :class:`ToolGhostVisualizer` draws the device's
+tool (its kinematic copy) as a wireframe under ``/godobject/device_tool``.
 """
 
 from __future__ import annotations
@@ -19,7 +22,10 @@ from pathlib import Path
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import (
+    Box,
+    Capsule,
     Cylinder,
+    Ellipsoid,
     Meshcat,
     MeshcatVisualizer,
     MeshcatVisualizerParams,
@@ -111,6 +117,101 @@ class GodObjectVisualizer(LeafSystem):
         R = RotationMatrix.MakeFromOneVector(z, 2)
         mc.SetTransform(f"{pre}/spring", RigidTransform(R, 0.5 * (X_WT[4:] + X_WG[4:])), t)
         mc.SetProperty(f"{pre}/spring/cylinder", "scale", [1.0, 1.0, max(length, 1e-6)], t)
+
+
+def wire_mesh(shape, n: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """A coarse triangle mesh ``(vertices 3×N, faces 3×M)`` of a primitive, for wireframes.
+
+    Sphere, Ellipsoid, Capsule, Cylinder and Box, in the shape's own frame.
+    """
+    lat = np.linspace(0.0, np.pi, n // 2 + 1)
+    lon = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+
+    def grid(rings):  # rings: list of (radius_x, radius_y, z); faces between consecutive rings
+        V = np.array([[rx * np.cos(a), ry * np.sin(a), z] for rx, ry, z in rings for a in lon])
+        F = []
+        for i in range(len(rings) - 1):
+            for j in range(n):
+                a, b = i * n + j, i * n + (j + 1) % n
+                F += [[a, b, b + n], [a, b + n, a + n]]
+        return V.T, np.array(F, dtype=np.int32).T
+
+    if isinstance(shape, Box):
+        hx, hy, hz = shape.width() / 2, shape.depth() / 2, shape.height() / 2
+        V = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        F = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+             [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]  # fmt: skip
+        return V.T, np.array(F, dtype=np.int32).T
+    if isinstance(shape, Cylinder):
+        r, h = shape.radius(), shape.length() / 2
+        return grid([(0.0, 0.0, -h), (r, r, -h), (r, r, h), (0.0, 0.0, h)])
+    if isinstance(shape, Capsule):
+        r, h = shape.radius(), shape.length() / 2
+        half = len(lat) // 2
+        rings = [(r * np.sin(t), r * np.sin(t), -h - r * np.cos(t)) for t in lat[: half + 1]]
+        rings += [(r * np.sin(t), r * np.sin(t), h - r * np.cos(t)) for t in lat[half:]]
+        return grid(rings)
+    if isinstance(shape, Ellipsoid):
+        a, b, c = shape.a(), shape.b(), shape.c()
+        return grid([(a * np.sin(t), b * np.sin(t), -c * np.cos(t)) for t in lat])
+    if isinstance(shape, Sphere):
+        r = shape.radius()
+        return grid([(r * np.sin(t), r * np.sin(t), -r * np.cos(t)) for t in lat])
+    raise ValueError(
+        f"no wireframe for {type(shape).__name__}; use Box, Cylinder, Capsule, Ellipsoid or Sphere"
+    )
+
+
+class ToolGhostVisualizer(LeafSystem):
+    """Draws the device's tool (the kinematic copy) as a wireframe ghost (paper Fig. 7).
+
+    .. pydrake_system::
+
+        name: ToolGhostVisualizer
+        input_ports:
+        - q_device
+
+    Every illustration shape of the tool's bodies is drawn as a wireframe
+    under ``/godobject/device_tool``, placed by forward kinematics of the
+    device's joint values (:class:`~godobject_drake.articulated.ArticulatedTool`);
+    the plant's own drawing shows the god-object tool solid.
+    """
+
+    def __init__(
+        self,
+        meshcat: Meshcat,
+        tool,
+        scene_graph: SceneGraph,
+        publish_period_s: float = 1.0 / DEFAULT_FPS,
+        prefix: str = "/godobject/device_tool",
+    ):
+        super().__init__()
+        self._meshcat, self._tool, self._prefix = meshcat, tool, prefix
+        self._q = self.DeclareVectorInputPort("q_device", tool.nq_device)
+        self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
+        self.DeclareInitializationPublishEvent(self._publish)
+        plant = tool.plant
+        inspector = scene_graph.model_inspector()
+        self._bodies = []
+        for bi in plant.GetBodyIndices(tool.model):
+            body = plant.get_body(bi)
+            frame = plant.GetBodyFrameIdOrThrow(bi)
+            gids = inspector.GetGeometries(frame, Role.kIllustration)
+            if not gids:
+                continue
+            path = f"{prefix}/{body.name()}"
+            for i, gid in enumerate(gids):
+                V, F = wire_mesh(inspector.GetShape(gid))
+                meshcat.SetTriangleMesh(f"{path}/{i}", V, F, GHOST_RGBA, wireframe=True)
+                meshcat.SetTransform(f"{path}/{i}", inspector.GetPoseInFrame(gid))
+            self._bodies.append((path, body))
+
+    def _publish(self, context):
+        t = context.get_time()
+        plant = self._tool.plant
+        ctx = self._tool.set_device_state(self._q.Eval(context))
+        for path, body in self._bodies:
+            self._meshcat.SetTransform(path, plant.EvalBodyPoseInWorld(ctx, body), t)
 
 
 def add_meshcat_visualization(

@@ -185,47 +185,26 @@ def simulate(
         raise ValueError(f"mode={mode!r}; choose one of {MODES}")
     if not (duration > 0 and math.isfinite(duration)):
         raise ValueError(f"duration={duration!r} s must be > 0")
-    h = plant.time_step()
-    simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    forces_connected = plant.get_applied_spatial_force_input_port().HasValue(plant_context)
-    if (mode == "god_object") != forces_connected:
-        raise ValueError(
-            f"mode={mode} but the coupling's spatial_forces are "
-            f"{'' if forces_connected else 'not '}connected to the plant"
-        )
-    coupling_context = coupling.GetMyContextFromRoot(context)
-    simulator.set_target_realtime_rate(1.0 if realtime else 0.0)
-    simulator.Initialize()
-    if record and meshcat is not None:
-        meshcat.StartRecording(frames_per_second=64.0, set_visualizations_while_recording=False)
+    coupling_context_of = coupling.GetMyContextFromRoot
 
-    diagnosis = None
-    n_steps = round(duration / h)
-    chunk = max(1, round(CHECK_EVERY_S / h))
-    bar = _progress(n_steps, progress)
-    wall0 = time.perf_counter()
-    k = 0
-    try:
-        while k < n_steps:
-            k_next = min(k + chunk, n_steps)
-            if mode == "position":
-                for j in range(k, k_next):
-                    _impose_target(plant, plant_context, coupling, coupling_context)
-                    simulator.AdvanceTo((j + 1) * h)
-            else:
-                simulator.AdvanceTo(k_next * h)
-            bar.update(k_next - k)
-            k = k_next
-            diagnosis = _check_state(plant, plant_context)
-            if diagnosis:
-                break
-    except RuntimeError as e:
-        diagnosis = f"Drake stopped at t={context.get_time():.4f} s: {e}"
-    wall = time.perf_counter() - wall0
-    bar.close()
-    sim_time = context.get_time()
+    def check_wiring(simulator):
+        plant_context = plant.GetMyContextFromRoot(simulator.get_context())
+        forces_connected = plant.get_applied_spatial_force_input_port().HasValue(plant_context)
+        if (mode == "god_object") != forces_connected:
+            raise ValueError(
+                f"mode={mode} but the coupling's spatial_forces are "
+                f"{'' if forces_connected else 'not '}connected to the plant"
+            )
+
+    def impose(plant_context, root_context):
+        _impose_target(plant, plant_context, coupling, coupling_context_of(root_context))
+
+    loop = run_loop(
+        diagram, plant, duration, impose=impose if mode == "position" else None, prepare=check_wiring,
+        meshcat=meshcat, record=record, realtime=realtime, progress=progress,
+    )  # fmt: skip
+    context, diagnosis, wall, sim_time = loop.context, loop.diagnosis, loop.wall_time_s, loop.sim_time_s
+    h = plant.time_step()
 
     log = {name: getattr(loggers, name).FindLog(context) for name in ("state", "held", "X_WT", "F_Go_W")}
     n = min(log[name].num_samples() for name in log)
@@ -253,6 +232,77 @@ def simulate(
     if record and meshcat is not None:
         metrics["recording_bytes"] = save_recording(meshcat, record)
     return RunResult(metrics, times, states, held, X_WT, F)
+
+
+@dataclasses.dataclass
+class LoopResult:
+    """What :func:`run_loop` returns: the simulator, where it stopped and why."""
+
+    simulator: Simulator
+    context: object
+    sim_time_s: float
+    wall_time_s: float
+    diagnosis: str | None
+
+
+def run_loop(
+    diagram: Diagram,
+    plant: MultibodyPlant,
+    duration: float,
+    *,
+    impose=None,
+    prepare=None,
+    meshcat: Meshcat | None = None,
+    record: Path | None = None,
+    realtime: bool = False,
+    progress: bool = True,
+) -> LoopResult:
+    """Advance a scene diagram for ``duration`` s, checking for divergence every 50 ms.
+
+    ``impose(plant_context, root_context)``, if given, is called before
+    every plant step (the position baseline, imposed joints); the loop then
+    steps one plant step at a time. ``prepare(simulator)`` runs before
+    ``Initialize``. A Drake error, a non-finite state or a speed past
+    ``DIVERGED_SPEED`` stops the run with a diagnosis instead of NaNs.
+    """
+    if not (duration > 0 and math.isfinite(duration)):
+        raise ValueError(f"duration={duration!r} s must be > 0")
+    h = plant.time_step()
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    if prepare is not None:
+        prepare(simulator)
+    simulator.set_target_realtime_rate(1.0 if realtime else 0.0)
+    simulator.Initialize()
+    if record and meshcat is not None:
+        meshcat.StartRecording(frames_per_second=64.0, set_visualizations_while_recording=False)
+
+    diagnosis = None
+    n_steps = round(duration / h)
+    chunk = max(1, round(CHECK_EVERY_S / h))
+    bar = _progress(n_steps, progress)
+    wall0 = time.perf_counter()
+    k = 0
+    try:
+        while k < n_steps:
+            k_next = min(k + chunk, n_steps)
+            if impose is not None:
+                for j in range(k, k_next):
+                    impose(plant_context, context)
+                    simulator.AdvanceTo((j + 1) * h)
+            else:
+                simulator.AdvanceTo(k_next * h)
+            bar.update(k_next - k)
+            k = k_next
+            diagnosis = _check_state(plant, plant_context)
+            if diagnosis:
+                break
+    except RuntimeError as e:
+        diagnosis = f"Drake stopped at t={context.get_time():.4f} s: {e}"
+    wall = time.perf_counter() - wall0
+    bar.close()
+    return LoopResult(simulator, context, context.get_time(), wall, diagnosis)
 
 
 def _impose_target(plant, plant_context, coupling, coupling_context) -> None:

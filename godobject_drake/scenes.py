@@ -149,3 +149,12 @@ def add_scene_from_directives(
     set_relaxation_time(plant, scene_graph, time_step if relaxation_time is None else relaxation_time)
     apply_contact_model(plant, scene_graph, contact)
     return SceneParts(plant, scene_graph, contact)
+
+
+def exclude_self_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, model: str) -> None:
+    """Filter contact between any two geometries of one model instance (a tool's own parts)."""
+    instance = plant.GetModelInstanceByName(model)
+    frames = [plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(instance)]
+    inspector = scene_graph.model_inspector()
+    ids = [g for f in frames for g in inspector.GetGeometries(f, Role.kProximity)]
+    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
