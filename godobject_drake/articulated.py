@@ -111,8 +111,9 @@ class ArticulatedTool:
         Those of ``device_joints`` that are imposed instead of coupled.
 
     A body is *coupled* when every joint between it and the world is a
-    device joint or a weld, and it has mass: its pose is then fixed by the
-    device's values. The others (below an undriven joint) are simulated only.
+    device joint or a weld (at least one device joint), and it has mass: its
+    pose is then fixed by the device's values and moves with them. The
+    others (below an undriven joint) are simulated only.
     """
 
     def __init__(self, plant: MultibodyPlant, model, device_joints, imposed_joints=()):
@@ -167,12 +168,15 @@ class ArticulatedTool:
         world = int(plant.world_body().index())
 
         def driven_path(b: int) -> bool:
+            """Only device joints and welds between b and the world, and at least one device joint."""
+            moved = False
             while b != world:
                 j = inboard.get(b)
                 if j is None or (j.num_velocities() > 0 and int(j.index()) not in device_set):
                     return False
+                moved = moved or j.num_velocities() > 0
                 b = int(j.parent_body().index())
-            return True
+            return moved
 
         self.bodies: list[ToolBody] = []
         position = {}
@@ -339,6 +343,47 @@ def joint_space_loop(tool: ArticulatedTool, coupling: str, gains: CouplingGains,
     return JointSpaceLoop(M, K, D, time_step, radius, float(math.sqrt(max(lam.max(initial=0.0), 0.0))))
 
 
+def device_targets(device, time_step: float, n_steps: int, coupling_offset: float = 0.5):
+    """The joint targets ``(q_T, qdot_T)`` in effect during each plant step, as the coupling holds them.
+
+    The device samples at ``kT``; the coupling copies the sample at
+    ``kT + ½h``, so plant step n (from ``nh``) uses sample
+    ``k = ⌊(n − ½) h / T⌋`` (the reference before the first), with the
+    backward-difference rate ``(q_k − q_{k−1}) / T``.
+    """
+    T = device.period_s
+    q_T, v_T = [], []
+    for n in range(n_steps):
+        k = max(math.floor(((n - coupling_offset) * time_step) / T + 1e-9), 0)
+        q_k = device.sample(k * T)
+        q_T.append(q_k)
+        v_T.append((q_k - device.sample((k - 1) * T)) / T if k > 0 else np.zeros_like(q_k))
+    return np.array(q_T), np.array(v_T)
+
+
+def linear_response(loop: JointSpaceLoop, q0, q_T, v_T, implicit: bool) -> np.ndarray:
+    """Joint positions of the linearized coupled tool, step by step (no contact, gravity compensated).
+
+    Explicit (Drake's applied forces): ``v⁺ = v + h M⁻¹(K (q_T − q) + D (v_T − v))``;
+    implicit (SAP's PD actuators): the same with ``q + h v⁺`` and ``v⁺`` in
+    the force. ``q_T``, ``v_T``: (N, n) targets per step, on the coupled
+    joints. Returns (N + 1, n) positions, ``q0`` first.
+    """
+    M, K, D, h = loop.M, loop.K, loop.D, loop.time_step
+    q = np.array(q0, dtype=float)
+    v = np.zeros_like(q)
+    A = M + h * D + h * h * K
+    out = [q.copy()]
+    for qt, vt in zip(q_T, v_T, strict=True):
+        if implicit:
+            v = np.linalg.solve(A, M @ v + h * (K @ (qt - q) + D @ vt))
+        else:
+            v = v + h * np.linalg.solve(M, K @ (qt - q) + D @ (vt - v))
+        q = q + h * v
+        out.append(q.copy())
+    return np.array(out)
+
+
 class ArticulatedCoupling(LeafSystem):
     """Couples an articulated tool to a joint-space device (paper Eq. 6 or joint PD).
 
@@ -400,7 +445,7 @@ class ArticulatedCoupling(LeafSystem):
                 f"q_reference has shape {q_reference.shape}; the device gives {tool.nq_device} values"
             )
         if coupling != "cartesian":
-            bad = [j.name for j in tool.coupled if j.type not in ONE_DOF_JOINTS]
+            bad = [f"{j.name} ({j.type})" for j in tool.coupled if j.type not in ONE_DOF_JOINTS]
             if bad:
                 raise ValueError(
                     f"coupling={coupling!r} needs 1-DoF (revolute, prismatic) joints; {bad} are not. "
@@ -622,6 +667,7 @@ def add_articulated_god_object(
     imposed_joints=(),
     q_check=None,
     connect_forces: bool = True,
+    check_gains: bool = True,
     name: str = "coupling",
 ) -> ArticulatedCoupling:
     """Make a tree model a god-object: one call, after ``plant.Finalize()``.
@@ -633,11 +679,16 @@ def add_articulated_god_object(
     ``v_device`` to it. ``connect_forces=False`` leaves the plant's inputs
     alone (the position baseline). ``q_check`` lists device configurations
     at which the explicit modes' stability is checked (default
-    ``q_reference``).
+    ``q_reference``); ``check_gains=False`` skips it (stability analysis only).
+    A tool's own parts usually overlap at their joints (the grasper's jaws at
+    the hinge): filter them with :func:`godobject_drake.scenes.exclude_self_collisions`.
     """
     tool = ArticulatedTool(plant, model, device_joints, imposed_joints)
     system = builder.AddNamedSystem(
-        name, ArticulatedCoupling(tool, coupling, gains, device_period_s, q_reference, q_check)
+        name,
+        ArticulatedCoupling(
+            tool, coupling, gains, device_period_s, q_reference, q_check, check_gains=check_gains
+        ),
     )
     builder.Connect(plant.get_state_output_port(), system.GetInputPort("plant_state"))
     builder.Connect(plant.get_body_poses_output_port(), system.GetInputPort("body_poses"))
@@ -786,7 +837,9 @@ __all__ = [
     "ToolBody",
     "ToolJoint",
     "add_articulated_god_object",
+    "device_targets",
     "generalized_forces",
     "joint_space_loop",
+    "linear_response",
     "propagate_to_parents",
 ]
