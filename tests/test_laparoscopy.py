@@ -136,3 +136,10 @@ def test_explicit_gains_past_the_limit_are_refused_with_the_fix():
         )
     _, metrics, _, _ = run("--duration", "0.2", "--coupling", "joint_pd_sap", "--omega-n", "2000")
     assert not metrics["diverged"]
+
+
+def test_figure_script_draws_the_run(tmp_path):
+    figure = load_script("analysis/laparoscopy_figure.py")
+    out = tmp_path / "lap.png"
+    figure.main(["--out", str(out), "--duration", "0.3"])
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,107 @@
+#!/usr/bin/env python3
+"""Draw the laparoscopy scene's default run: tip paths and tissue indentation (docs/laparoscopy.png).
+
+    python analysis/laparoscopy_figure.py --out docs/laparoscopy.png
+
+Runs the default path with the god-object (Cartesian coupling) and the
+position baseline and plots, in the plane y = 0, the uterus and bladder,
+the insertion point P, the interface's tip and both tools' tips; and over
+time, each tool's deepest overlap with the organs.
+"""
+
+import argparse
+import importlib.util
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Circle, Ellipse
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def load_scene():
+    spec = importlib.util.spec_from_file_location("laparoscopy", REPO / "diagrams" / "laparoscopy.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def tips(scene_module, args, states, q_device):
+    """God-object and interface tip positions (m) at every logged step."""
+    _, scene, coupling, _, _ = scene_module.build(args)
+    plant, tool = scene.plant, coupling.tool
+    tip = plant.GetBodyByName("tube", tool.model)
+    ctx = plant.CreateDefaultContext()
+    god, dev = [], []
+    for x, q in zip(states, q_device, strict=True):
+        plant.SetPositions(ctx, x[: plant.num_positions()])
+        god.append(plant.EvalBodyPoseInWorld(ctx, tip).translation())
+        dev.append(plant.EvalBodyPoseInWorld(tool.set_device_state(q), tip).translation())
+    return np.array(god), np.array(dev)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--out", type=Path, default=Path("docs/laparoscopy.png"))
+    parser.add_argument(
+        "--duration", type=float, default=10.0, help="simulated time (s); the path lasts 10 s"
+    )
+    args_cli = parser.parse_args(argv)
+    lap = load_scene()
+    fig, (ax, ax_pen) = plt.subplots(1, 2, figsize=(11, 4.6), gridspec_kw={"width_ratios": [1.1, 1]})
+    ax.add_patch(Ellipse((0, 0), 0.09, 0.05, color=(0.85, 0.45, 0.5), alpha=0.5, label="uterus (E = 30 kPa)"))
+    ax.add_patch(Circle((-0.075, -0.005), 0.025, color=(0.9, 0.8, 0.45), alpha=0.5, label="bladder"))
+    ax.plot([0], [0.10], "k+", ms=12, mew=2, label="insertion point P")
+    for mode, style in (("position", "--"), ("god_object", "-")):
+        args = lap.make_parser().parse_args(
+            ["--no-progress", "--mode", mode, "--duration", str(args_cli.duration)]
+        )
+        metrics, states, q_device = lap.run(args)
+        god, dev = tips(lap, args, states, q_device)
+        t = np.arange(len(states)) * args.time_step
+        if mode == "god_object":
+            ax.plot(dev[:, 0], dev[:, 2], color="tab:blue", lw=1, label="interface's tip (jaw hinge)")
+        ax.plot(god[:, 0], god[:, 2], style, color="tab:red" if mode == "god_object" else "tab:gray", lw=1.5,
+                label=f"{mode} tip (jaw hinge)")  # fmt: skip
+        pen = penetration_series(lap, args, states)
+        ax_pen.plot(t, 1e3 * pen, style, color="tab:red" if mode == "god_object" else "tab:gray",
+                    label=f"{mode}: max {1e3 * metrics['max_penetration_m']:.1f} mm")  # fmt: skip
+    ax.set(xlabel="x (m)", ylabel="z (m)", aspect="equal", xlim=(-0.11, 0.08), ylim=(-0.04, 0.11),
+           title="tips in the plane y = 0")  # fmt: skip
+    ax.legend(fontsize=7, loc="upper left")
+    ax_pen.axhline(5.0, color="k", lw=0.8, ls=":")
+    ax_pen.set(xlabel="t (s)", ylabel="deepest overlap with the organs (mm)", title="tissue indentation")
+    ax_pen.legend(fontsize=8)
+    fig.tight_layout()
+    args_cli.out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args_cli.out, dpi=110)
+    print(f"figure written to {args_cli.out}")
+
+
+def penetration_series(lap, args, states):
+    """Deepest tool/organ overlap (m, ≥ 0) at every logged step, Drake's signed distance."""
+    diagram, scene, coupling, _, _ = lap.build(args)
+    plant, inspector = scene.plant, scene.scene_graph.model_inspector()
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    tool_frames = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(coupling.tool.model)}
+    out = np.zeros(len(states))
+    for k, x in enumerate(states):
+        plant.SetPositions(plant_context, x[: plant.num_positions()])
+        query = plant.get_geometry_query_input_port().Eval(plant_context)
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(0.0):
+            if (inspector.GetFrameId(pair.id_A) in tool_frames) != (
+                inspector.GetFrameId(pair.id_B) in tool_frames
+            ):
+                out[k] = max(out[k], -pair.distance)
+    return out
+
+
+if __name__ == "__main__":
+    main()
