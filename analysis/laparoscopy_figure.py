@@ -10,7 +10,6 @@ time, each tool's deepest overlap with the organs.
 """
 
 import argparse
-import importlib.util
 from pathlib import Path
 
 import matplotlib
@@ -20,14 +19,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, Ellipse
 
-REPO = Path(__file__).resolve().parent.parent
+from godobject_drake.runner import load_scene_script
 
 
 def load_scene():
-    spec = importlib.util.spec_from_file_location("laparoscopy", REPO / "diagrams" / "laparoscopy.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_scene_script("diagrams/laparoscopy.py")
 
 
 def tips(scene_module, args, states, q_device):

@@ -7,19 +7,17 @@ Needs Graphviz's ``dot`` (Debian: ``apt-get install graphviz``).
 """
 
 import argparse
-import importlib.util
 import shutil
 import subprocess
 from pathlib import Path
+
+from godobject_drake.runner import load_scene_script
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def load_lego():
-    spec = importlib.util.spec_from_file_location("lego", REPO / "diagrams" / "lego.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_scene_script("diagrams/lego.py")
 
 
 def main(argv=None):

@@ -226,11 +226,7 @@ class ArticulatedTool:
         drive; the plant's default positions otherwise.
         """
         plant, ctx = self.plant, self._context
-        q = (
-            plant.GetPositions(plant.CreateDefaultContext())
-            if x is None
-            else np.array(x[: plant.num_positions()])
-        )
+        q = plant.GetDefaultPositions() if x is None else np.array(x[: plant.num_positions()])
         q[self.q_device] = q_device
         plant.SetPositions(ctx, q)
         qdot = np.zeros(plant.num_positions())
@@ -486,6 +482,7 @@ class ArticulatedCoupling(LeafSystem):
             [np.arange(tool.nq_device)[self._device_slice(j)] for j in tool.coupled]
         ).astype(int) if tool.coupled else np.zeros(0, int)  # fmt: skip
         self._nq = plant.num_positions()
+        self._cv_in_device = np.array([list(tool.v_device).index(v) for v in self._cv], dtype=int)
 
         n = plant.num_multibody_states()
         self._state = self.DeclareVectorInputPort("plant_state", n)
@@ -607,7 +604,7 @@ class ArticulatedCoupling(LeafSystem):
             x = self._state.Eval(context)
             nq_d = self.tool.nq_device
             q_T = s[self._nt : self._nt + nq_d][self._cq]
-            v_T = s[self._nt + 2 * nq_d :][[list(self.tool.v_device).index(v) for v in self._cv]]
+            v_T = s[self._nt + 2 * nq_d :][self._cv_in_device]
             q = x[self.tool.q_device][self._cq]
             v = x[self._nq + self._cv]
             out[self._cv] = self.K * (q_T - q) + self.D * (v_T - v)

@@ -35,6 +35,13 @@ DEFAULT_DEVICE_RATE_HZ = 60.0
 Sample = tuple[np.ndarray, np.ndarray, str]
 
 
+def _check_timing(period_s: float, latency_s: float) -> None:
+    if not (period_s > 0.0 and math.isfinite(period_s)):
+        raise ValueError(f"device period_s={period_s!r} must be a positive number of seconds")
+    if not (latency_s >= 0.0 and math.isfinite(latency_s)):
+        raise ValueError(f"device latency_s={latency_s!r} must be ≥ 0 s")
+
+
 class DeviceSource(LeafSystem):
     """Samples a device at its own period and holds the sample.
 
@@ -75,10 +82,7 @@ class DeviceSource(LeafSystem):
         seed: int = 0,
     ):
         super().__init__()
-        if not (period_s > 0.0 and math.isfinite(period_s)):
-            raise ValueError(f"device period_s={period_s!r} must be a positive number of seconds")
-        if not (latency_s >= 0.0 and math.isfinite(latency_s)):
-            raise ValueError(f"device latency_s={latency_s!r} must be ≥ 0 s")
+        _check_timing(period_s, latency_s)
         if not (noise_m >= 0.0 and math.isfinite(noise_m)):
             raise ValueError(f"device noise_m={noise_m!r} must be ≥ 0 m")
         self.noise_m = float(noise_m)
@@ -219,46 +223,58 @@ class DeviceLog:
     grasp: list[str]
 
 
-def read_device_log(filename: str | Path) -> DeviceLog:
-    """Read and check a device CSV log with header ``t,x,y,z,qw,qx,qy,qz,grasp``.
+def _csv_rows(filename: str | Path, header: Sequence[str], hint: str = ""):
+    """Non-empty data rows of a device CSV as ``(where, row)``, after checking the header.
 
-    Raises ``ValueError`` naming the file and line of the first bad row.
+    ``where`` is ``file:line``, for errors that say where to look.
     """
     filename = Path(filename)
     if not filename.is_file():
         raise FileNotFoundError(f"device log {filename} does not exist")
     with filename.open(newline="") as f:
         rows = list(csv.reader(f))
-    if not rows or tuple(c.strip() for c in rows[0]) != CSV_HEADER:
+    if not rows or tuple(c.strip() for c in rows[0]) != tuple(header):
         got = rows[0] if rows else "an empty file"
+        raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}.{hint}")
+    out = [(f"{filename}:{line}", row) for line, row in enumerate(rows[1:], start=2) if row]
+    if not out:
+        raise ValueError(f"{filename}: the log has a header but no rows")
+    return out
+
+
+def _finite_floats(where: str, cells: Sequence[str]) -> list[float]:
+    try:
+        values = [float(c) for c in cells]
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{where}: non-finite value in {list(cells)}")
+    return values
+
+
+def _check_after(where: str, t: float, times: list[float]) -> None:
+    if times and t <= times[-1]:
         raise ValueError(
-            f"{filename}:1: header must be {','.join(CSV_HEADER)}; got {got}. See the "
-            "README section 'Device log format'."
+            f"{where}: time {t} is not after the previous row's {times[-1]}; rows "
+            "must be in strictly increasing time"
         )
+
+
+def read_device_log(filename: str | Path) -> DeviceLog:
+    """Read and check a device CSV log with header ``t,x,y,z,qw,qx,qy,qz,grasp``.
+
+    Raises ``ValueError`` naming the file and line of the first bad row.
+    """
     t, p, q, grasp = [], [], [], []
-    for line, row in enumerate(rows[1:], start=2):
-        if not row:
-            continue
-        where = f"{filename}:{line}"
+    for where, row in _csv_rows(filename, CSV_HEADER, " See the README section 'Device log format'."):
         if len(row) not in (8, 9):
             raise ValueError(f"{where}: expected 9 columns ({','.join(CSV_HEADER)}), got {len(row)}")
-        try:
-            values = [float(c) for c in row[:8]]
-        except ValueError as e:
-            raise ValueError(f"{where}: {e}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError(f"{where}: non-finite value in {row[:8]}")
-        if t and values[0] <= t[-1]:
-            raise ValueError(
-                f"{where}: time {values[0]} is not after the previous row's {t[-1]}; rows "
-                "must be in strictly increasing time"
-            )
+        values = _finite_floats(where, row[:8])
+        _check_after(where, values[0], t)
         t.append(values[0])
         p.append(values[1:4])
         q.append(normalized_quaternion(values[4:8], what=where))
         grasp.append(row[8].strip() if len(row) == 9 else "")
-    if not t:
-        raise ValueError(f"{filename}: the log has a header but no rows")
     return DeviceLog(np.array(t), np.array(p), np.array(q), grasp)
 
 
@@ -341,10 +357,7 @@ class JointDevice(LeafSystem):
         latency_s: float = 0.0,
     ):
         super().__init__()
-        if not (period_s > 0.0 and math.isfinite(period_s)):
-            raise ValueError(f"device period_s={period_s!r} must be a positive number of seconds")
-        if not (latency_s >= 0.0 and math.isfinite(latency_s)):
-            raise ValueError(f"device latency_s={latency_s!r} must be ≥ 0 s")
+        _check_timing(period_s, latency_s)
         self.channels = tuple(channels)
         n = len(self.channels)
         self.mix = np.eye(n) if mix is None else np.asarray(mix, dtype=float)
@@ -446,37 +459,15 @@ def read_joint_log(filename: str | Path, channels: Sequence[str]) -> tuple[np.nd
 
     Raises ``ValueError`` naming the file and line of the first bad row.
     """
-    filename = Path(filename)
     header = ("t", *channels)
-    if not filename.is_file():
-        raise FileNotFoundError(f"device log {filename} does not exist")
-    with filename.open(newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows or tuple(c.strip() for c in rows[0]) != header:
-        got = rows[0] if rows else "an empty file"
-        raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}")
     t, u = [], []
-    for line, row in enumerate(rows[1:], start=2):
-        if not row:
-            continue
-        where = f"{filename}:{line}"
+    for where, row in _csv_rows(filename, header):
         if len(row) != len(header):
             raise ValueError(f"{where}: expected {len(header)} columns ({','.join(header)}), got {len(row)}")
-        try:
-            values = [float(c) for c in row]
-        except ValueError as e:
-            raise ValueError(f"{where}: {e}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError(f"{where}: non-finite value in {row}")
-        if t and values[0] <= t[-1]:
-            raise ValueError(
-                f"{where}: time {values[0]} is not after the previous row's {t[-1]}; rows "
-                "must be in strictly increasing time"
-            )
+        values = _finite_floats(where, row)
+        _check_after(where, values[0], t)
         t.append(values[0])
         u.append(values[1:])
-    if not t:
-        raise ValueError(f"{filename}: the log has a header but no rows")
     return np.array(t), np.array(u)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import math
 import sys
 import time
@@ -40,6 +41,21 @@ from godobject_drake.recording import GodObjectVisualizer, add_meshcat_visualiza
 MODES = ("god_object", "position")
 DIVERGED_SPEED = 1000.0  # m/s or rad/s: any generalized velocity past this is a blow-up
 CHECK_EVERY_S = 0.05
+
+
+REPO_DIR = Path(__file__).resolve().parent.parent
+
+
+def load_scene_script(relative: str):
+    """Import a script of the clone (``diagrams/lego.py``, ...) by path, as ``python`` would run it.
+
+    ``diagrams/`` and ``analysis/`` are not installed packages (DESIGN.md).
+    """
+    path = REPO_DIR / relative
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, default_duration: float) -> None:

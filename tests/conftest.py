@@ -1,7 +1,6 @@
 """Shared fixtures: a one-body plant for unit tests, the brick-scene script."""
 
 import argparse
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -11,16 +10,12 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia, UnitInertia
 from pydrake.systems.framework import DiagramBuilder
 
+from godobject_drake.runner import load_scene_script
+
 REPO = Path(__file__).resolve().parent.parent
 
 
-def load_script(relative: str):
-    """Import a scene script from diagrams/ by path, as `python diagrams/x.py` would run it."""
-    path = REPO / relative
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+load_script = load_scene_script  # a script of the clone, imported by path
 
 
 @pytest.fixture(scope="session")
