@@ -477,6 +477,7 @@ class ArticulatedCoupling(LeafSystem):
         for f, b in zip(self._forces, tool.bodies, strict=True):
             f.body_index = BodyIndex(b.index)
             f.p_BoBq_B = b.p_BoBcm_B
+            f.F_Bq_W = SpatialForce(np.zeros(3), -b.mass * self._g)  # the joint modes' constant load
         self._cv = tool.coupled_v()
         self._cq = np.concatenate(
             [np.arange(tool.nq_device)[self._device_slice(j)] for j in tool.coupled]
@@ -575,25 +576,22 @@ class ArticulatedCoupling(LeafSystem):
 
     # -- the hot path -------------------------------------------------------------
     def _calc_spatial_forces(self, context, output):
+        if self.coupling != "cartesian":  # gravity compensation only: constant, set at construction
+            output.set_value(self._forces)
+            return
         s = context.get_discrete_state(self._targets).get_value()
         poses, vels = self._poses.Eval(context), self._vels.Eval(context)
-        cart = self.coupling == "cartesian"
         for k, (b, force) in enumerate(zip(self.tool.bodies, self._forces, strict=True)):
             X, V = poses[b.index], vels[b.index]
             R = X.rotation().matrix()
             p_cm = R @ b.p_BoBcm_B
-            f = -b.mass * self._g
-            tau = np.zeros(3)
-            if cart:
-                t = s[_TARGET * k : _TARGET * (k + 1)]
-                w = V.rotational()
-                x_cm = X.translation() + p_cm
-                v_cm = V.translational() + cross3(w, p_cm)
-                f = f + b.mass * (self._wn2 * (t[4:7] - x_cm) + self._2zwn * (t[10:13] - v_cm))
-                I_W = R @ b.I_Bcm_B @ R.T
-                tau = I_W @ (
-                    self._wr2 * rotation_error(t[:4], rotation_to_quat(R)) + self._2zwr * (t[7:10] - w)
-                )
+            t = s[_TARGET * k : _TARGET * (k + 1)]
+            w = V.rotational()
+            x_cm = X.translation() + p_cm
+            v_cm = V.translational() + cross3(w, p_cm)
+            f = b.mass * (self._wn2 * (t[4:7] - x_cm) + self._2zwn * (t[10:13] - v_cm) - self._g)
+            I_W = R @ b.I_Bcm_B @ R.T
+            tau = I_W @ (self._wr2 * rotation_error(t[:4], rotation_to_quat(R)) + self._2zwr * (t[7:10] - w))
             force.F_Bq_W = SpatialForce(tau, f)
         output.set_value(self._forces)
 
