@@ -51,7 +51,7 @@ def main(argv=None):
     args_cli = parser.parse_args(argv)
     lap = load_scene()
     fig, (ax, ax_pen) = plt.subplots(1, 2, figsize=(11, 4.6), gridspec_kw={"width_ratios": [1.1, 1]})
-    ax.add_patch(Ellipse((0, 0), 0.09, 0.05, color=(0.85, 0.45, 0.5), alpha=0.5, label="uterus (E = 30 kPa)"))
+    ax.add_patch(Ellipse((0, 0), 0.09, 0.05, color=(0.85, 0.45, 0.5), alpha=0.5, label="uterus (E = 50 kPa)"))
     ax.add_patch(Circle((-0.075, -0.005), 0.025, color=(0.9, 0.8, 0.45), alpha=0.5, label="bladder"))
     ax.plot([0], [0.10], "k+", ms=12, mew=2, label="insertion point P")
     for mode, style in (("position", "--"), ("god_object", "-")):
