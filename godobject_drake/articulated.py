@@ -59,7 +59,7 @@ from pydrake.multibody.tree import (
     ModelInstanceIndex,
     PdControllerGains,
 )
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import DiagramBuilder, LeafSystem, ValueProducer
 
 from godobject_drake.coupling import CouplingGainError, CouplingGains
 from godobject_drake.feedback import FeedbackGains
@@ -745,16 +745,21 @@ class ArticulatedFeedback(LeafSystem):
         )
         self._targets = self.DeclareVectorInputPort("targets", _TARGET * nb)
         self._q_dev = self.DeclareVectorInputPort("q_device", tool.nq_device)
-        self.DeclareVectorOutputPort(
-            "F_feedback_W", 6 * nb, self._calc_wrenches, {self.all_input_ports_ticket()}
-        )
-        self.DeclareVectorOutputPort(
-            "F_subtree_W", 6 * nb, self._calc_subtree, {self.all_input_ports_ticket()}
-        )
-        self.DeclareVectorOutputPort(
-            "tau_device", len(tool.v_device), self._calc_tau, {self.all_input_ports_ticket()}
-        )
         self._zero = all(getattr(self.gains, f.name) == 0.0 for f in dataclasses.fields(self.gains))
+        # Eq. 8 once per evaluation, shared by the three outputs.
+        self._F = self.DeclareCacheEntry(
+            "feedback wrenches",
+            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros((nb, 6))), calc=self._calc_cache),
+            {self._poses.ticket(), self._vels.ticket(), self._targets.ticket()},
+        )
+        after = {self._F.ticket()}
+        self.DeclareVectorOutputPort("F_feedback_W", 6 * nb, self._calc_wrenches, after)
+        self.DeclareVectorOutputPort(
+            "F_subtree_W", 6 * nb, self._calc_subtree, after | {self._targets.ticket()}
+        )
+        self.DeclareVectorOutputPort(
+            "tau_device", len(tool.v_device), self._calc_tau, after | {self._q_dev.ticket()}
+        )
 
     def wrenches(self, poses, vels, targets) -> np.ndarray:
         """Eq. 8 for every coupled body: ``(nb, 6)`` rows ``[τ; f]`` (N·m, N)."""
@@ -773,30 +778,26 @@ class ArticulatedFeedback(LeafSystem):
             out[k] = np.concatenate([tau, f])
         return out
 
-    def _inputs(self, context):
-        return self._poses.Eval(context), self._vels.Eval(context), self._targets.Eval(context)
+    def _calc_cache(self, context, value):
+        if not self._zero:
+            poses, vels = self._poses.Eval(context), self._vels.Eval(context)
+            value.set_value(self.wrenches(poses, vels, self._targets.Eval(context)))
 
     def _calc_wrenches(self, context, output):
-        if self._zero:
-            output.SetFromVector(np.zeros(output.size()))
-            return
-        output.SetFromVector(self.wrenches(*self._inputs(context)).ravel())
+        output.SetFromVector(self._F.Eval(context).ravel())
 
     def _calc_subtree(self, context, output):
         if self._zero:
             output.SetFromVector(np.zeros(output.size()))
             return
-        targets = self._targets.Eval(context)
-        output.SetFromVector(
-            propagate_to_parents(self.tool, self.wrenches(*self._inputs(context)), targets).ravel()
-        )
+        F = self._F.Eval(context)
+        output.SetFromVector(propagate_to_parents(self.tool, F, self._targets.Eval(context)).ravel())
 
     def _calc_tau(self, context, output):
         if self._zero:
             output.SetFromVector(np.zeros(output.size()))
             return
-        F = self.wrenches(*self._inputs(context))
-        output.SetFromVector(generalized_forces(self.tool, F, self._q_dev.Eval(context)))
+        output.SetFromVector(generalized_forces(self.tool, self._F.Eval(context), self._q_dev.Eval(context)))
 
 
 def propagate_to_parents(tool: ArticulatedTool, wrenches: np.ndarray, targets: np.ndarray) -> np.ndarray:
