@@ -30,7 +30,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
-from pydrake.multibody.tree import BodyIndex
+from pydrake.multibody.tree import BodyIndex, SpatialInertia
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from godobject_drake.spatial import (
@@ -184,6 +184,31 @@ def graspable_bodies(plant: MultibodyPlant) -> dict[str, GraspableBody]:
     return {k: v for k, v in found.items() if counts[k] == 1 or k == v.name}
 
 
+def with_carried_inertia(body: GraspableBody, M_BBo_B: SpatialInertia) -> GraspableBody:
+    """``body`` as the coupling sees it when it carries ``M_BBo_B`` (about Bo, in B).
+
+    For what moves with a body without being part of it in the plant: a
+    deformable shell held to its core. The coupling's gains (``k = m ωn²``,
+    ``kr = I ωr²``) and its gravity compensation then use the total mass and
+    inertia, so the pair keeps the bandwidth and damping asked for and does
+    not sag under the carried weight.
+    """
+    m1, m2 = body.mass, float(M_BBo_B.get_mass())
+    if not (math.isfinite(m2) and m2 >= 0.0):
+        raise ValueError(f"carried mass {m2!r} kg must be finite and ≥ 0")
+    p1, p2 = body.p_BoBcm_B, np.asarray(M_BBo_B.get_com())
+    m = m1 + m2
+    p = (m1 * p1 + m2 * p2) / m
+
+    def about_bo(mass, p_cm, I_cm):  # parallel axis: from Bcm to Bo
+        return I_cm + mass * (p_cm @ p_cm * np.eye(3) - np.outer(p_cm, p_cm))
+
+    I2_Bo = M_BBo_B.CalcRotationalInertia().CopyToFullMatrix3()
+    I_Bo = about_bo(m1, p1, body.I_Bcm_B) + I2_Bo
+    I_cm = I_Bo - m * (p @ p * np.eye(3) - np.outer(p, p))
+    return dataclasses.replace(body, mass=m, p_BoBcm_B=p, I_Bcm_B=I_cm)
+
+
 # Layout of the coupling's cached result vector.
 _IDX, _XT, _VT, _XG, _VG, _F = 0, slice(1, 8), slice(8, 14), slice(14, 21), slice(21, 27), slice(27, 33)
 _TERMS = 33
@@ -239,6 +264,10 @@ class GodObjectCoupling(LeafSystem):
         Refuse gains past the explicit limit (:meth:`CouplingGains.check`).
         Only the stability analysis turns this off, to cross the limit on
         purpose (``godobject_drake.validation``).
+    carried : dict[str, SpatialInertia] | None
+        Inertia (about Bo, in B) that a body carries without the plant
+        attaching it rigidly, by body name: a deformable god-object's shell
+        (:func:`with_carried_inertia`).
     """
 
     def __init__(
@@ -248,6 +277,7 @@ class GodObjectCoupling(LeafSystem):
         device_period_s: float | None = None,
         gravity_compensation: bool = True,
         check_gains: bool = True,
+        carried: dict[str, SpatialInertia] | None = None,
     ):
         super().__init__()
         h = plant.time_step()
@@ -255,6 +285,10 @@ class GodObjectCoupling(LeafSystem):
             gains.check(h)
         self.gains = gains
         self.bodies = graspable_bodies(plant)
+        for name, M in (carried or {}).items():
+            body = self.body_for_grasp(name)
+            heavier = with_carried_inertia(body, M)
+            self.bodies = {k: heavier if v is body else v for k, v in self.bodies.items()}
         self._by_index = {b.index: b for b in self.bodies.values()}
         g = np.asarray(plant.gravity_field().gravity_vector())
         self._g = g if gravity_compensation else np.zeros(3)
@@ -273,6 +307,9 @@ class GodObjectCoupling(LeafSystem):
         period = device_period_s if device_period_s else (h if h > 0 else 1e-3)
         offset = 0.5 * h if h > 0 else 1e-6
         self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update_grasp)
+        # A body held from t = 0 is held from the start, not after the first plant step
+        # (at h = 10 ms it would fall g h² = 1 mm first and keep that offset).
+        self.DeclareInitializationDiscreteUpdateEvent(self._update_grasp)
 
         self._terms = self.DeclareCacheEntry(
             "coupling terms",

@@ -213,7 +213,7 @@ def simulate(
             )
 
     def impose(plant_context, root_context):
-        _impose_target(plant, plant_context, coupling, coupling_context_of(root_context))
+        impose_target(plant, plant_context, coupling, coupling_context_of(root_context))
 
     loop = run_loop(
         diagram, plant, duration, impose=impose if mode == "position" else None, prepare=check_wiring,
@@ -321,7 +321,8 @@ def run_loop(
     return LoopResult(simulator, context, context.get_time(), wall, diagnosis)
 
 
-def _impose_target(plant, plant_context, coupling, coupling_context) -> None:
+def impose_target(plant, plant_context, coupling, coupling_context) -> None:
+    """Position baseline: set the held body to the target's pose and velocity (paper Fig. 5)."""
     held = int(coupling.GetOutputPort("held_body").Eval(coupling_context)[0])
     if held < 0:
         return

@@ -47,12 +47,14 @@ def is_proxy(name: str) -> bool:
 
 
 def set_contact_material(plant: MultibodyPlant, scene_graph: SceneGraph, **values: float) -> None:
-    """Set ``("material", name)`` proximity properties on every proximity geometry of ``plant``.
+    """Set ``("material", name)`` proximity properties on every rigid proximity geometry of ``plant``.
 
     E.g. ``relaxation_time=1e-3`` (s) or ``point_contact_stiffness=2e4`` (N/m).
     """
     inspector = scene_graph.model_inspector()
     for gid in inspector.GetAllGeometryIds(Role.kProximity):
+        if inspector.IsDeformableGeometry(gid):
+            continue  # a deformable body sets its own (godobject_drake.deformable)
         props = ProximityProperties(inspector.GetProximityProperties(gid))
         for name, value in values.items():
             if props.HasProperty("material", name):
@@ -114,6 +116,7 @@ def add_scene_from_directives(
     contact: str = "proxies",
     relaxation_time: float | None = None,
     near_rigid_threshold: float | None = None,
+    before_finalize=None,
 ) -> SceneParts:
     """Add a SAP MultibodyPlant loaded from model directives and finalize it.
 
@@ -129,6 +132,9 @@ def add_scene_from_directives(
         SAP relaxation time (s) for every contact; None = ``time_step``.
     near_rigid_threshold : float | None
         SAP near-rigid threshold; None keeps Drake's default.
+    before_finalize : callable | None
+        ``before_finalize(plant, scene_graph)`` adds what must exist before
+        ``Finalize()`` (a deformable god-object) after the directives load.
     """
     if not time_step > 0.0:
         raise ValueError(f"time_step={time_step!r} s: SAP needs a discrete plant, give h > 0")
@@ -145,6 +151,8 @@ def add_scene_from_directives(
     if path.startswith("package://"):
         path = parser.package_map().ResolveUrl(path)
     ProcessModelDirectives(LoadModelDirectives(path), plant, parser)
+    if before_finalize is not None:
+        before_finalize(plant, scene_graph)
     plant.Finalize()
     set_relaxation_time(plant, scene_graph, time_step if relaxation_time is None else relaxation_time)
     apply_contact_model(plant, scene_graph, contact)

@@ -113,3 +113,11 @@ def pose_arrays(X) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     M = X.GetAsMatrix34()
     R = M[:, :3]
     return rotation_to_quat(R), M[:, 3].copy(), R
+
+
+def pose_from_array(x: np.ndarray):
+    """A ``RigidTransform`` from ``[qw qx qy qz x y z]`` (the logged pose layout)."""
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RigidTransform
+
+    return RigidTransform(Quaternion(x[:4] / np.linalg.norm(x[:4])), x[4:])
