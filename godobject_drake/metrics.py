@@ -293,3 +293,75 @@ def tool_metrics(
     if p_WP is not None:
         out["max_trocar_offset_m"] = max_offset
     return out
+
+
+def shell_metrics(
+    diagram,
+    plant: MultibodyPlant,
+    shell,
+    obstacles: set,
+    states: np.ndarray,
+    vertices: np.ndarray,
+    rest: np.ndarray,
+    X_WC: np.ndarray,
+    X_WT: np.ndarray,
+) -> dict:
+    """Deformation and penetration of a deformable god-object, from per-step logs.
+
+    ``max_shell_deformation_m``: the largest distance of a tracked shell
+    point from its rest position on the core. ``final_shell_deformation_m``:
+    the same at the last step. ``max_penetration_m``: the deepest any
+    shell point's contact sphere (radius ``shell.contact_radius_m``; 0 for
+    FEM vertices) goes into an obstacle, by Drake's signed distance to the
+    true obstacle shape. ``max_core_penetration_m``: the same for the core
+    sphere (radius rc). ``rms_tracking_error_m``: core centre against the
+    target, over the steps where the whole shell is at least
+    ``FREE_SPACE_MARGIN_M`` from every obstacle.
+
+    Parameters
+    ----------
+    obstacles : set of GeometryId
+        Rigid geometries that count as obstacles.
+    states, vertices, rest, X_WC, X_WT : (N, ·)
+        Plant states, shell points and their rest positions (W, flattened),
+        core and target poses ``[qw qx qy qz x y z]``, at the same steps.
+    """
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    query_port = plant.get_geometry_query_input_port()
+    nq = plant.num_positions()
+    rn, rc = shell.contact_radius_m, shell.spec.core_radius_m
+    surface = shell.surface
+    reach = max(rn, rc) + FREE_SPACE_MARGIN_M
+
+    def depth(query, p, radius):  # deepest of a sphere at p into an obstacle (< 0: clearance)
+        deepest = -FREE_SPACE_MARGIN_M
+        for d in query.ComputeSignedDistanceToPoint(p, reach):
+            if d.id_G in obstacles:
+                deepest = max(deepest, radius - d.distance)
+        return deepest
+
+    n = len(states)
+    deformation = np.linalg.norm((vertices - rest).reshape(n, -1, 3), axis=2).max(axis=1)
+    max_pen = max_core = 0.0
+    sq_err, n_free, k_max = 0.0, 0, 0
+    for k in range(n):
+        plant.SetPositions(plant_context, states[k, :nq])
+        query = query_port.Eval(plant_context)
+        points = vertices[k].reshape(-1, 3)[surface]
+        shell_depth = max(depth(query, p, rn) for p in points)
+        if shell_depth > max_pen:
+            max_pen, k_max = shell_depth, k
+        max_core = max(max_core, depth(query, X_WC[k, 4:], rc))
+        if shell_depth <= -FREE_SPACE_MARGIN_M:
+            sq_err += float(np.sum((X_WC[k, 4:] - X_WT[k, 4:]) ** 2))
+            n_free += 1
+    return {
+        "max_penetration_m": max_pen,
+        "max_penetration_step": k_max,
+        "max_core_penetration_m": max_core,
+        "max_shell_deformation_m": float(deformation.max()) if n else None,
+        "final_shell_deformation_m": float(deformation[-1]) if n else None,
+        "rms_tracking_error_m": math.sqrt(sq_err / n_free) if n_free else None,
+        "free_space_samples": n_free,
+    }

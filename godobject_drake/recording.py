@@ -40,6 +40,7 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from godobject_drake.coupling import graspable_bodies
+from godobject_drake.spatial import pose_from_array
 
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
@@ -212,6 +213,68 @@ class ToolGhostVisualizer(LeafSystem):
         ctx = self._tool.set_device_state(self._q.Eval(context))
         for path, body in self._bodies:
             self._meshcat.SetTransform(path, plant.EvalBodyPoseInWorld(ctx, body), t)
+
+
+SHELL_RGBA = Rgba(0.85, 0.35, 0.3, 1.0)
+CORE_RGBA = Rgba(0.2, 0.2, 0.2, 0.6)
+
+
+class ShellVisualizer(LeafSystem):
+    """Draws a deformable god-object (paper Fig. 8): shell, hidden core, device ghost.
+
+    .. pydrake_system::
+
+        name: ShellVisualizer
+        input_ports:
+        - vertex_positions
+        - X_WC
+        - X_WT
+
+    Connect the first two to :class:`~godobject_drake.deformable.ShellObserver`
+    and ``X_WT`` to the coupling's target. Meshcat recordings replay
+    transforms and properties but not changing triangle meshes (Drake issue
+    #23206), so the shell is drawn as one sphere per surface point, moved
+    every frame: the mass–spring nodes at their contact radius, FEM surface
+    vertices as markers. Under ``{prefix}/``: ``shell``, ``core`` (hidden;
+    tick it in Meshcat's scene tree to show it) and ``device`` (a wireframe
+    of the shell's rest shape at the device's target).
+    """
+
+    def __init__(
+        self,
+        meshcat: Meshcat,
+        shell,
+        publish_period_s: float = 1.0 / DEFAULT_FPS,
+        prefix: str | None = None,
+    ):
+        super().__init__()
+        self._meshcat, self._shell = meshcat, shell
+        self._prefix = prefix or f"/{shell.name}"
+        n = 3 * shell.vertex_count
+        self._vertices = self.DeclareVectorInputPort("vertex_positions", n)
+        self._X_WC = self.DeclareVectorInputPort("X_WC", 7)
+        self._X_WT = self.DeclareVectorInputPort("X_WT", 7)
+        self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
+        self.DeclareInitializationPublishEvent(self._publish)
+        pre, spec = self._prefix, shell.spec
+        points = shell.rest_C[shell.surface]
+        spacing = np.sqrt(4 * np.pi * spec.radius_m**2 / len(points))
+        marker = shell.contact_radius_m or 0.5 * spacing
+        for i in range(len(points)):
+            meshcat.SetObject(f"{pre}/shell/{i}", Sphere(marker), SHELL_RGBA)
+        meshcat.SetObject(f"{pre}/core", Sphere(spec.core_radius_m), CORE_RGBA)
+        meshcat.SetProperty(f"{pre}/core", "visible", False)
+        V, F = wire_mesh(Sphere(spec.radius_m))
+        meshcat.SetTriangleMesh(f"{pre}/device", V, F, GHOST_RGBA, wireframe=True)
+
+    def _publish(self, context):
+        t = context.get_time()
+        mc, pre = self._meshcat, self._prefix
+        points = self._vertices.Eval(context).reshape(-1, 3)[self._shell.surface]
+        for i, p in enumerate(points):
+            mc.SetTransform(f"{pre}/shell/{i}", RigidTransform(p), t)
+        mc.SetTransform(f"{pre}/core", pose_from_array(self._X_WC.Eval(context)), t)
+        mc.SetTransform(f"{pre}/device", pose_from_array(self._X_WT.Eval(context)), t)
 
 
 def add_meshcat_visualization(
