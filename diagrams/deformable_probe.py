@@ -40,8 +40,8 @@ DIRECTIVES = "package://godobject_models/deformable_probe/deformable_probe.dmd.y
 DEFAULT_PATH = MODELS_DIR / "deformable_probe" / "default_path.yaml"
 # SAP's default near-rigid threshold (1.0) caps a contact's stiffness at what
 # the contacting mass can follow within a step: a 2 g mass–spring node at
-# h = 10 ms then touches the block at ~110 N/m instead of 1e5 and sinks 10 mm
-# into it. 0.1 lifts that cap a hundredfold (README "Deformable probe").
+# h = 10 ms pressed a contact of nominal 5e3 N/m at ~110 N/m and sank 10 mm.
+# 0.1 lifts that cap a hundredfold (README "Deformable probe").
 NEAR_RIGID_THRESHOLD = 0.1
 
 
