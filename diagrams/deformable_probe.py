@@ -20,7 +20,7 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from godobject_drake.coupling import CouplingGainError, CouplingGains, GodObjectCoupling
+from godobject_drake.coupling import CouplingGainError, GodObjectCoupling
 from godobject_drake.deformable import (
     SHELL_MODELS,
     ShellSpec,
@@ -31,7 +31,14 @@ from godobject_drake.deformable import (
 from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.metrics import shell_metrics
 from godobject_drake.recording import ShellVisualizer, add_meshcat_visualization, save_recording
-from godobject_drake.runner import add_common_arguments, impose_target, make_device, report, run_loop
+from godobject_drake.runner import (
+    add_common_arguments,
+    gains_from_args,
+    impose_target,
+    make_device,
+    report,
+    run_loop,
+)
 from godobject_drake.scenes import MODELS_DIR, add_scene_from_directives
 from godobject_drake.spatial import pose_from_array
 
@@ -43,13 +50,6 @@ DEFAULT_PATH = MODELS_DIR / "deformable_probe" / "default_path.yaml"
 # h = 10 ms pressed a contact of nominal 5e3 N/m at ~110 N/m and sank 10 mm.
 # 0.1 lifts that cap a hundredfold (README "Deformable probe").
 NEAR_RIGID_THRESHOLD = 0.1
-
-
-def gains_from_args(args) -> CouplingGains:
-    """Coupling gains; rotation defaults to the translational bandwidth here."""
-    return CouplingGains(
-        args.omega_n, args.zeta, args.omega_n if args.omega_n_rot is None else args.omega_n_rot
-    )
 
 
 def spec_from_args(args) -> ShellSpec:
@@ -66,7 +66,7 @@ def build(args):
     X_WC = pose_from_array(np.concatenate([q0, p0]))  # the probe starts at the device
     spec = spec_from_args(args)
     spec.check()
-    gains = gains_from_args(args)
+    gains = gains_from_args(args, rot_factor=1.0)
     gains.check(args.time_step)  # before building anything heavy
     added = {}
 
@@ -140,7 +140,7 @@ def run(args):
         diagram, plant, probe, obstacle_geometries(scene.scene_graph, probe, plant), data["state"],
         data["vertex_positions"], data["rest_positions"], data["X_WC"], data["X_WT"],
     )  # fmt: skip
-    gains = gains_from_args(args)
+    gains = gains_from_args(args, rot_factor=1.0)
     steps = max(round(loop.sim_time_s / args.time_step), 1)
     metrics = {
         "scene": SCENE, "mode": args.mode, "time_step_s": args.time_step, "sim_time_s": loop.sim_time_s,
@@ -151,7 +151,7 @@ def run(args):
         "max_other_body_speed_mps": None,
         **measured,
         "diverged": loop.diagnosis is not None, "diagnosis": loop.diagnosis,
-        "shell": args.shell, "shell_vertices": probe.vertex_count,
+        "shell": probe.model, "shell_vertices": probe.vertex_count,
         "youngs_modulus_pa": probe.spec.youngs_modulus_pa, "device": args.device,
         "device_rate_hz": args.device_rate, "omega_n_rad_s": gains.omega_n,
         "omega_n_rot_rad_s": gains.omega_r, "zeta": gains.zeta,

@@ -21,11 +21,11 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
 from godobject_drake.articulated import COUPLINGS, ArticulatedFeedback, add_articulated_god_object
-from godobject_drake.coupling import CouplingGainError, CouplingGains
+from godobject_drake.coupling import CouplingGainError
 from godobject_drake.devices import ReplayJointDevice, ScriptedJointDevice, load_joint_path
 from godobject_drake.metrics import tool_metrics
 from godobject_drake.recording import ToolGhostVisualizer, add_meshcat_visualization, save_recording
-from godobject_drake.runner import add_common_arguments, report, run_loop
+from godobject_drake.runner import add_common_arguments, gains_from_args, report, run_loop
 from godobject_drake.scenes import MODELS_DIR, add_scene_from_directives, exclude_self_collisions
 
 SCENE = "laparoscopy"
@@ -52,13 +52,6 @@ def make_device(args):
     return ScriptedJointDevice(load_joint_path(DEFAULT_PATH), **kwargs)
 
 
-def gains_from_args(args) -> CouplingGains:
-    """Coupling gains; rotation defaults to the translational bandwidth here."""
-    return CouplingGains(
-        args.omega_n, args.zeta, args.omega_n if args.omega_n_rot is None else args.omega_n_rot
-    )
-
-
 def build(args):
     """Compose the diagram: interface → coupling → plant, coupling → feedback; ghost and logs."""
     builder = DiagramBuilder()
@@ -67,8 +60,9 @@ def build(args):
     exclude_self_collisions(plant, scene.scene_graph, "grasper")
     device = builder.AddNamedSystem("device", make_device(args))
     q_home = device.sample(0.0)
+    gains = gains_from_args(args, rot_factor=1.0)  # rotation at the translational bandwidth here
     coupling = add_articulated_god_object(
-        builder, plant, "grasper", DEVICE_JOINTS, coupling=args.coupling, gains=gains_from_args(args),
+        builder, plant, "grasper", DEVICE_JOINTS, coupling=args.coupling, gains=gains,
         device_period_s=device.period_s, q_reference=q_home,
         imposed_joints=JAWS if args.jaws == "imposed" else (),
         q_check=device.samples(args.duration)[::6], connect_forces=args.mode == "god_object",
@@ -132,7 +126,7 @@ def run(args):
         diagram, plant, scene.scene_graph, coupling.tool, states[finite], q_device[finite],
         tip_body="tube", pivot_body="port",
     )  # fmt: skip
-    gains = gains_from_args(args)
+    gains = gains_from_args(args, rot_factor=1.0)
     metrics = {
         "scene": SCENE, "mode": args.mode, "time_step_s": args.time_step, "sim_time_s": loop.sim_time_s,
         "wall_time_s": loop.wall_time_s,

@@ -342,7 +342,7 @@ class MassSpringShell(DeformableGodObject):
         massless = SpatialInertia(0.0, np.zeros(3), UnitInertia(0.0, 0.0, 0.0))
         node_inertia = SpatialInertia(m, np.zeros(3), UnitInertia.SolidSphere(rn))
         props = _contact_properties(spec.friction, spec.node_contact_stiffness)
-        self.nodes, ids = [], []
+        self.nodes, self.joints, ids = [], [], []
         for i, p_C in enumerate(self.rest_C):
             # C → x → y → node, prismatic along C's axes; all joints read 0 at rest.
             bx = plant.AddRigidBody(f"node{i}_x", shell, massless)
@@ -354,9 +354,10 @@ class MassSpringShell(DeformableGodObject):
                 PrismaticJoint(f"node{i}_y", bx.body_frame(), by.body_frame(), [0, 1, 0]),
                 PrismaticJoint(f"node{i}_z", rest, node.body_frame(), [0, 0, 1]),
             )
-            for joint in joints:
-                added = plant.AddJoint(joint)  # the plant's copy: the actuator needs its index
-                plant.AddJointActuator(added.name(), added)  # PD gains: in connect()
+            added = [plant.AddJoint(joint) for joint in joints]  # the plant's copies carry the index
+            for joint in added:
+                plant.AddJointActuator(joint.name(), joint)  # PD gains: in connect()
+            self.joints.append(tuple(added))
             ids.append(plant.RegisterCollisionGeometry(node, RigidTransform(), Sphere(rn), f"node{i}", props))
             self.nodes.append(node)
         d_edge = 2.0 * zeta * math.sqrt(self.edge_stiffness * m)
@@ -391,22 +392,12 @@ class MassSpringShell(DeformableGodObject):
         V_WC = plant.EvalBodySpatialVelocityInWorld(ctx, self.core)
         R_CW = X_WC.rotation().inverse().matrix()
         p_WC, w, v_WC = X_WC.translation(), V_WC.rotational(), V_WC.translational()
-        joints = self._joints or self._find_joints(plant)
-        for (jx, jy, jz), rest, p, v in zip(joints, self.rest_C, p_WN, v_WN, strict=True):
+        for (jx, jy, jz), rest, p, v in zip(self.joints, self.rest_C, p_WN, v_WN, strict=True):
             q = R_CW @ (p - p_WC) - rest
             qdot = R_CW @ (v - v_WC - np.cross(w, p - p_WC))
             for joint, value, rate in ((jx, q[0], qdot[0]), (jy, q[1], qdot[1]), (jz, q[2], qdot[2])):
                 joint.set_translation(ctx, value)
                 joint.set_translation_rate(ctx, rate)
-
-    _joints: list | None = None
-
-    def _find_joints(self, plant):
-        self._joints = [
-            tuple(plant.GetJointByName(f"node{i}_{a}", self.shell_instance) for a in "xyz")
-            for i in range(len(self.nodes))
-        ]
-        return self._joints
 
 
 def add_deformable_god_object(

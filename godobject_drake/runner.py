@@ -110,9 +110,9 @@ def make_device(args: argparse.Namespace, default_path: Path) -> DeviceSource:
     return ScriptedDevice(load_device_path(default_path).waypoints, **kwargs)
 
 
-def gains_from_args(args: argparse.Namespace) -> CouplingGains:
-    """Coupling gains from the flags; rotation defaults to 3× the translational bandwidth."""
-    omega_r = 3.0 * args.omega_n if args.omega_n_rot is None else args.omega_n_rot
+def gains_from_args(args: argparse.Namespace, rot_factor: float = 3.0) -> CouplingGains:
+    """Coupling gains from the flags; rotation defaults to ``rot_factor`` × the translational bandwidth."""
+    omega_r = rot_factor * args.omega_n if args.omega_n_rot is None else args.omega_n_rot
     return CouplingGains(args.omega_n, args.zeta, omega_r)
 
 
