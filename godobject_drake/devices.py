@@ -19,10 +19,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
+from pydrake.common.eigen_geometry import AngleAxis, Quaternion
 from pydrake.common.value import AbstractValue
 from pydrake.common.yaml import yaml_load_typed
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.trajectories import PiecewisePolynomial, PiecewiseQuaternionSlerp
 
@@ -42,8 +42,67 @@ def _check_timing(period_s: float, latency_s: float) -> None:
         raise ValueError(f"device latency_s={latency_s!r} must be ≥ 0 s")
 
 
+INTERPOLATIONS = ("hold", "linear")
+# device_status output: counts since t = 0, and the longest time without a usable sample.
+DEVICE_STATUS_KEYS = (
+    "device_samples",
+    "device_invalid_samples",
+    "device_dropped_samples",
+    "device_rejected_jumps",
+    "device_relocations",
+    "device_longest_gap_s",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleGuard:
+    """What a device does with samples it cannot use (README "Bad device input").
+
+    Every sample a device reports passes this guard before it reaches the
+    target; the plant never sees a NaN. What each case does, and the
+    ``device_status`` count that reports it:
+
+    - **invalid** (a non-finite value, a quaternion of norm off 1 by more
+      than ``quaternion_tolerance``, a zero quaternion): the last valid
+      sample is held; ``device_invalid_samples``.
+    - **dropout** (the sampler returns ``None``: no new sample): the last
+      sample is held; ``device_dropped_samples``.
+    - **absurd jump** (farther from the last accepted sample than
+      ``max_speed_m_s`` could carry it since then): held back as a glitch;
+      ``device_rejected_jumps``. If ``confirm_samples`` consecutive samples
+      agree with each other at the new place, the device *was* moved there
+      (a tracker re-acquired, a clutch released): the new place is accepted
+      with zero velocity, so no damping kick; ``device_relocations``.
+
+    While a sample is held the reported velocity is zero, and
+    ``device_longest_gap_s`` is the longest run of held samples (s).
+    ``max_speed_m_s = inf`` turns the jump check off.
+    """
+
+    max_speed_m_s: float = 10.0
+    confirm_samples: int = 3
+    quaternion_tolerance: float = 1e-3
+
+    def __post_init__(self):
+        if not (self.max_speed_m_s > 0.0):
+            raise ValueError(f"SampleGuard max_speed_m_s={self.max_speed_m_s!r} must be > 0 m/s (inf: off)")
+        if int(self.confirm_samples) != self.confirm_samples or self.confirm_samples < 1:
+            raise ValueError(f"SampleGuard confirm_samples={self.confirm_samples!r} must be an integer ≥ 1")
+        if not (0.0 < self.quaternion_tolerance < 1.0):
+            raise ValueError(
+                f"SampleGuard quaternion_tolerance={self.quaternion_tolerance!r} must be in (0, 1)"
+            )
+
+
+# DeviceSource state layout.
+_QC, _PC, _QP, _PP = slice(0, 4), slice(4, 7), slice(7, 11), slice(11, 14)
+_QN, _PN, _NCAND, _GAP, _TLAST = slice(14, 18), slice(18, 21), 21, 22, 23
+_STATUS = slice(24, 30)
+_N_STATE = 30
+
+
 class DeviceSource(LeafSystem):
-    """Samples a device at its own period and holds the sample.
+    """Samples a device at its own period and holds (or interpolates) the sample.
 
     .. pydrake_system::
 
@@ -52,15 +111,27 @@ class DeviceSource(LeafSystem):
         - X_WD
         - V_WD
         - grasp
+        - device_status
 
     ``X_WD`` is an abstract ``RigidTransform``; ``V_WD`` the 6-vector
     ``[w_WD; v_WD]`` (rad/s, m/s) expressed in W; ``grasp`` an abstract
     ``str``, the name of the body to hold or ``""`` for none.
+    ``device_status`` counts what the :class:`SampleGuard` did
+    (:data:`DEVICE_STATUS_KEYS`).
+
+    The device period is independent of the plant step (multi-rate): a 60 Hz
+    device drives a 1 ms plant, a 1 kHz one a 10 ms plant. Between samples
+    the output holds (``interpolation="hold"``, the paper's uncorrelated
+    samples) or moves linearly from the previous sample to the latest over
+    one period (``"linear"``: smooth, one period later; slerp in rotation).
+    ``V_WD`` is the backward difference of the last two samples either way,
+    the slope of the linear interpolation.
 
     Parameters
     ----------
     sampler : callable
-        ``sampler(t) -> (p_WD, q_WD, grasp)`` for a device time ``t`` (s).
+        ``sampler(t) -> (p_WD, q_WD, grasp)`` for a device time ``t`` (s),
+        or ``None`` when the device gives no new sample (a dropout).
     period_s : float
         Device sampling period T (s); 1/60 s by default.
     latency_s : float
@@ -71,72 +142,163 @@ class DeviceSource(LeafSystem):
         ``(seed, k)``, so a run is reproducible whatever order samples are taken in.
     seed : int
         Seed of the noise.
+    interpolation : str
+        ``"hold"`` (default) or ``"linear"``.
+    guard : SampleGuard | None
+        What to do with invalid, missing and absurd samples; default
+        :class:`SampleGuard()`.
     """
 
     def __init__(
         self,
-        sampler: Callable[[float], Sample],
+        sampler: Callable[[float], Sample | None],
         period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
         latency_s: float = 0.0,
         noise_m: float = 0.0,
         seed: int = 0,
+        interpolation: str = "hold",
+        guard: SampleGuard | None = None,
     ):
         super().__init__()
         _check_timing(period_s, latency_s)
         if not (noise_m >= 0.0 and math.isfinite(noise_m)):
             raise ValueError(f"device noise_m={noise_m!r} must be ≥ 0 m")
+        if interpolation not in INTERPOLATIONS:
+            raise ValueError(f"device interpolation={interpolation!r}; choose one of {INTERPOLATIONS}")
         self.noise_m = float(noise_m)
         self.seed = int(seed)
         self.period_s = float(period_s)
         self.latency_s = float(latency_s)
+        self.interpolation = interpolation
+        self.guard = guard or SampleGuard()
         self._sampler = sampler
-        p0, q0, g0 = self._sample(0.0)
-        # State: [q_cur(4), p_cur(3), q_prev(4), p_prev(3)]; grasp is abstract.
-        x0 = np.concatenate([q0, p0, q0, p0])
+        first = self._sample(0.0)
+        problem = None if first is None else self._problem(first)
+        if first is None or problem:
+            raise ValueError(
+                f"the device's first sample (t = 0) is {'missing' if first is None else problem}; "
+                "a device must start from a valid pose"
+            )
+        p0, q0, g0 = first
+        q0 = q0 / np.linalg.norm(q0)
+        x0 = np.zeros(_N_STATE)
+        x0[_QC] = x0[_QP] = x0[_QN] = q0
+        x0[_PC] = x0[_PP] = x0[_PN] = p0
         self._pose_index = self.DeclareDiscreteState(x0)
         self._grasp_index = self.DeclareAbstractState(AbstractValue.Make(g0))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.period_s, 0.0, self._update)
+        tickets = {self.xd_ticket()} | ({self.time_ticket()} if interpolation == "linear" else set())
         self.DeclareAbstractOutputPort(
-            "X_WD",
-            lambda: AbstractValue.Make(RigidTransform()),
-            self._calc_X_WD,
-            prerequisites_of_calc={self.xd_ticket()},
+            "X_WD", lambda: AbstractValue.Make(RigidTransform()), self._calc_X_WD, tickets
         )
         self.DeclareVectorOutputPort("V_WD", 6, self._calc_V_WD, prerequisites_of_calc={self.xd_ticket()})
         self.DeclareStateOutputPort("grasp", self._grasp_index)
+        self.DeclareVectorOutputPort(
+            "device_status",
+            len(DEVICE_STATUS_KEYS),
+            lambda c, o: o.SetFromVector(c.get_discrete_state(self._pose_index).get_value()[_STATUS]),
+            prerequisites_of_calc={self.xd_ticket()},
+        )
 
-    def _sample(self, t: float) -> Sample:
-        p, q, grasp = self._sampler(max(0.0, t - self.latency_s))
-        p = np.asarray(p, float)
-        if self.noise_m > 0.0:
+    def _sample(self, t: float) -> Sample | None:
+        raw = self._sampler(max(0.0, t - self.latency_s))
+        if raw is None:
+            return None
+        p, q, grasp = raw
+        p = np.asarray(p, float).reshape(-1)
+        if self.noise_m > 0.0 and p.size == 3:
             k = round(t / self.period_s)
             p = p + self.noise_m * np.random.default_rng([self.seed, k]).standard_normal(3)
-        return p, np.asarray(q, float), grasp or ""
+        return p, np.asarray(q, float).reshape(-1), grasp or ""
+
+    def _problem(self, sample: Sample) -> str | None:
+        """Why a sample cannot be used, or None."""
+        p, q, _ = sample
+        if p.size != 3 or q.size != 4:
+            return f"a sample of {p.size} positions and {q.size} quaternion values (need 3 and 4)"
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+            return f"non-finite: p={p.tolist()}, q={q.tolist()}"
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > self.guard.quaternion_tolerance:
+            tol = self.guard.quaternion_tolerance
+            return f"quaternion {q.tolist()} of norm {norm:.6g} (need 1 ± {tol:g})"
+        return None
 
     def _update(self, context, state):
-        x = context.get_discrete_state(self._pose_index).get_value()
-        p, q, grasp = self._sample(context.get_time())
-        state.get_mutable_discrete_state(self._pose_index).set_value(np.concatenate([q, p, x[:7]]))
+        x = context.get_discrete_state(self._pose_index).get_value().copy()
+        grasp = context.get_abstract_state(self._grasp_index).get_value()
+        g = self.guard
+        status = x[_STATUS]
+        status[0] += 1
+        x[_TLAST] = context.get_time()
+        sample = self._sample(context.get_time())
+        accepted = False
+        if sample is None:
+            status[2] += 1
+        elif self._problem(sample):
+            status[1] += 1
+        else:
+            p, q, name = sample
+            q = q / np.linalg.norm(q)
+            step = g.max_speed_m_s * self.period_s
+            if np.linalg.norm(p - x[_PC]) <= step * (x[_GAP] + 1.0):
+                x[_QP], x[_PP] = x[_QC], x[_PC]
+                x[_QC], x[_PC] = q, p
+                accepted = True
+            else:
+                agrees = x[_NCAND] > 0 and np.linalg.norm(p - x[_PN]) <= step
+                x[_NCAND] = x[_NCAND] + 1 if agrees else 1
+                x[_QN], x[_PN] = q, p
+                if x[_NCAND] >= g.confirm_samples:  # the device really is there now
+                    x[_QP] = x[_QC] = q
+                    x[_PP] = x[_PC] = p
+                    status[4] += 1
+                    accepted = True
+                else:
+                    status[3] += 1
+            if accepted:
+                grasp = name
+        if accepted:
+            x[_NCAND] = 0.0
+            x[_GAP] = 0.0
+        else:
+            x[_QP], x[_PP] = x[_QC], x[_PC]  # hold, at rest
+            x[_GAP] += 1.0
+            status[5] = max(status[5], x[_GAP] * self.period_s)
+        x[_STATUS] = status
+        state.get_mutable_discrete_state(self._pose_index).set_value(x)
         state.get_mutable_abstract_state(self._grasp_index).set_value(grasp)
 
     def _calc_X_WD(self, context, output):
         x = context.get_discrete_state(self._pose_index).get_value()
-        output.set_value(RigidTransform(Quaternion(x[:4] / np.linalg.norm(x[:4])), x[4:7]))
+        q, p = x[_QC], x[_PC]
+        if self.interpolation == "linear":
+            s = min(max((context.get_time() - x[_TLAST]) / self.period_s, 0.0), 1.0)
+            p = x[_PP] + s * (x[_PC] - x[_PP])
+            q = Quaternion(x[_QP]).slerp(s, Quaternion(x[_QC])).wxyz()
+        output.set_value(RigidTransform(Quaternion(q / np.linalg.norm(q)), p))
 
     def _calc_V_WD(self, context, output: BasicVector):
         x = context.get_discrete_state(self._pose_index).get_value()
-        w = rotation_error(x[:4], x[7:11]) / self.period_s
-        v = (x[4:7] - x[11:14]) / self.period_s
+        w = rotation_error(x[_QC], x[_QP]) / self.period_s
+        v = (x[_PC] - x[_PP]) / self.period_s
         output.SetFromVector(np.concatenate([w, v]))
 
-    def samples(self, duration_s: float) -> list[tuple[float, Sample]]:
-        """The samples this device reports on ``[0, duration_s]``, as ``(t_k, sample)``."""
+    def samples(self, duration_s: float) -> list[tuple[float, Sample | None]]:
+        """What the sampler reports on ``[0, duration_s]``, as ``(t_k, sample)``, before the guard."""
         n = math.floor(duration_s / self.period_s + 1e-9)
         return [(k * self.period_s, self._sample(k * self.period_s)) for k in range(n + 1)]
 
     def grasp_names(self, duration_s: float) -> set[str]:
         """Every non-empty grasp name the device reports on ``[0, duration_s]``."""
-        return {s[2] for _, s in self.samples(duration_s) if s[2]}
+        return {s[2] for _, s in self.samples(duration_s) if s is not None and s[2]}
+
+    @staticmethod
+    def status_dict(values) -> dict:
+        """``device_status`` values as a dict keyed by :data:`DEVICE_STATUS_KEYS` (counts as int)."""
+        out = {k: round(v) for k, v in zip(DEVICE_STATUS_KEYS[:-1], values[:-1], strict=True)}
+        out[DEVICE_STATUS_KEYS[-1]] = float(values[-1])
+        return out
 
 
 @dataclasses.dataclass
@@ -187,8 +349,17 @@ class ScriptedDevice(DeviceSource):
         latency_s: float = 0.0,
         noise_m: float = 0.0,
         seed: int = 0,
+        interpolation: str = "hold",
+        guard: SampleGuard | None = None,
     ):
         waypoints = list(waypoints)
+        for i, w in enumerate(waypoints):
+            values = [w.t, *w.xyz, *w.rpy_deg]
+            if len(w.xyz) != 3 or len(w.rpy_deg) != 3 or not all(math.isfinite(v) for v in values):
+                raise ValueError(
+                    f"waypoint {i} (t={w.t}) needs a finite t, 3 finite xyz (m) and 3 finite rpy_deg; "
+                    f"got xyz={list(w.xyz)}, rpy_deg={list(w.rpy_deg)}"
+                )
         if len(waypoints) < 2:
             raise ValueError(f"a scripted device needs at least 2 waypoints, got {len(waypoints)}")
         times = np.array([w.t for w in waypoints], dtype=float)
@@ -203,7 +374,7 @@ class ScriptedDevice(DeviceSource):
         self._times = times
         self._grasps = [w.grasp or "" for w in waypoints]
         self.end_time_s = float(times[-1])
-        super().__init__(self._sample_path, period_s, latency_s, noise_m, seed)
+        super().__init__(self._sample_path, period_s, latency_s, noise_m, seed, interpolation, guard)
 
     def _sample_path(self, t: float) -> Sample:
         t = min(max(t, self._times[0]), self._times[-1])
@@ -306,14 +477,118 @@ class ReplayDevice(DeviceSource):
         latency_s: float = 0.0,
         noise_m: float = 0.0,
         seed: int = 0,
+        interpolation: str = "hold",
+        guard: SampleGuard | None = None,
     ):
         self.log = log if isinstance(log, DeviceLog) else read_device_log(log)
         self.end_time_s = float(self.log.t[-1])
-        super().__init__(self._sample_log, period_s, latency_s, noise_m, seed)
+        super().__init__(self._sample_log, period_s, latency_s, noise_m, seed, interpolation, guard)
 
     def _sample_log(self, t: float) -> Sample:
         k = max(int(np.searchsorted(self.log.t, t + 1e-9, side="right")) - 1, 0)
         return self.log.p[k], self.log.q[k], self.log.grasp[k]
+
+
+RELATIVE_CSV_HEADER = ("t", "dx", "dy", "dz", "drx", "dry", "drz", "clutch", "grasp")
+
+
+@dataclasses.dataclass(frozen=True)
+class IncrementLog:
+    """A relative device's log: row times (s), increments of position (m) and of rotation
+    (rotation vector, rad), both in W, clutch flags and grasp names."""
+
+    t: np.ndarray
+    dp: np.ndarray
+    drot: np.ndarray
+    clutch: np.ndarray
+    grasp: list[str]
+
+
+def read_increment_log(filename: str | Path) -> IncrementLog:
+    """Read and check a relative device's CSV (``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
+
+    Raises ``ValueError`` naming the file and line of the first bad row.
+    """
+    t, dp, drot, clutch, grasp = [], [], [], [], []
+    hint = " See the README section 'Relative device'."
+    for where, row in _csv_rows(filename, RELATIVE_CSV_HEADER, hint):
+        if len(row) not in (8, 9):
+            raise ValueError(f"{where}: expected 9 columns ({','.join(RELATIVE_CSV_HEADER)}), got {len(row)}")
+        values = _finite_floats(where, row[:8])
+        _check_after(where, values[0], t)
+        if values[7] not in (0.0, 1.0):
+            raise ValueError(f"{where}: clutch is {row[7]!r}; it must be 0 (released: move) or 1 (pressed)")
+        t.append(values[0])
+        dp.append(values[1:4])
+        drot.append(values[4:7])
+        clutch.append(values[7] == 1.0)
+        grasp.append(row[8].strip() if len(row) == 9 else "")
+    return IncrementLog(np.array(t), np.array(dp), np.array(drot), np.array(clutch), grasp)
+
+
+def write_increment_log(filename: str | Path, log: IncrementLog) -> None:
+    """Write a relative device's CSV at ``repr`` precision."""
+    with Path(filename).open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(RELATIVE_CSV_HEADER)
+        for k in range(len(log.t)):
+            cells = [log.t[k], *log.dp[k], *log.drot[k]]
+            writer.writerow([*map(repr, map(float, cells)), int(log.clutch[k]), log.grasp[k]])
+
+
+class RelativeDevice(DeviceSource):
+    """The paper's mouse: a device that reports increments, applied to the target.
+
+    Row k of the log is the motion the device measured up to ``t_k``: a
+    translation ``dp`` (m) and a rotation vector ``drot`` (rad), both in W.
+    With the clutch released (``clutch = 0``) the increment moves the
+    target: ``p_k = p_{k−1} + dp``, ``R_k = exp(drot) R_{k−1}``. With the
+    clutch pressed (``clutch = 1``) it is ignored: the user lifts the mouse
+    and brings it back without moving the target (paper: "their movement can
+    be ignored, if necessary"). The target starts at ``X_WD0``; between rows
+    it holds the latest row at or before ``t`` (1 ns tolerance), sampled at
+    the device period like :class:`ReplayDevice`.
+    """
+
+    def __init__(
+        self,
+        log: IncrementLog | str | Path,
+        X_WD0: RigidTransform | None = None,
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+        noise_m: float = 0.0,
+        seed: int = 0,
+        interpolation: str = "hold",
+        guard: SampleGuard | None = None,
+    ):
+        self.log = log if isinstance(log, IncrementLog) else read_increment_log(log)
+        X = X_WD0 or RigidTransform()
+        p, R = X.translation().copy(), X.rotation().matrix().copy()
+        self._p, self._q = [], []
+        for k in range(len(self.log.t)):
+            if not self.log.clutch[k]:
+                p = p + self.log.dp[k]
+                R = rotation_from_vector(self.log.drot[k]) @ R
+            self._p.append(p)
+            self._q.append(RotationMatrix(R).ToQuaternion().wxyz())
+        self._p0, self._q0 = X.translation().copy(), X.rotation().ToQuaternion().wxyz()
+        self.end_time_s = float(self.log.t[-1])
+        super().__init__(self._sample_log, period_s, latency_s, noise_m, seed, interpolation, guard)
+
+    def _sample_log(self, t: float) -> Sample:
+        k = int(np.searchsorted(self.log.t, t + 1e-9, side="right")) - 1
+        if k < 0:
+            return self._p0, self._q0, self.log.grasp[0]
+        return self._p[k], self._q[k], self.log.grasp[k]
+
+
+def rotation_from_vector(r) -> np.ndarray:
+    """The rotation matrix ``exp([r]×)`` of a rotation vector ``r`` (rad)."""
+    r = np.asarray(r, float)
+    angle = float(np.linalg.norm(r))
+    if angle == 0.0:
+        return np.eye(3)
+    return RotationMatrix(AngleAxis(angle, r / angle)).matrix()
 
 
 class JointDevice(LeafSystem):
@@ -495,21 +770,29 @@ class ReplayJointDevice(JointDevice):
 
 __all__ = [
     "CSV_HEADER",
+    "DEVICE_STATUS_KEYS",
+    "INTERPOLATIONS",
+    "RELATIVE_CSV_HEADER",
     "DeviceLog",
     "DevicePath",
     "DeviceSource",
+    "IncrementLog",
     "JointDevice",
     "JointPath",
     "JointWaypoint",
+    "RelativeDevice",
     "ReplayDevice",
     "ReplayJointDevice",
+    "SampleGuard",
     "ScriptedDevice",
     "ScriptedJointDevice",
     "Waypoint",
     "load_device_path",
     "load_joint_path",
     "read_device_log",
+    "read_increment_log",
     "read_joint_log",
     "write_device_log",
+    "write_increment_log",
     "write_joint_log",
 ]

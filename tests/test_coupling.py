@@ -17,7 +17,9 @@ from godobject_drake.coupling import (
     GodObjectCoupling,
     explicit_limit_omega_h,
 )
-from godobject_drake.devices import ScriptedDevice, Waypoint
+from godobject_drake.devices import SampleGuard, ScriptedDevice, Waypoint
+
+NO_JUMP_CHECK = SampleGuard(max_speed_m_s=float("inf"))
 
 MASS, INERTIA = 0.5, (1e-3, 2e-3, 3e-3)
 G = 9.81
@@ -104,7 +106,8 @@ def closed_loop(waypoints, masses, h=1e-3, gains=STEP_GAINS, rate=1000.0):
     """Free bodies in zero gravity held by a scripted device through the coupling."""
     builder = DiagramBuilder()
     plant, bodies = add_free_boxes(builder, h, masses, INERTIA, gravity=False)
-    device = builder.AddSystem(ScriptedDevice(waypoints, period_s=1.0 / rate))
+    # A deliberate step input: the guard's jump check (10 m/s) would hold it back as a glitch.
+    device = builder.AddSystem(ScriptedDevice(waypoints, period_s=1.0 / rate, guard=NO_JUMP_CHECK))
     coupling = builder.AddSystem(GodObjectCoupling(plant, gains, device_period_s=device.period_s))
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
     for name in ("X_WD", "V_WD", "grasp"):

@@ -2,13 +2,17 @@
 
 import numpy as np
 import pytest
+from pydrake.math import RigidTransform
 
 from godobject_drake.devices import (
+    IncrementLog,
+    RelativeDevice,
     ReplayDevice,
     ScriptedDevice,
     Waypoint,
     read_device_log,
     write_device_log,
+    write_increment_log,
 )
 
 PATH = [
@@ -93,3 +97,48 @@ def test_bad_logs_name_file_and_line(tmp_path, text, message):
 def test_unsorted_waypoints_are_refused():
     with pytest.raises(ValueError, match="increase strictly"):
         ScriptedDevice([PATH[1], PATH[0]])
+
+
+def test_linear_interpolation_is_one_period_late_and_smooth():
+    device = ScriptedDevice(PATH, period_s=0.1, interpolation="linear")
+    # At t = 0.55 the last two samples are t = 0.4 (0.24 m) and 0.5 (0.3 m): halfway between them.
+    X, V, _ = outputs_at(device, 0.55)
+    np.testing.assert_allclose(X.translation(), [0.27, 0, 0], atol=1e-12)
+    assert X.rotation().ToRollPitchYaw().yaw_angle() == pytest.approx(np.radians(40.5))
+    np.testing.assert_allclose(V[3:], [0.6, 0, 0], atol=1e-9)  # the slope it moves at
+
+
+def test_multi_rate_30_hz_with_50_ms_latency():
+    # Sample k = 16 at t = 16/30 s reports the path at 16/30 − 0.05 s: x = 0.6 m/s × 0.4833 s.
+    X, _, _ = outputs_at(ScriptedDevice(PATH, period_s=1 / 30, latency_s=0.05), 0.55)
+    np.testing.assert_allclose(X.translation(), [0.6 * (16 / 30 - 0.05), 0, 0], atol=1e-12)
+
+
+def increments(rows):
+    """An IncrementLog from rows (t, dp, drot, clutch, grasp)."""
+    return IncrementLog(
+        np.array([r[0] for r in rows], float),
+        np.array([r[1] for r in rows], float),
+        np.array([r[2] for r in rows], float),
+        np.array([r[3] for r in rows], bool),
+        [r[4] for r in rows],
+    )
+
+
+def test_relative_device_with_clutch_reproduces_a_known_path(tmp_path):
+    dx, back = [0.025, 0, 0], [-0.025, 0, 0]
+    rows = [(0.1 * k, dx, [0, 0, 0], False, "") for k in (1, 2, 3, 4)]  # 4 strokes: +0.1 m
+    rows += [(0.1 * k, back, [0, 0, 0], True, "") for k in (5, 6, 7, 8)]  # clutch: mouse brought back
+    rows += [(0.1 * k, dx, [0, 0, 0], False, "") for k in (9, 10, 11, 12)]  # +0.1 m again
+    rows += [(1.3, [0, 0, 0], [0, 0, np.pi / 2], False, ""), (1.4, [0, 0.05, 0], [0, 0, 0], False, "brick_0")]
+    log = tmp_path / "increments.csv"
+    write_increment_log(log, increments(rows))
+    device = RelativeDevice(log, RigidTransform([0, 0, 0.1]), period_s=1 / 60)
+    expected = {0.05: [0, 0, 0.1], 0.45: [0.1, 0, 0.1], 0.85: [0.1, 0, 0.1], 1.25: [0.2, 0, 0.1],
+                1.45: [0.2, 0.05, 0.1]}  # fmt: skip
+    for t, p in expected.items():
+        X, _, grasp = outputs_at(device, t)
+        np.testing.assert_allclose(X.translation(), p, atol=1e-12, err_msg=f"t={t}")
+    assert X.rotation().ToRollPitchYaw().yaw_angle() == pytest.approx(np.pi / 2)
+    assert grasp == "brick_0"
+    assert outputs_at(device, 1.25)[0].rotation().ToRollPitchYaw().yaw_angle() == pytest.approx(0.0)
