@@ -43,6 +43,7 @@ from godobject_drake.spatial import (
 )
 
 PAPER_DAMPING_RATIO_RANGE = (0.7, 1.0)  # paper: 1.4 ≤ γ/√(mk) ≤ 2, i.e. 2ζ.
+GRASP_NEAREST = "*"  # grasp name: the nearest free body within reach (a live device's button)
 
 
 class CouplingGainError(ValueError):
@@ -244,10 +245,19 @@ class GodObjectCoupling(LeafSystem):
     With nothing held, T and G both equal the device frame D and the wrench
     is zero.
 
+    Admittance (paper Fig. 2: "the haptic interface handles the god-object
+    directly"): if the optional input ``F_device_W`` (``[τ; f]``, N·m and N,
+    at Go in W) is connected, it *is* the wrench on the held body, gravity
+    compensation added; the PD spring is not used, and the device gets the
+    god-object's pose from ``X_WG`` (:class:`~godobject_drake.haptic.AdmittanceDevice`).
+
     Grasping: when ``grasp`` changes, the coupling stores the pose of G in D
     at that instant (``X_DG``), so grasping does not move the target and
-    the spring starts unstretched; ``""`` releases. The check runs once per
-    device period, half a plant step after the device samples.
+    the spring starts unstretched; ``""`` releases. ``"*"``
+    (:data:`GRASP_NEAREST`, a live device's grasp button) takes the free
+    body whose centre of mass is nearest the device point, if one is within
+    ``grasp_reach_m``, and keeps it while ``"*"`` lasts. The check runs once
+    per device period, half a plant step after the device samples.
 
     Parameters
     ----------
@@ -268,6 +278,9 @@ class GodObjectCoupling(LeafSystem):
         Inertia (about Bo, in B) that a body carries without the plant
         attaching it rigidly, by body name: a deformable god-object's shell
         (:func:`with_carried_inertia`).
+    grasp_reach_m : float
+        How near (m) a body's centre of mass must be to the device point for
+        ``"*"`` to take it.
     """
 
     def __init__(
@@ -278,8 +291,12 @@ class GodObjectCoupling(LeafSystem):
         gravity_compensation: bool = True,
         check_gains: bool = True,
         carried: dict[str, SpatialInertia] | None = None,
+        grasp_reach_m: float = 0.05,
     ):
         super().__init__()
+        if not (math.isfinite(grasp_reach_m) and grasp_reach_m > 0.0):
+            raise ValueError(f"grasp_reach_m={grasp_reach_m!r} m must be > 0")
+        self.grasp_reach_m = float(grasp_reach_m)
         h = plant.time_step()
         if check_gains:
             gains.check(h)
@@ -301,6 +318,7 @@ class GodObjectCoupling(LeafSystem):
         self._X_WD_port = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
         self._V_WD_port = self.DeclareVectorInputPort("V_WD", 6)
         self._grasp_port = self.DeclareAbstractInputPort("grasp", AbstractValue.Make(""))
+        self._F_device_port = self.DeclareVectorInputPort("F_device_W", 6)
 
         # [held BodyIndex or −1, q_DG (4), p_DoGo_D (3)]
         self._grasp_state = self.DeclareDiscreteState(np.array([-1.0, 1, 0, 0, 0, 0, 0, 0]))
@@ -330,8 +348,8 @@ class GodObjectCoupling(LeafSystem):
 
     # -- grasping -------------------------------------------------------------
     def body_for_grasp(self, name: str) -> GraspableBody | None:
-        """The body a grasp name selects; None for ``""``. Raises for unknown names."""
-        if not name:
+        """The body a grasp name selects; None for ``""`` (and ``"*"``). Raises for unknown names."""
+        if not name or name == GRASP_NEAREST:
             return None
         try:
             return self.bodies[name]
@@ -347,9 +365,26 @@ class GodObjectCoupling(LeafSystem):
         for name in names:
             self.body_for_grasp(name)
 
+    def nearest_body(self, p_WD: np.ndarray, x: np.ndarray) -> GraspableBody | None:
+        """The free body whose centre of mass is nearest ``p_WD``, if within ``grasp_reach_m``."""
+        best, best_d = None, self.grasp_reach_m
+        for body in self._by_index.values():
+            d = float(np.linalg.norm(self._body_state(body, x)[1] - p_WD))
+            if d <= best_d:
+                best, best_d = body, d
+        return best
+
     def _update_grasp(self, context, discrete_state):
         held = int(context.get_discrete_state(self._grasp_state).get_value()[0])
-        body = self.body_for_grasp(self._grasp_port.Eval(context))
+        name = self._grasp_port.Eval(context)
+        if name == GRASP_NEAREST:
+            if held >= 0:
+                return  # keep what "*" took
+            body = self.nearest_body(
+                pose_arrays(self._X_WD_port.Eval(context))[1], self._state_port.Eval(context)
+            )
+        else:
+            body = self.body_for_grasp(name)
         if (body.index if body else -1) == held:
             return
         new = np.array([-1.0, 1, 0, 0, 0, 0, 0, 0])
@@ -390,9 +425,13 @@ class GodObjectCoupling(LeafSystem):
         p_WT = p_WD + R_WD @ s[5:8]
         w_WT = V_WD[:3]
         v_WT = V_WD[3:] + cross3(w_WT, p_WT - p_WD)
-        f = body.mass * (self._wn2 * (p_WT - p_WG) + self._2zwn * (v_WT - v_WG) - self._g)
-        I_W = R_WB @ body.I_Bcm_B @ R_WB.T
-        tau = I_W @ (self._wr2 * rotation_error(q_WT, q_WG) + self._2zwr * (w_WT - w_WG))
+        if self._F_device_port.HasValue(context):  # admittance: the device's wrench drives G
+            F = self._F_device_port.Eval(context)
+            tau, f = F[:3], F[3:] - body.mass * self._g
+        else:
+            f = body.mass * (self._wn2 * (p_WT - p_WG) + self._2zwn * (v_WT - v_WG) - self._g)
+            I_W = R_WB @ body.I_Bcm_B @ R_WB.T
+            tau = I_W @ (self._wr2 * rotation_error(q_WT, q_WG) + self._2zwr * (w_WT - w_WG))
         out[_XT] = np.concatenate([q_WT, p_WT])
         out[_VT] = np.concatenate([w_WT, v_WT])
         out[_XG] = np.concatenate([q_WG, p_WG])

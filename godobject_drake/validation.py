@@ -29,7 +29,7 @@ from pydrake.systems.primitives import LogVectorOutput, Sine
 from godobject_drake.coupling import CouplingGains, GodObjectCoupling
 from godobject_drake.devices import ScriptedDevice, Waypoint
 from godobject_drake.feedback import FeedbackGains, FeedbackPort
-from godobject_drake.haptic import HapticDevice
+from godobject_drake.haptic import HapticDevice, PassivityController
 from godobject_drake.scenes import SceneParts, add_scene_from_directives, set_contact_material
 from godobject_drake.stability import (
     BodyLoop,
@@ -144,6 +144,9 @@ class HapticScenario:
         Feedback gains (N/m, N·s/m).
     force_amplitude, force_frequency : float
         User's force ``F sin(ω t)`` (N, rad/s), sampled by the device.
+    passivity_max_damping : float
+        > 0 puts a :class:`~godobject_drake.haptic.PassivityController` with
+        this damping cap (N·s/m) on the feedback path; 0 = none.
     """
 
     device: DeviceParams
@@ -156,6 +159,7 @@ class HapticScenario:
     gamma_d: float = 0.0
     force_amplitude: float = 0.0
     force_frequency: float = 10.0
+    passivity_max_damping: float = 0.0
 
     def pipeline(self, mass: float) -> Pipeline:
         """The analysis model of this scenario (:func:`~godobject_drake.stability.pipeline_impedance`)."""
@@ -203,6 +207,7 @@ class HapticRun:
     z_probe: np.ndarray
     f_feedback: np.ndarray
     probe_mass: float
+    passivity_energy: np.ndarray | None = None  # [E_t, E_r, dissipated_t, dissipated_r] per sample (J)
 
     @property
     def energy_to_user(self) -> np.ndarray:
@@ -257,7 +262,15 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
     builder.Connect(device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
     for name in ("X_WT", "V_WT", "X_WG", "V_WG"):
         builder.Connect(coupling.GetOutputPort(name), feedback.GetInputPort(name))
-    builder.Connect(feedback.GetOutputPort("F_Do_W"), device.GetInputPort("F_Do_W"))
+    log_pc = None
+    if sc.passivity_max_damping > 0.0:
+        pc = builder.AddNamedSystem("passivity", PassivityController(d.period, sc.passivity_max_damping))
+        builder.Connect(feedback.GetOutputPort("F_Do_W"), pc.GetInputPort("F_in"))
+        builder.Connect(device.GetOutputPort("X_WD"), pc.GetInputPort("X_WD"))
+        builder.Connect(pc.GetOutputPort("F_out"), device.GetInputPort("F_Do_W"))
+        log_pc = LogVectorOutput(pc.GetOutputPort("energy"), builder, d.period)
+    else:
+        builder.Connect(feedback.GetOutputPort("F_Do_W"), device.GetInputPort("F_Do_W"))
     if sc.force_amplitude:
         user = builder.AddNamedSystem("user", Sine(sc.force_amplitude, sc.force_frequency, 0.0, 1))
         builder.Connect(user.get_output_port(0), device.GetInputPort("human_force"))
@@ -282,6 +295,7 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
         z_probe=G.data()[6],
         f_feedback=F.data()[5],
         probe_mass=probe.default_mass(),
+        passivity_energy=log_pc.FindLog(c).data().T if log_pc else None,
     )
 
 
