@@ -28,14 +28,16 @@ from godobject_drake.deformable import (
     add_deformable_god_object,
     obstacle_geometries,
 )
-from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.metrics import shell_metrics
 from godobject_drake.recording import ShellVisualizer, add_meshcat_visualization, save_recording
 from godobject_drake.runner import (
     add_common_arguments,
+    connect_device,
     gains_from_args,
     impose_target,
+    is_live,
     make_device,
+    make_meshcat,
     report,
     run_loop,
 )
@@ -43,6 +45,9 @@ from godobject_drake.scenes import MODELS_DIR, add_scene_from_directives
 from godobject_drake.spatial import pose_from_array
 
 SCENE = "deformable_probe"
+PROBE = "probe"  # the god-object's (core's) name; a live device always holds it
+# Where the live device may go (m): around and above the block.
+LIVE_WORKSPACE = ([-0.15, -0.10, 0.0], [0.15, 0.10, 0.20])
 DIRECTIVES = "package://godobject_models/deformable_probe/deformable_probe.dmd.yaml"
 DEFAULT_PATH = MODELS_DIR / "deformable_probe" / "default_path.yaml"
 # SAP's default near-rigid threshold (1.0) caps a contact's stiffness at what
@@ -61,7 +66,10 @@ def spec_from_args(args) -> ShellSpec:
 def build(args):
     """Compose the diagram: device → coupling → core; shell observer, logs, drawing."""
     builder = DiagramBuilder()
-    device = builder.AddNamedSystem("device", make_device(args, DEFAULT_PATH))
+    meshcat = make_meshcat(args)
+    device = builder.AddNamedSystem(
+        "device", make_device(args, DEFAULT_PATH, meshcat, LIVE_WORKSPACE, live_grasp=PROBE)
+    )
     p0, q0, _ = device.samples(0.0)[0][1]
     X_WC = pose_from_array(np.concatenate([q0, p0]))  # the probe starts at the device
     spec = spec_from_args(args)
@@ -71,7 +79,7 @@ def build(args):
     added = {}
 
     def add_probe(plant, scene_graph):
-        added["probe"] = add_deformable_god_object(plant, scene_graph, args.shell, spec, X_WC, "probe")
+        added["probe"] = add_deformable_god_object(plant, scene_graph, args.shell, spec, X_WC, PROBE)
 
     scene = add_scene_from_directives(
         builder, DIRECTIVES, args.time_step, near_rigid_threshold=NEAR_RIGID_THRESHOLD,
@@ -86,16 +94,7 @@ def build(args):
         ),
     )
     coupling.validate_grasp_names(device.grasp_names(args.duration))
-    feedback = builder.AddNamedSystem("feedback", FeedbackPort(FeedbackGains()))  # non-haptic: zero
-    builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
-    for name in ("X_WD", "V_WD", "grasp"):
-        builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
-    if args.mode == "god_object":
-        forces = plant.get_applied_spatial_force_input_port()
-        builder.Connect(coupling.GetOutputPort("spatial_forces"), forces)
-    builder.Connect(device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
-    for name in ("X_WT", "V_WT", "X_WG", "V_WG"):
-        builder.Connect(coupling.GetOutputPort(name), feedback.GetInputPort(name))
+    chain = connect_device(builder, args, device, plant, coupling)
 
     logs = {"state": plant.get_state_output_port(), "X_WT": coupling.GetOutputPort("X_WT")}
     for name in ("vertex_positions", "rest_positions", "X_WC"):
@@ -103,22 +102,18 @@ def build(args):
     logs = {name: LogVectorOutput(port, builder, args.time_step) for name, port in logs.items()}
     for name, log in logs.items():
         log.set_name(f"{name}_log")
-    meshcat = None
-    if args.record or args.meshcat:
-        from pydrake.geometry import Meshcat
-
-        meshcat = Meshcat() if args.meshcat else Meshcat(port=0)
+    if meshcat is not None:
         add_meshcat_visualization(builder, meshcat, scene.scene_graph)
         drawing = builder.AddNamedSystem("shell_visualizer", ShellVisualizer(meshcat, probe))
         builder.Connect(observer.GetOutputPort("vertex_positions"), drawing.GetInputPort("vertex_positions"))
         builder.Connect(observer.GetOutputPort("X_WC"), drawing.GetInputPort("X_WC"))
         builder.Connect(coupling.GetOutputPort("X_WT"), drawing.GetInputPort("X_WT"))
-    return builder.Build(), scene, probe, coupling, logs, meshcat
+    return builder.Build(), scene, probe, coupling, logs, meshcat, chain
 
 
 def run(args):
     """Build, run and measure; returns the metrics dict."""
-    diagram, scene, probe, coupling, logs, meshcat = build(args)
+    diagram, scene, probe, coupling, logs, meshcat, chain = build(args)
     plant = scene.plant
 
     def impose(plant_context, root_context):
@@ -129,7 +124,8 @@ def run(args):
 
     loop = run_loop(
         diagram, plant, args.duration, impose=impose if args.mode == "position" else None,
-        meshcat=meshcat, record=args.record, realtime=args.meshcat, progress=not args.no_progress,
+        meshcat=meshcat, record=args.record, realtime=args.meshcat or is_live(chain.source),
+        progress=not args.no_progress, live=is_live(chain.source),
     )  # fmt: skip
     data = {name: log.FindLog(loop.context).data().T for name, log in logs.items()}
     n = min(len(d) for d in data.values())
@@ -155,7 +151,8 @@ def run(args):
         "youngs_modulus_pa": probe.spec.youngs_modulus_pa, "device": args.device,
         "device_rate_hz": args.device_rate, "omega_n_rad_s": gains.omega_n,
         "omega_n_rot_rad_s": gains.omega_r, "zeta": gains.zeta,
-        "step_cost_us": 1e6 * loop.wall_time_s / steps,
+        "step_cost_us": 1e6 * loop.wall_time_s / steps, "haptic": args.haptic,
+        **chain.metrics(loop.context),
     }  # fmt: skip
     if args.record and meshcat is not None:
         metrics["recording_bytes"] = save_recording(meshcat, args.record)
@@ -189,7 +186,7 @@ def main(argv=None):
     report([metrics], args.metrics)
     if args.record:
         print(f"recording written to {args.record}")
-    if args.meshcat and sys.stdin.isatty():
+    if (args.meshcat or args.device == "meshcat") and sys.stdin.isatty():
         input("Meshcat is still serving the scene; press Enter to exit.")
     return 1 if metrics["diverged"] else 0
 

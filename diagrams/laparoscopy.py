@@ -25,7 +25,14 @@ from godobject_drake.coupling import CouplingGainError
 from godobject_drake.devices import ReplayJointDevice, ScriptedJointDevice, load_joint_path
 from godobject_drake.metrics import tool_metrics
 from godobject_drake.recording import ToolGhostVisualizer, add_meshcat_visualization, save_recording
-from godobject_drake.runner import add_common_arguments, gains_from_args, report, run_loop
+from godobject_drake.runner import (
+    add_common_arguments,
+    gains_from_args,
+    is_live,
+    make_meshcat,
+    report,
+    run_loop,
+)
 from godobject_drake.scenes import MODELS_DIR, add_scene_from_directives, exclude_self_collisions
 
 SCENE = "laparoscopy"
@@ -39,10 +46,29 @@ MIX = np.array([[1, 0, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 1, 0, 0], [0, 0, 0, 1, 
                 [0, 0, 0, 0, 0.5], [0, 0, 0, 0, 0.5]], dtype=float)  # fmt: skip
 
 
-def make_device(args):
+# Live interface (--device meshcat): each channel's range (rad, m) and start.
+LIVE_LIMITS = ((-0.6, 0.6), (-0.6, 0.6), (0.0, 0.15), (-3.1, 3.1), (0.0, 0.8))
+
+
+def make_device(args, meshcat=None):
     kwargs = dict(mix=MIX, period_s=1.0 / args.device_rate, latency_s=args.device_latency)
     if args.device_noise:
         raise ValueError("--device-noise (m) is for pose devices; the laparoscopic interface has none")
+    if args.haptic != "none" or args.kd or args.gamma_d or args.passivity_damping:
+        raise ValueError(
+            "--haptic/--kd/--gamma-d/--passivity-damping: the laparoscopic interface is a non-haptic "
+            "joint-space device here; use them with the brick or deformable-probe scene"
+        )
+    if args.device_interpolation != "hold" or args.device == "relative":
+        raise ValueError(
+            f"--device {args.device} --device-interpolation {args.device_interpolation}: the "
+            "laparoscopic interface is absolute and held; use --device scripted, replay or meshcat"
+        )
+    if args.device == "meshcat":
+        from godobject_drake.live import MeshcatJointDevice
+
+        q0 = ScriptedJointDevice(load_joint_path(DEFAULT_PATH)).channel_values(0.0)
+        return MeshcatJointDevice(meshcat, CHANNELS, LIVE_LIMITS, q0, **kwargs)
     if args.device == "replay":
         if args.device_log is None:
             raise ValueError(
@@ -58,7 +84,8 @@ def build(args):
     scene = add_scene_from_directives(builder, DIRECTIVES, args.time_step)
     plant = scene.plant
     exclude_self_collisions(plant, scene.scene_graph, "grasper")
-    device = builder.AddNamedSystem("device", make_device(args))
+    meshcat = make_meshcat(args)
+    device = builder.AddNamedSystem("device", make_device(args, meshcat))
     q_home = device.sample(0.0)
     gains = gains_from_args(args, rot_factor=1.0)  # rotation at the translational bandwidth here
     coupling = add_articulated_god_object(
@@ -88,11 +115,7 @@ def build(args):
     ):
         logs[name] = LogVectorOutput(port, builder, args.time_step)
         logs[name].set_name(f"{name}_log")
-    meshcat = None
-    if args.record or args.meshcat:
-        from pydrake.geometry import Meshcat
-
-        meshcat = Meshcat() if args.meshcat else Meshcat(port=0)
+    if meshcat is not None:
         add_meshcat_visualization(builder, meshcat, scene.scene_graph)
         ghost = builder.AddNamedSystem(
             "device_tool_ghost", ToolGhostVisualizer(meshcat, tool, scene.scene_graph)
@@ -104,6 +127,7 @@ def build(args):
 def run(args):
     diagram, scene, coupling, logs, meshcat = build(args)
     plant = scene.plant
+    device = diagram.GetSubsystemByName("device")
     everything = args.mode == "position"
 
     def prepare(simulator):
@@ -114,8 +138,8 @@ def run(args):
 
     loop = run_loop(
         diagram, plant, args.duration, impose=impose if (everything or coupling.tool.imposed) else None,
-        prepare=prepare, meshcat=meshcat, record=args.record, realtime=args.meshcat,
-        progress=not args.no_progress,
+        prepare=prepare, meshcat=meshcat, record=args.record, realtime=args.meshcat or is_live(device),
+        progress=not args.no_progress, live=is_live(device),
     )  # fmt: skip
     state = logs["state"].FindLog(loop.context)
     q_dev = logs["q_device"].FindLog(loop.context)
@@ -170,7 +194,7 @@ def main(argv=None):
     report([metrics], args.metrics)
     if args.record:
         print(f"recording written to {args.record}")
-    if args.meshcat and sys.stdin.isatty():
+    if (args.meshcat or args.device == "meshcat") and sys.stdin.isatty():
         input("Meshcat is still serving the scene; press Enter to exit.")
     return 1 if metrics["diverged"] else 0
 

@@ -14,13 +14,14 @@ import sys
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.coupling import CouplingGainError, GodObjectCoupling
-from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.runner import (
     add_common_arguments,
     add_loggers,
     add_visualization,
+    connect_device,
     gains_from_args,
     make_device,
+    make_meshcat,
     report,
     simulate,
 )
@@ -31,44 +32,37 @@ DIRECTIVES = "package://godobject_models/lego/lego.dmd.yaml"
 DEFAULT_PATH = MODELS_DIR / "lego" / "default_path.yaml"
 
 
+# Where the live device may go (m): the table's area, up to 12 cm high.
+LIVE_WORKSPACE = ([-0.15, -0.10, 0.0], [0.15, 0.10, 0.12])
+
+
 def build(args):
     """Compose the whole diagram: device → coupling → plant, coupling → feedback."""
     builder = DiagramBuilder()
     scene = add_scene_from_directives(builder, DIRECTIVES, args.time_step, contact=args.contact)
     plant = scene.plant
-    device = builder.AddNamedSystem("device", make_device(args, DEFAULT_PATH))
+    meshcat = make_meshcat(args)
+    device = builder.AddNamedSystem("device", make_device(args, DEFAULT_PATH, meshcat, LIVE_WORKSPACE))
     coupling = builder.AddNamedSystem(
         "coupling",
         GodObjectCoupling(plant, gains_from_args(args), device_period_s=device.period_s),
     )
     coupling.validate_grasp_names(device.grasp_names(args.duration))
-    feedback = builder.AddNamedSystem("feedback", FeedbackPort(FeedbackGains()))  # non-haptic: zero
-
-    builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
-    for name in ("X_WD", "V_WD", "grasp"):
-        builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
-    if args.mode == "god_object":
-        builder.Connect(
-            coupling.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port()
-        )
-    builder.Connect(device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
-    for name in ("X_WT", "V_WT", "X_WG", "V_WG"):
-        builder.Connect(coupling.GetOutputPort(name), feedback.GetInputPort(name))
-
+    chain = connect_device(builder, args, device, plant, coupling)
     loggers = add_loggers(builder, plant, coupling)
-    meshcat = add_visualization(builder, args, plant, scene.scene_graph, coupling)
-    return builder.Build(), scene, coupling, loggers, meshcat
+    meshcat = add_visualization(builder, args, plant, scene.scene_graph, coupling, meshcat)
+    return builder.Build(), scene, coupling, loggers, meshcat, chain
 
 
 def run(args):
-    diagram, scene, coupling, loggers, meshcat = build(args)
+    diagram, scene, coupling, loggers, meshcat, chain = build(args)
     return simulate(
         diagram, scene.plant, scene.scene_graph, coupling, loggers,
         scene=SCENE, mode=args.mode, duration=args.duration, meshcat=meshcat, record=args.record,
-        realtime=args.meshcat, progress=not args.no_progress,
+        realtime=args.meshcat or args.device == "meshcat", progress=not args.no_progress, chain=chain,
         extra={"contact": args.contact, "device": args.device, "device_rate_hz": args.device_rate,
-               "omega_n_rad_s": args.omega_n, "omega_n_rot_rad_s": gains_from_args(args).omega_r,
-               "zeta": args.zeta, "seed": args.seed},
+               "haptic": args.haptic, "omega_n_rad_s": args.omega_n,
+               "omega_n_rot_rad_s": gains_from_args(args).omega_r, "zeta": args.zeta, "seed": args.seed},
     )  # fmt: skip
 
 
@@ -92,7 +86,7 @@ def main(argv=None):
     report([result.metrics], args.metrics)
     if args.record:
         print(f"recording written to {args.record}")
-    if args.meshcat and sys.stdin.isatty():
+    if (args.meshcat or args.device == "meshcat") and sys.stdin.isatty():
         input("Meshcat is still serving the scene; press Enter to exit.")
     return 1 if result.metrics["diverged"] else 0
 

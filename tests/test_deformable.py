@@ -114,7 +114,7 @@ def test_mass_spring_nodes_hang_on_their_anchor_springs_by_m_g_over_k(probe, tmp
     log = device_log(tmp_path, "still", lambda t: START, 1.5)
     args = probe_args(probe, "--shell", "mass_spring", "--time-step", "0.01", "--duration", "1.5",
                       "--device", "replay", "--device-log", str(log))  # fmt: skip
-    diagram, scene, shell, _, logs, _ = probe.build(args)
+    diagram, scene, shell, _, logs, _, _ = probe.build(args)
     from godobject_drake.runner import run_loop
 
     loop = run_loop(diagram, scene.plant, args.duration, progress=False)

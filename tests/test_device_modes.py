@@ -1,0 +1,134 @@
+"""Whatever the device (issue 7): relative, impedance, admittance; the passivity controller.
+
+Each mode is checked against a second way of getting the same thing: a relative log built from
+the scripted path moves the brick exactly as the path does; an admittance device held by a hand
+with the coupling's stiffness moves it as the impedance coupling does; with the passivity
+controller a loop the analysis marks active stops giving energy.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import lego_args, load_script
+
+from godobject_drake import stability as st
+from godobject_drake import validation as va
+from godobject_drake.coupling import graspable_bodies
+from godobject_drake.devices import IncrementLog, ScriptedDevice, load_device_path, write_increment_log
+from godobject_drake.spatial import rotation_error
+
+DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period=1e-3)
+SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
+STIFF = {"k_w": 1e5, "tau_w": 1e-3}
+
+
+def brick_path(result, plant, name="brick_0"):
+    body = graspable_bodies(plant)[name]
+    return result.states[:, body.q_start + 4 : body.q_start + 7]
+
+
+def run_lego(*argv):
+    lego = load_script("diagrams/lego.py")
+    args = lego_args(*argv)
+    result = lego.run(args)
+    return result, lego.build(args)[1].plant
+
+
+def increments_of(samples, clutch_every=10):
+    """The increments a mouse reports along the samples; after every ``clutch_every`` rows the user
+    lifts the mouse and brings it back 5 cm (clutch rows, which must change nothing)."""
+    rows = []
+    for k in range(1, len(samples)):
+        (_, (p0, q0, _)), (t1, (p1, q1, g1)) = samples[k - 1], samples[k]
+        if k % clutch_every == 0:
+            rows.append((t1 - 1e-4, [-0.05, 0, 0], [0, 0, 0.3], True, samples[k - 1][1][2]))
+        rows.append((t1, p1 - p0, rotation_error(q1, q0), False, g1))
+    return IncrementLog(
+        np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
+        np.array([r[3] for r in rows]), [r[4] for r in rows],
+    )  # fmt: skip
+
+
+def test_relative_device_with_clutch_drives_the_brick_as_the_path_does(tmp_path):
+    lego = load_script("diagrams/lego.py")
+    samples = ScriptedDevice(load_device_path(lego.DEFAULT_PATH).waypoints).samples(2.0)
+    log = tmp_path / "mouse.csv"
+    write_increment_log(log, increments_of(samples))
+    scripted, plant = run_lego("--duration", "2.0")
+    relative, _ = run_lego("--duration", "2.0", "--device", "relative", "--device-log", str(log))
+    a, b = brick_path(scripted, plant), brick_path(relative, plant)
+    n = min(len(a), len(b))
+    # Summing increments rounds differently from the path: equal to far below a micrometre.
+    assert np.max(np.abs(a[:n] - b[:n])) < 1e-9
+    assert np.ptp(a[:, 0]) > 0.05  # the brick did travel
+
+
+def test_admittance_device_moves_the_brick_as_the_impedance_coupling_does():
+    # Paper Fig. 2: the admittance device "handles the god-object directly". A hand with the
+    # coupling's (k, γ) on the handle is the same spring; the device senses it once per ms, so the
+    # brick differs only by the one-sample lag. Over 2 s, lift and push into the wall: 0.16 mm.
+    impedance, plant = run_lego("--duration", "2.0")
+    admittance, _ = run_lego("--duration", "2.0", "--haptic", "admittance")
+    a, b = brick_path(impedance, plant), brick_path(admittance, plant)
+    n = min(len(a), len(b))
+    assert np.max(np.linalg.norm(a[:n] - b[:n], axis=1)) < 0.5e-3
+    assert np.ptp(a[:, 0]) > 0.05
+    assert not admittance.metrics["diverged"]
+
+
+def test_simulated_impedance_device_closes_the_force_loop_passively():
+    # A hand pushes the 3-axis haptic device along the path; proportional feedback gains with the
+    # passivity controller: the device never gives the user energy.
+    m = run_lego("--duration", "2.0", "--haptic", "impedance", "--kd", "20", "--gamma-d", "0.2",
+                 "--passivity-damping", "100")[0].metrics  # fmt: skip
+    assert not m["diverged"]
+    assert m["haptic_feedback_work_j"] != 0.0  # the feedback did act on the handle
+    assert m["haptic_energy_to_user_j"] <= 1e-9
+    assert m["passivity_observed_energy_j"] >= -1e-6
+
+
+def active_soft_tissue(**kw):
+    """The stability report's active loop: γd = 0 on soft tissue (THEORY.md §2)."""
+    return va.HapticScenario(DEVICE, **SOFT, kd=1000.0, gamma_d=0.0, force_amplitude=0.05,
+                             force_frequency=10.0, **kw)  # fmt: skip
+
+
+def test_passivity_controller_stops_the_active_loop_giving_energy():
+    sc = active_soft_tissue()
+    H = st.pipeline_impedance(sc.pipeline(1.0))
+    assert st.colgate_required_damping(H, DEVICE.period).margin(DEVICE.damping) < 0  # marked active
+    off = va.simulate_haptic(sc, 2.0)
+    on = va.simulate_haptic(dataclasses.replace(sc, passivity_max_damping=DEVICE.mass / DEVICE.period), 2.0)
+    assert np.max(off.energy_to_user) > 1e-4  # without: the device gives the user 0.19 mJ and growing
+    assert np.max(on.energy_to_user) <= 1e-9  # with: never
+    # The observer's energy dips below zero by at most one interval's worth before the damping acts.
+    assert np.min(on.passivity_energy[:, 0]) > -1e-2 * np.max(off.energy_to_user)
+    assert on.passivity_energy[-1, 2] > 0  # the controller did dissipate
+    assert np.max(np.abs(on.x_device)) < 0.1 * np.max(np.abs(off.x_device))
+
+
+@pytest.mark.parametrize("cap", [20.0, 100.0])
+def test_passivity_controller_stabilizes_a_stiffness_past_the_limit(cap):
+    sc = va.HapticScenario(DEVICE, **STIFF)
+    sc = dataclasses.replace(sc, kd=1.5 * va.predicted_device_k_max(sc))
+    off = va.simulate_haptic(sc, 0.4, v0_device=1e-3)
+    on = va.simulate_haptic(dataclasses.replace(sc, passivity_max_damping=cap), 0.4, v0_device=1e-3)
+    assert va.is_growing(off.x_device)
+    assert not va.is_growing(on.x_device)
+    assert np.max(np.abs(on.x_device[-50:])) < 0.05 * np.max(np.abs(on.x_device))  # 1.4 %: decays
+
+
+def test_passivity_controller_refuses_bad_settings():
+    from godobject_drake.haptic import PassivityController
+
+    with pytest.raises(ValueError, match=r"period=0\.0 s must be > 0"):
+        PassivityController(0.0, 10.0)
+    with pytest.raises(ValueError, match=r"max_damping=-1\.0 must be a finite number ≥ 0"):
+        PassivityController(1e-3, -1.0)
+
+
+def test_haptic_flags_need_a_haptic_device():
+    lego = load_script("diagrams/lego.py")
+    with pytest.raises(ValueError, match="--kd/--gamma-d/--passivity-damping act on a haptic device"):
+        lego.build(lego_args("--kd", "50"))

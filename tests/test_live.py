@@ -1,0 +1,112 @@
+"""Live devices (``--device meshcat``): what the browser sends reaches the target.
+
+The browser is replaced by the messages it would send over Meshcat's websocket (button
+clicks, gamepad state; msgpack as in Drake's own tests) and by setting slider values.
+"""
+
+import msgpack
+import numpy as np
+import pytest
+from conftest import lego_args, load_script
+from pydrake.geometry import Meshcat
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.analysis import Simulator
+
+from godobject_drake.coupling import GRASP_NEAREST, graspable_bodies
+from godobject_drake.live import GRASP_BUTTON, STOP_BUTTON, MeshcatDevice, MeshcatJointDevice
+from godobject_drake.runner import simulate
+
+WORKSPACE = ([-0.2, -0.2, 0.0], [0.2, 0.2, 0.2])
+
+
+@pytest.fixture(scope="module")
+def meshcat():
+    return Meshcat(port=0)
+
+
+def click(meshcat, name):
+    meshcat._InjectWebsocketMessage(msgpack.packb({"type": "button", "name": name}))
+
+
+def gamepad(meshcat, axes, buttons=(0.0,)):
+    msg = {
+        "type": "gamepad",
+        "name": "",
+        "gamepad": {"index": 0, "button_values": list(buttons), "axes": axes},
+    }
+    meshcat._InjectWebsocketMessage(msgpack.packb(msg))
+
+
+def advance(device, simulator, t):
+    simulator.AdvanceTo(t)
+    c = simulator.get_context()
+    return device.GetOutputPort("X_WD").Eval(c), device.GetOutputPort("grasp").Eval(c)
+
+
+def test_sliders_keys_and_grasp_button_drive_the_target(meshcat):
+    meshcat.Delete()
+    meshcat.DeleteAddedControls()
+    device = MeshcatDevice(meshcat, RigidTransform([0, 0, 0.05]), WORKSPACE, period_s=0.01)
+    sim = Simulator(device)
+    X, grasp = advance(device, sim, 0.005)
+    np.testing.assert_allclose(X.translation(), [0, 0, 0.05], atol=1e-12)
+    assert grasp == ""
+    # The sliders (what the keys step) moved to x = 4 cm, yaw 0.3 rad: the next sample has them.
+    device.sliders.SetPose(RigidTransform(RollPitchYaw(0, 0, 0.3), [0.04, 0, 0.05]))
+    X, _ = advance(device, sim, 0.015)
+    np.testing.assert_allclose(X.translation(), [0.04, 0, 0.05], atol=1e-9)
+    assert RollPitchYaw(X.rotation()).yaw_angle() == pytest.approx(0.3, abs=1e-9)
+    click(meshcat, GRASP_BUTTON)
+    assert advance(device, sim, 0.025)[1] == GRASP_NEAREST
+    click(meshcat, GRASP_BUTTON)
+    assert advance(device, sim, 0.035)[1] == ""
+
+
+def test_gamepad_stick_moves_the_target_at_its_speed(meshcat):
+    meshcat.Delete()
+    meshcat.DeleteAddedControls()
+    device = MeshcatDevice(meshcat, RigidTransform([0, 0, 0.05]), WORKSPACE, period_s=0.01)
+    sim = Simulator(device)
+    advance(device, sim, 0.005)
+    gamepad(meshcat, [1.0, 0.0, 0.0, -0.5])  # right at full speed, up at half
+    X, _ = advance(device, sim, 0.505)
+    # 0.1 m/s × 0.5 s in x, 0.05 m/s × 0.5 s in z (one sample's read lags by a period).
+    np.testing.assert_allclose(X.translation(), [0.05, 0, 0.075], atol=0.1 * 0.011)
+    gamepad(meshcat, [0.0, 0.0, 0.0, 0.0], buttons=(1.0,))  # sticks released, button 0 pressed
+    X2, grasp = advance(device, sim, 0.6)
+    np.testing.assert_allclose(X2.translation(), X.translation(), atol=0.1 * 0.011)
+    assert grasp == GRASP_NEAREST
+
+
+def test_live_brick_scene_grasps_the_nearest_brick_and_stops_on_the_button():
+    lego = load_script("diagrams/lego.py")
+    args = lego_args("--device", "meshcat", "--duration", "30")
+    diagram, scene, coupling, loggers, meshcat, chain = lego.build(args)
+    click(meshcat, GRASP_BUTTON)  # the device starts on brick_0 (the scene path's start)
+    click(meshcat, STOP_BUTTON)  # ... and the user stops at once
+    result = simulate(diagram, scene.plant, scene.scene_graph, coupling, loggers, scene="lego",
+                      mode="god_object", duration=args.duration, meshcat=meshcat, realtime=True,
+                      progress=False, chain=chain)  # fmt: skip
+    assert result.metrics["sim_time_s"] == pytest.approx(0.05)  # one 50 ms chunk, then Stop
+    brick = graspable_bodies(scene.plant)["brick_0"]
+    assert result.held[-1] == brick.index
+    assert not result.metrics["diverged"]
+
+
+def test_live_joint_device_reads_its_sliders(meshcat):
+    meshcat.Delete()
+    meshcat.DeleteAddedControls()
+    limits = [(-0.6, 0.6), (0.0, 0.15)]
+    device = MeshcatJointDevice(meshcat, ["yaw", "insertion"], limits, [0.0, 0.05], period_s=0.01)
+    sim = Simulator(device)
+    sim.AdvanceTo(0.005)
+    meshcat.SetSliderValue("device insertion", 0.09)
+    sim.AdvanceTo(0.015)
+    np.testing.assert_allclose(device.GetOutputPort("q_device").Eval(sim.get_context()), [0.0, 0.09])
+    with pytest.raises(ValueError, match=r"channel yaw starts at 0\.9, outside its range \[-0\.6, 0\.6\]"):
+        MeshcatJointDevice(meshcat, ["yaw"], [(-0.6, 0.6)], [0.9])
+
+
+def test_live_workspace_must_contain_the_start(meshcat):
+    with pytest.raises(ValueError, match=r"workspace .* must be a box containing the start point \[0\.5"):
+        MeshcatDevice(meshcat, RigidTransform([0.5, 0, 0]), WORKSPACE)
