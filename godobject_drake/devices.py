@@ -376,6 +376,10 @@ class ScriptedDevice(DeviceSource):
         self.end_time_s = float(times[-1])
         super().__init__(self._sample_path, period_s, latency_s, noise_m, seed, interpolation, guard)
 
+    def path_sample(self, t: float) -> Sample:
+        """The path itself at time ``t`` (clamped to its span): no latency, noise or guard."""
+        return self._sample_path(t)
+
     def _sample_path(self, t: float) -> Sample:
         t = min(max(t, self._times[0]), self._times[-1])
         p = self._position.value(t).ravel()

@@ -188,7 +188,7 @@ def make_device(
     )
     path = ScriptedDevice(load_device_path(default_path).waypoints, noise_m=args.device_noise, seed=args.seed,
                           **kwargs)  # fmt: skip
-    p0, q0, _ = path._sample_path(0.0)  # where the path starts, without the tracker noise
+    p0, q0, _ = path.path_sample(0.0)  # where the path starts, without the tracker noise
     X0 = RigidTransform(Quaternion(q0), p0)
     if args.device in ("replay", "relative"):
         if args.device_log is None:
