@@ -282,7 +282,7 @@ def lego_contact_stiffness() -> float:
         ks.setdefault("proxy" if "proxy_" in name else name.rsplit("::", 1)[-1], []).append(
             insp.GetProximityProperties(gid).GetProperty("material", "point_contact_stiffness")
         )
-    k1, k2 = ks["proxy"][0], ks["baseplate"][0]
+    k1, k2 = ks["proxy"][0], ks["flat_baseplate"][0]
     return k1 * k2 / (k1 + k2)
 
 

@@ -39,7 +39,6 @@ from godobject_drake.spatial import (
     quat_conjugate,
     quat_multiply,
     quat_to_rotation,
-    rotation_error,
 )
 
 PAPER_DAMPING_RATIO_RANGE = (0.7, 1.0)  # paper: 1.4 ≤ γ/√(mk) ≤ 2, i.e. 2ζ.
@@ -210,9 +209,79 @@ def with_carried_inertia(body: GraspableBody, M_BBo_B: SpatialInertia) -> Graspa
     return dataclasses.replace(body, mass=m, p_BoBcm_B=p, I_Bcm_B=I_cm)
 
 
-# Layout of the coupling's cached result vector.
+# Layout of the coupling's cached result vector (also its ``terms`` output, which the runner logs).
 _IDX, _XT, _VT, _XG, _VG, _F = 0, slice(1, 8), slice(8, 14), slice(14, 21), slice(21, 27), slice(27, 33)
-_TERMS = 33
+_CAPPED = 33
+_TERMS = 34
+TERMS_LAYOUT = {
+    "held_body": _IDX, "X_WT": _XT, "V_WT": _VT, "X_WG": _XG, "V_WG": _VG, "F_Go_W": _F, "capped": _CAPPED
+}  # fmt: skip
+DEFAULT_MAX_STRETCH_M = 0.2
+DEFAULT_MAX_TWIST_RAD = math.pi  # the largest possible error: only a velocity spike is cut
+
+
+@dataclasses.dataclass(frozen=True)
+class _HotBody:
+    """A graspable body's constants as plain floats, for the per-step calc."""
+
+    q_start: int
+    v_start: int
+    mass: float
+    p_BoBcm_B: tuple
+    I_list: list  # I_Bcm_B row-major, kg·m²
+    mg: tuple  # m g (N), zero without gravity compensation
+    force_cap: float  # N, the spring-damper's (gravity compensation comes on top)
+    torque_cap: float  # N·m
+
+
+def _quat_of(R) -> tuple:
+    """``[w,x,y,z]`` (w ≥ 0) of a row-major 9-tuple rotation (Shepperd; floats only)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        t = 2.0 * math.sqrt(1.0 + tr)
+        q = (0.25 * t, (r21 - r12) / t, (r02 - r20) / t, (r10 - r01) / t)
+    elif r00 > r11 and r00 > r22:
+        t = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q = ((r21 - r12) / t, 0.25 * t, (r01 + r10) / t, (r02 + r20) / t)
+    elif r11 > r22:
+        t = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        q = ((r02 - r20) / t, (r01 + r10) / t, 0.25 * t, (r12 + r21) / t)
+    else:
+        t = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        q = ((r10 - r01) / t, (r02 + r20) / t, (r12 + r21) / t, 0.25 * t)
+    return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
+
+
+def _rot_of(w, x, y, z) -> tuple:
+    """Row-major rotation of the unit quaternion ``[w,x,y,z]`` (floats only)."""
+    return (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )  # fmt: skip
+
+
+def _qmul(a, b) -> tuple:
+    """Hamilton product ``a ⊗ b`` (floats only)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def _rotvec(qT, qG) -> tuple:
+    """:func:`~godobject_drake.spatial.rotation_error` on float tuples: ``α u`` of ``qT ⊗ qG⁻¹``."""
+    e = _qmul(qT, (qG[0], -qG[1], -qG[2], -qG[3]))
+    if e[0] < 0.0:
+        e = (-e[0], -e[1], -e[2], -e[3])
+    s = math.sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3])
+    k = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, e[0]) / s
+    return (k * e[1], k * e[2], k * e[3])
 
 
 class GodObjectCoupling(LeafSystem):
@@ -234,10 +303,17 @@ class GodObjectCoupling(LeafSystem):
         - X_WG
         - V_WG
         - held_body
+        - terms
+        - generalized_force
 
     ``plant_state`` is the plant's ``[q; v]``; ``X_WD``/``V_WD``/``grasp``
     come from a :class:`~godobject_drake.devices.DeviceSource`.
-    ``spatial_forces`` goes to the plant's ``applied_spatial_force``.
+    ``spatial_forces`` goes to the plant's ``applied_spatial_force``, or
+    ``generalized_force`` (the same wrench as generalized forces of the held
+    body's floating joint, cheaper per step: the runner wires this one) to
+    its ``applied_generalized_force``. ``terms`` is every per-step result
+    in one vector, ``[held_body, X_WT, V_WT, X_WG, V_WG, F_Go_W, capped]``
+    (:data:`TERMS_LAYOUT`), for logging with one port.
     ``F_Go_W`` is the coupling wrench ``[τ; f]`` (N·m, N) on G at Go in W,
     gravity compensation included. ``X_WT``/``X_WG`` are the target's and
     the god-object's poses ``[qw qx qy qz x y z]``, ``V_WT``/``V_WG`` their
@@ -281,6 +357,9 @@ class GodObjectCoupling(LeafSystem):
     grasp_reach_m : float
         How near (m) a body's centre of mass must be to the device point for
         ``"*"`` to take it.
+    max_stretch_m, max_twist_rad : float
+        Force and torque caps, as the stretch and twist whose spring force they equal
+        (:meth:`force_caps`); ``math.inf`` turns a cap off.
     """
 
     def __init__(
@@ -292,8 +371,14 @@ class GodObjectCoupling(LeafSystem):
         check_gains: bool = True,
         carried: dict[str, SpatialInertia] | None = None,
         grasp_reach_m: float = 0.05,
+        max_stretch_m: float = DEFAULT_MAX_STRETCH_M,
+        max_twist_rad: float = DEFAULT_MAX_TWIST_RAD,
     ):
         super().__init__()
+        for label, value in (("max_stretch_m", max_stretch_m), ("max_twist_rad", max_twist_rad)):
+            if not value > 0.0:  # inf is allowed: no cap
+                raise ValueError(f"{label}={value!r} must be > 0 (math.inf: no force cap)")
+        self.max_stretch_m, self.max_twist_rad = float(max_stretch_m), float(max_twist_rad)
         if not (math.isfinite(grasp_reach_m) and grasp_reach_m > 0.0):
             raise ValueError(f"grasp_reach_m={grasp_reach_m!r} m must be > 0")
         self.grasp_reach_m = float(grasp_reach_m)
@@ -312,6 +397,7 @@ class GodObjectCoupling(LeafSystem):
         self._wn2, self._2zwn = gains.omega_n**2, 2.0 * gains.zeta * gains.omega_n
         self._wr2, self._2zwr = gains.omega_r**2, 2.0 * gains.zeta_r * gains.omega_r
         self._force = ExternallyAppliedSpatialForce()
+        self._fast = {i: self._hot_body(b) for i, b in self._by_index.items()}
 
         n = plant.num_multibody_states()
         self._state_port = self.DeclareVectorInputPort("plant_state", n)
@@ -345,6 +431,41 @@ class GodObjectCoupling(LeafSystem):
                 name, sl.stop - sl.start, self._slice_calc(sl), {self._terms.ticket()}
             )
         self.DeclareVectorOutputPort("held_body", 1, self._slice_calc(slice(0, 1)), {self.xd_ticket()})
+        self._nq = plant.num_positions()
+        self.DeclareVectorOutputPort(
+            "generalized_force", plant.num_velocities(), self._calc_generalized_forces, {self._terms.ticket()}
+        )
+        terms = self._slice_calc(slice(0, _TERMS))
+        self.DeclareVectorOutputPort("terms", _TERMS, terms, {self._terms.ticket()})
+
+    def _hot_body(self, body: GraspableBody) -> _HotBody:
+        """A body's per-step constants, and its force caps (:meth:`force_caps`)."""
+        f_cap, t_cap = self.force_caps(body)
+        return _HotBody(
+            q_start=body.q_start,
+            v_start=body.v_start,
+            mass=body.mass,
+            p_BoBcm_B=tuple(body.p_BoBcm_B.tolist()),
+            I_list=body.I_Bcm_B.ravel().tolist(),
+            mg=tuple((body.mass * self._g).tolist()),
+            force_cap=f_cap,
+            torque_cap=t_cap,
+        )
+
+    def force_caps(self, body: GraspableBody) -> tuple[float, float]:
+        """The spring-damper's force (N) and torque (N·m) caps on ``body``.
+
+        ``|f| ≤ m ωn² · max_stretch_m`` and ``|τ| ≤ λmax(I) ωr² · max_twist_rad``: what the
+        spring alone gives at that stretch and twist. Past them (a device teleport, a target
+        deep in an obstacle) the wrench keeps its direction and is scaled down to the cap;
+        gravity compensation comes on top. The ``terms`` output's last entry is 1 on a capped
+        step, and the metrics count them (``coupling_capped_steps``).
+        """
+        lam = float(np.linalg.eigvalsh(body.I_Bcm_B)[-1])
+        return (
+            body.mass * self._wn2 * self.max_stretch_m,
+            lam * self._wr2 * self.max_twist_rad,
+        )
 
     # -- grasping -------------------------------------------------------------
     def body_for_grasp(self, name: str) -> GraspableBody | None:
@@ -397,6 +518,9 @@ class GodObjectCoupling(LeafSystem):
         discrete_state.get_mutable_vector(self._grasp_state).SetFromVector(new)
 
     # -- the hot path -----------------------------------------------------------
+    # Plain Python floats: on 3- and 4-vectors one numpy call costs about as
+    # much as the whole float expression, so the per-step calc stays near
+    # 20 µs (analysis/speed_vs_error.py measures it).
     @staticmethod
     def _body_state(body: GraspableBody, x: np.ndarray):
         q = x[body.q_start : body.q_start + 4]
@@ -409,34 +533,109 @@ class GodObjectCoupling(LeafSystem):
 
     def _calc_terms(self, context, value):
         out = value.get_mutable_value()
-        s = context.get_discrete_state(self._grasp_state).get_value()
-        q_WD, p_WD, R_WD = pose_arrays(self._X_WD_port.Eval(context))
-        V_WD = self._V_WD_port.Eval(context)
+        s = context.get_discrete_state(self._grasp_state).get_value().tolist()
+        M = self._X_WD_port.Eval(context).GetAsMatrix34().tolist()
+        V = self._V_WD_port.Eval(context).tolist()
+        R = (M[0][0], M[0][1], M[0][2], M[1][0], M[1][1], M[1][2], M[2][0], M[2][1], M[2][2])
+        pD = (M[0][3], M[1][3], M[2][3])
+        qD = _quat_of(R)
         held = int(s[0])
-        out[_IDX] = held
         if held < 0:
-            out[_XT] = out[_XG] = np.concatenate([q_WD, p_WD])
-            out[_VT] = out[_VG] = V_WD
-            out[_F] = 0.0
+            pose = [*qD, *pD]
+            out[:] = [held, *pose, *V, *pose, *V, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
             return
-        body = self._by_index[held]
-        q_WG, p_WG, w_WG, v_WG, R_WB = self._body_state(body, self._state_port.Eval(context))
-        q_WT = quat_multiply(q_WD, s[1:5])
-        p_WT = p_WD + R_WD @ s[5:8]
-        w_WT = V_WD[:3]
-        v_WT = V_WD[3:] + cross3(w_WT, p_WT - p_WD)
+        b = self._fast[held]
+        x = self._state_port.Eval(context)
+        qG = x[b.q_start : b.q_start + 7].tolist()
+        vG = x[b.v_start : b.v_start + 6].tolist()
+        # G: the body's centre of mass (p_BoBcm rotated into W) and its velocity.
+        RB = _rot_of(qG[0], qG[1], qG[2], qG[3])
+        c = b.p_BoBcm_B
+        r0 = RB[0] * c[0] + RB[1] * c[1] + RB[2] * c[2]
+        r1 = RB[3] * c[0] + RB[4] * c[1] + RB[5] * c[2]
+        r2 = RB[6] * c[0] + RB[7] * c[1] + RB[8] * c[2]  # p_BoBcm_W
+        w0, w1, w2 = vG[0], vG[1], vG[2]
+        pG = (qG[4] + r0, qG[5] + r1, qG[6] + r2)
+        vg = (vG[3] + w1 * r2 - w2 * r1, vG[4] + w2 * r0 - w0 * r2, vG[5] + w0 * r1 - w1 * r0)
+        # T: the grasp offset X_DG carried by the device.
+        d0, d1, d2 = s[5], s[6], s[7]
+        e0 = R[0] * d0 + R[1] * d1 + R[2] * d2
+        e1 = R[3] * d0 + R[4] * d1 + R[5] * d2
+        e2 = R[6] * d0 + R[7] * d1 + R[8] * d2
+        qT = _qmul(qD, (s[1], s[2], s[3], s[4]))
+        pT = (pD[0] + e0, pD[1] + e1, pD[2] + e2)
+        W0, W1, W2 = V[0], V[1], V[2]
+        vT = (V[3] + W1 * e2 - W2 * e1, V[4] + W2 * e0 - W0 * e2, V[5] + W0 * e1 - W1 * e0)
+        capped = 0.0
         if self._F_device_port.HasValue(context):  # admittance: the device's wrench drives G
-            F = self._F_device_port.Eval(context)
-            tau, f = F[:3], F[3:] - body.mass * self._g
+            F = self._F_device_port.Eval(context).tolist()
+            t0, t1, t2 = F[0], F[1], F[2]
+            f0, f1, f2 = F[3] - b.mg[0], F[4] - b.mg[1], F[5] - b.mg[2]
         else:
-            f = body.mass * (self._wn2 * (p_WT - p_WG) + self._2zwn * (v_WT - v_WG) - self._g)
-            I_W = R_WB @ body.I_Bcm_B @ R_WB.T
-            tau = I_W @ (self._wr2 * rotation_error(q_WT, q_WG) + self._2zwr * (w_WT - w_WG))
-        out[_XT] = np.concatenate([q_WT, p_WT])
-        out[_VT] = np.concatenate([w_WT, v_WT])
-        out[_XG] = np.concatenate([q_WG, p_WG])
-        out[_VG] = np.concatenate([w_WG, v_WG])
-        out[_F] = np.concatenate([tau, f])
+            kp, kd, m = self._wn2, self._2zwn, b.mass
+            a0 = kp * (pT[0] - pG[0]) + kd * (vT[0] - vg[0])
+            a1 = kp * (pT[1] - pG[1]) + kd * (vT[1] - vg[1])
+            a2 = kp * (pT[2] - pG[2]) + kd * (vT[2] - vg[2])
+            n = m * math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            if n > b.force_cap:
+                capped, m = 1.0, m * b.force_cap / n
+            f0, f1, f2 = m * a0 - b.mg[0], m * a1 - b.mg[1], m * a2 - b.mg[2]
+            e = _rotvec(qT, qG)
+            kr, dr = self._wr2, self._2zwr
+            u0 = kr * e[0] + dr * (W0 - w0)
+            u1 = kr * e[1] + dr * (W1 - w1)
+            u2 = kr * e[2] + dr * (W2 - w2)
+            # τ = I_W u = R_WB I_B R_WBᵀ u
+            y0 = RB[0] * u0 + RB[3] * u1 + RB[6] * u2
+            y1 = RB[1] * u0 + RB[4] * u1 + RB[7] * u2
+            y2 = RB[2] * u0 + RB[5] * u1 + RB[8] * u2
+            J = b.I_list
+            z0 = J[0] * y0 + J[1] * y1 + J[2] * y2
+            z1 = J[3] * y0 + J[4] * y1 + J[5] * y2
+            z2 = J[6] * y0 + J[7] * y1 + J[8] * y2
+            t0 = RB[0] * z0 + RB[1] * z1 + RB[2] * z2
+            t1 = RB[3] * z0 + RB[4] * z1 + RB[5] * z2
+            t2 = RB[6] * z0 + RB[7] * z1 + RB[8] * z2
+            n = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            if n > b.torque_cap:
+                capped, k = 1.0, b.torque_cap / n
+                t0, t1, t2 = t0 * k, t1 * k, t2 * k
+        out[:] = [held, *qT, *pT, W0, W1, W2, *vT, *qG[:4], *pG, w0, w1, w2, *vg,
+                  t0, t1, t2, f0, f1, f2, capped]  # fmt: skip
+
+    def _calc_generalized_forces(self, context, output):
+        """The coupling wrench as generalized forces of the held body's floating joint.
+
+        Drake's quaternion floating joint has ``v = [w_WB; v_WBo]``, whose conjugate forces are
+        the torque about Bo and the force, both in W: ``τ_Bo = τ + p_BoBcm_W × f``. One numpy
+        vector is cheaper per step than the abstract ``spatial_forces`` list and gives the
+        plant the same forces (tests/test_coupling.py checks against ``CalcGeneralizedForces``).
+        """
+        t = self._terms.Eval(context)
+        out = output.get_mutable_value()
+        out[:] = 0.0
+        held = int(t[_IDX])
+        if held < 0:
+            return
+        b = self._fast[held]
+        tau, f = t[27:30].tolist(), t[30:33].tolist()
+        r = self._p_BoBcm_W(b, t[14:18].tolist())
+        vs = b.v_start - self._nq
+        out[vs : vs + 6] = [
+            tau[0] + r[1] * f[2] - r[2] * f[1],
+            tau[1] + r[2] * f[0] - r[0] * f[2],
+            tau[2] + r[0] * f[1] - r[1] * f[0],
+            f[0], f[1], f[2],
+        ]  # fmt: skip
+
+    @staticmethod
+    def _p_BoBcm_W(b: _HotBody, q) -> tuple:
+        RB, c = _rot_of(q[0], q[1], q[2], q[3]), b.p_BoBcm_B
+        return (
+            RB[0] * c[0] + RB[1] * c[1] + RB[2] * c[2],
+            RB[3] * c[0] + RB[4] * c[1] + RB[5] * c[2],
+            RB[6] * c[0] + RB[7] * c[1] + RB[8] * c[2],
+        )
 
     def _calc_spatial_forces(self, context, output):
         t = self._terms.Eval(context)

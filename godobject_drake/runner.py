@@ -27,7 +27,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
-from godobject_drake.coupling import CouplingGains, GodObjectCoupling
+from godobject_drake.coupling import TERMS_LAYOUT, CouplingGains, GodObjectCoupling
 from godobject_drake.devices import (
     DEFAULT_DEVICE_RATE_HZ,
     INTERPOLATIONS,
@@ -215,23 +215,16 @@ def gains_from_args(args: argparse.Namespace, rot_factor: float = 3.0) -> Coupli
 
 @dataclasses.dataclass
 class Loggers:
-    """Per-step logs: plant state, held body, target pose and coupling wrench."""
+    """Per-step logs: plant state, and the coupling's ``terms`` (held body, target, god-object, wrench)."""
 
     state: VectorLogSink
-    held: VectorLogSink
-    X_WT: VectorLogSink
-    F_Go_W: VectorLogSink
+    terms: VectorLogSink
 
 
 def add_loggers(builder: DiagramBuilder, plant: MultibodyPlant, coupling: GodObjectCoupling) -> Loggers:
-    """Log what the metrics need once per plant step."""
+    """Log what the metrics need once per plant step (two ports: each logged port costs a call)."""
     h = plant.time_step()
-    ports = {
-        "state": plant.get_state_output_port(),
-        "held": coupling.GetOutputPort("held_body"),
-        "X_WT": coupling.GetOutputPort("X_WT"),
-        "F_Go_W": coupling.GetOutputPort("F_Go_W"),
-    }
+    ports = {"state": plant.get_state_output_port(), "terms": coupling.GetOutputPort("terms")}
     loggers = {}
     for name, port in ports.items():
         loggers[name] = LogVectorOutput(port, builder, h)
@@ -346,7 +339,7 @@ def connect_device(
         builder.Connect(chain.device.GetOutputPort(name), coupling.GetInputPort(name))
     if args.mode == "god_object":
         builder.Connect(
-            coupling.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port()
+            coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
         )
     builder.Connect(chain.device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
     for name in ("X_WT", "V_WT", "X_WG", "V_WG"):
@@ -419,10 +412,14 @@ def simulate(
 
     def check_wiring(simulator):
         plant_context = plant.GetMyContextFromRoot(simulator.get_context())
-        forces_connected = plant.get_applied_spatial_force_input_port().HasValue(plant_context)
+        inputs = (
+            plant.get_applied_spatial_force_input_port(),
+            plant.get_applied_generalized_force_input_port(),
+        )
+        forces_connected = any(port.HasValue(plant_context) for port in inputs)
         if (mode == "god_object") != forces_connected:
             raise ValueError(
-                f"mode={mode} but the coupling's spatial_forces are "
+                f"mode={mode} but the coupling's forces are "
                 f"{'' if forces_connected else 'not '}connected to the plant"
             )
 
@@ -437,13 +434,15 @@ def simulate(
     context, diagnosis, wall, sim_time = loop.context, loop.diagnosis, loop.wall_time_s, loop.sim_time_s
     h = plant.time_step()
 
-    log = {name: getattr(loggers, name).FindLog(context) for name in ("state", "held", "X_WT", "F_Go_W")}
+    log = {name: getattr(loggers, name).FindLog(context) for name in ("state", "terms")}
     n = min(log[name].num_samples() for name in log)
     times = log["state"].sample_times()[:n]
     states = log["state"].data()[:, :n].T
-    held = log["held"].data()[0, :n].round().astype(int)
-    X_WT = log["X_WT"].data()[:, :n].T
-    F = log["F_Go_W"].data()[:, :n].T
+    terms = log["terms"].data()[:, :n].T
+    held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
+    X_WT = terms[:, TERMS_LAYOUT["X_WT"]]
+    F = terms[:, TERMS_LAYOUT["F_Go_W"]]
+    capped = terms[:, TERMS_LAYOUT["capped"]]
     finite = np.all(np.isfinite(states), axis=1) & np.all(np.isfinite(X_WT), axis=1)
     measured = compute_metrics(
         TrueShapeMetrics(plant, scene_graph), states[finite], held[finite], X_WT[finite, 4:]
@@ -456,6 +455,7 @@ def simulate(
         "wall_time_s": wall,
         "real_time_factor": sim_time / wall if wall > 0 else None,
         **measured,
+        "coupling_capped_steps": int(np.sum(capped > 0.5)),
         "diverged": diagnosis is not None,
         "diagnosis": diagnosis,
         **(chain.metrics(context) if chain else {}),

@@ -25,6 +25,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 PROXY_PREFIX = "proxy_"
+CORNER_PREFIX = "proxy_corner_"  # a proxy at a vertex of its body's convex true shape
+FLAT_PREFIX = "flat_"  # a welded geometry only ever touched on one flat face (a floor, a baseplate)
 CONTACT_MODELS = ("proxies", "hydroelastic")
 
 
@@ -41,9 +43,13 @@ def make_parser(plant: MultibodyPlant) -> Parser:
     return parser
 
 
+def _local(name: str) -> str:
+    return name.rsplit("/", 1)[-1].rsplit("::", 1)[-1]
+
+
 def is_proxy(name: str) -> bool:
     """True for a contact-proxy geometry name (scoped or not)."""
-    return name.rsplit("/", 1)[-1].rsplit("::", 1)[-1].startswith(PROXY_PREFIX)
+    return _local(name).startswith(PROXY_PREFIX)
 
 
 def set_contact_material(plant: MultibodyPlant, scene_graph: SceneGraph, **values: float) -> None:
@@ -79,8 +85,12 @@ def apply_contact_model(plant: MultibodyPlant, scene_graph: SceneGraph, contact:
     ``proxies``: proxies touch true shapes only, never other proxies. Two
     bodies that both have proxies touch only through them (a brick's proxies
     on another brick's box, so bricks stack flat); a body with proxies keeps
-    its true shape against bodies without (the welded table), as a backstop
-    where an edge could slip between two proxies.
+    its true shape against bodies without (the welded wall), as a backstop
+    where an edge could slip between two proxies. Against a ``flat_*``
+    geometry (a floor) only ``proxy_corner_*`` proxies touch: a convex body
+    meets a plane at its vertices, so the other proxies and the true shape
+    would add contacts (and SAP solve time: 64 instead of 32 contacts for 8
+    resting bricks) without changing what the floor does.
     ``hydroelastic``: proxies are removed from contact; true shapes touch
     each other (use with a hydroelastic contact model).
     """
@@ -98,6 +108,13 @@ def apply_contact_model(plant: MultibodyPlant, scene_graph: SceneGraph, contact:
     frames_with_proxies = {inspector.GetFrameId(g) for g in proxies}
     shapes_with_proxies = [g for g in true_shapes if inspector.GetFrameId(g) in frames_with_proxies]
     manager.Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(shapes_with_proxies)))
+    flat = [g for g in true_shapes if _local(inspector.GetName(g)).startswith(FLAT_PREFIX)]
+    not_corners = shapes_with_proxies + [
+        g for g in proxies if not _local(inspector.GetName(g)).startswith(CORNER_PREFIX)
+    ]
+    if flat and not_corners:
+        declaration = CollisionFilterDeclaration().ExcludeBetween(GeometrySet(flat), GeometrySet(not_corners))
+        manager.Apply(declaration)
 
 
 @dataclasses.dataclass

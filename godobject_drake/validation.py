@@ -92,6 +92,7 @@ def free_body_error(
             CouplingGains(omega_n=omega_n, zeta=zeta, omega_n_rot=omega_n / 4),
             device_period_s=device.period_s,
             check_gains=False,
+            max_stretch_m=math.inf,  # the linear law THEORY.md §1 analyses: no force cap
         ),
     )
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
@@ -252,6 +253,7 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
             device_period_s=d.period,
             gravity_compensation=False,
             check_gains=False,
+            max_stretch_m=math.inf,  # the linear loop the report analyses: no force cap
         ),
     )
     feedback = builder.AddNamedSystem("feedback", FeedbackPort(FeedbackGains(kd=sc.kd, gamma_d=sc.gamma_d)))

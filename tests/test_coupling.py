@@ -1,11 +1,14 @@
 """The PD coupling alone (hand computations), its gain checks, and in closed loop."""
 
+import math
 import warnings
 
 import numpy as np
 import pytest
 from conftest import add_free_boxes
 from pydrake.math import RigidTransform
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import MultibodyForces, SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
@@ -108,7 +111,10 @@ def closed_loop(waypoints, masses, h=1e-3, gains=STEP_GAINS, rate=1000.0):
     plant, bodies = add_free_boxes(builder, h, masses, INERTIA, gravity=False)
     # A deliberate step input: the guard's jump check (10 m/s) would hold it back as a glitch.
     device = builder.AddSystem(ScriptedDevice(waypoints, period_s=1.0 / rate, guard=NO_JUMP_CHECK))
-    coupling = builder.AddSystem(GodObjectCoupling(plant, gains, device_period_s=device.period_s))
+    # Eq. 3 is the uncapped law: the step's one-sample velocity impulse would hit the force cap.
+    coupling = builder.AddSystem(
+        GodObjectCoupling(plant, gains, device_period_s=device.period_s, max_stretch_m=math.inf)
+    )
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
     for name in ("X_WD", "V_WD", "grasp"):
         builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
@@ -180,3 +186,48 @@ def test_grasp_switch_release_do_not_jump():
     x = state_log.FindLog(context).data()
     for q0 in (0, 7):  # positions of body_0 and body_1 never move
         assert np.max(np.abs(x[q0 + 4 : q0 + 7] - x[q0 + 4 : q0 + 7, :1])) < 1e-12
+
+
+def test_generalized_force_is_the_spatial_force_on_the_floating_joint():
+    """Two ways into the plant, one wrench: ``generalized_force`` equals Drake's own
+    ``CalcGeneralizedForces`` of ``spatial_forces`` for a body whose centre of mass is
+    off its origin (τ about Bo = τ + p_BoBcm × f), turned and moving."""
+    plant = MultibodyPlant(1e-3)
+    M = SpatialInertia.SolidBoxWithMass(0.3, 0.1, 0.05, 0.02).Shift([-0.03, 0.02, 0.01])  # about Bo
+    body = plant.AddRigidBody("offset", M)
+    plant.Finalize()
+    coupling = GodObjectCoupling(plant, CouplingGains(omega_n=15.0, zeta=0.8, omega_n_rot=30.0))
+    context = coupling.CreateDefaultContext()
+    x = np.zeros(plant.num_multibody_states())
+    x[0:4] = [np.cos(0.3), np.sin(0.3) * 0.6, 0.0, np.sin(0.3) * 0.8]
+    x[4:7], x[7:13] = [0.1, -0.2, 0.3], [0.4, -0.1, 0.2, 0.05, 0.1, -0.2]
+    coupling.GetInputPort("plant_state").FixValue(context, x)
+    coupling.GetInputPort("X_WD").FixValue(context, RigidTransform([0.15, -0.1, 0.25]))
+    coupling.GetInputPort("V_WD").FixValue(context, [0.1, 0, 0, 0, 0.2, 0])
+    coupling.GetInputPort("grasp").FixValue(context, "offset")
+    context.SetDiscreteState(np.array([float(body.index()), 1, 0, 0, 0, 0, 0, 0]))
+    plant_context = plant.CreateDefaultContext()
+    plant.SetPositionsAndVelocities(plant_context, x)
+    forces = MultibodyForces(plant)
+    (F,) = coupling.GetOutputPort("spatial_forces").Eval(context)
+    R_WB = plant.get_body(F.body_index).EvalPoseInWorld(plant_context).rotation()
+    # AddInForce takes the point's offset expressed in the frame it is given (W), not in B.
+    plant.get_body(F.body_index).AddInForce(
+        plant_context, R_WB @ F.p_BoBq_B, F.F_Bq_W, plant.world_frame(), forces
+    )
+    expected = plant.CalcGeneralizedForces(plant_context, forces)
+    actual = coupling.GetOutputPort("generalized_force").Eval(context)
+    np.testing.assert_allclose(actual, expected, atol=1e-12)
+    assert np.linalg.norm(expected) > 0.1
+
+
+def test_force_cap_scales_the_wrench_down_keeping_its_direction():
+    """A 1 m stretch (a device teleport) gets the force of the cap's 0.2 m, toward the target."""
+    gains = CouplingGains(omega_n=10.0, zeta=1.0)
+    coupling, context = coupling_alone(gains, [1, 0, 0, 0], [-1.0, 0.0, 0.0], gravity_compensation=False)
+    F = coupling.GetOutputPort("F_Go_W").Eval(context)
+    np.testing.assert_allclose(F[3:], [MASS * 10.0**2 * 0.2, 0, 0], rtol=1e-12)  # not k · 1 m
+    assert coupling.GetOutputPort("terms").Eval(context)[-1] == 1.0  # counted, not silent
+    coupling, context = coupling_alone(gains, [1, 0, 0, 0], [-0.1, 0.0, 0.0], gravity_compensation=False)
+    np.testing.assert_allclose(coupling.GetOutputPort("F_Go_W").Eval(context)[3:], [MASS * 100.0 * 0.1, 0, 0])
+    assert coupling.GetOutputPort("terms").Eval(context)[-1] == 0.0
