@@ -524,6 +524,7 @@ class GodObjectCoupling(LeafSystem):
     @staticmethod
     def _body_state(body: GraspableBody, x: np.ndarray):
         q = x[body.q_start : body.q_start + 4]
+        q = q / np.linalg.norm(q)  # the plant's quaternion drifts off unit norm (see _calc_terms)
         R_WB = quat_to_rotation(q)
         p_BoBcm_W = R_WB @ body.p_BoBcm_B
         w = x[body.v_start : body.v_start + 3]
@@ -548,6 +549,11 @@ class GodObjectCoupling(LeafSystem):
         x = self._state_port.Eval(context)
         qG = x[b.q_start : b.q_start + 7].tolist()
         vG = x[b.v_start : b.v_start + 6].tolist()
+        # Drake 1.51.1's discrete update does not keep a free body's quaternion at unit norm
+        # (1.02 after the brick path; 12.6 after 24 s of fast twisting, when the rotation and
+        # inertia below were built from it unnormalized: a torque ∝ |q|⁴). Normalize it.
+        n = math.sqrt(qG[0] * qG[0] + qG[1] * qG[1] + qG[2] * qG[2] + qG[3] * qG[3])
+        qG[0], qG[1], qG[2], qG[3] = qG[0] / n, qG[1] / n, qG[2] / n, qG[3] / n
         # G: the body's centre of mass (p_BoBcm rotated into W) and its velocity.
         RB = _rot_of(qG[0], qG[1], qG[2], qG[3])
         c = b.p_BoBcm_B

@@ -231,3 +231,17 @@ def test_force_cap_scales_the_wrench_down_keeping_its_direction():
     coupling, context = coupling_alone(gains, [1, 0, 0, 0], [-0.1, 0.0, 0.0], gravity_compensation=False)
     np.testing.assert_allclose(coupling.GetOutputPort("F_Go_W").Eval(context)[3:], [MASS * 100.0 * 0.1, 0, 0])
     assert coupling.GetOutputPort("terms").Eval(context)[-1] == 0.0
+
+
+def test_unnormalized_plant_quaternion_gives_the_same_wrench():
+    """Drake's discrete update lets a free body's quaternion drift off unit norm; the coupling
+    reads the rotation it stands for, not the raw numbers."""
+    gains = CouplingGains(omega_n=10.0, zeta=1.0, omega_n_rot=20.0)
+    a = np.radians(-40)
+    q = np.array([np.cos(a / 2), 0.3 * np.sin(a / 2), 0, np.sqrt(0.91) * np.sin(a / 2)])
+    v_body = np.array([0.5, -0.2, 0.1, 0.05, 0, 0])
+    unit, c1 = coupling_alone(gains, q, [0.01, 0.02, 0.0], v_body)
+    drifted, c2 = coupling_alone(gains, 3.0 * q, [0.01, 0.02, 0.0], v_body)
+    F1, F2 = unit.GetOutputPort("F_Go_W").Eval(c1), drifted.GetOutputPort("F_Go_W").Eval(c2)
+    assert np.linalg.norm(F1[:3]) > 1e-4
+    np.testing.assert_allclose(F2, F1, rtol=1e-12, atol=1e-15)
