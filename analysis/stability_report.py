@@ -32,6 +32,7 @@ from godobject_drake import stability as st
 from godobject_drake import validation as va
 from godobject_drake.coupling import graspable_bodies
 from godobject_drake.scenes import add_scene_from_directives
+from godobject_drake.sweep import run_tasks
 
 # The reference haptic setup of the report (SI). A desktop impedance device;
 # the 1 kg probe held at the brick scene's default bandwidth; soft tissue and
@@ -41,6 +42,8 @@ PROBE_OMEGA_N, PROBE_ZETA = 40.0, 1.0
 SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
 STIFF = {"k_w": 1e5, "tau_w": 1e-3}
 LEGO = "package://godobject_models/lego/lego.dmd.yaml"
+# How the Drake bisections run (godobject_drake.sweep.run_tasks); main() sets it from the flags.
+EXECUTOR = {"workers": 1, "scheduler": None, "progress": False}
 
 
 def scenario(**kw) -> va.HapticScenario:
@@ -120,10 +123,15 @@ def body_side(out: Path, quick: bool, summary: dict) -> str:
     if quick:
         cases = [(1.0, 0.7, 1e-2), (brick_mass, 1.0, 1e-3)]
     rows, entries = [], []
-    for m, z, h in cases:
+    sims = run_tasks(
+        va.drake_k_crit_case,
+        [(m, z, h, st.explicit_k_crit(m, z, h)) for m, z, h in cases],
+        desc="explicit limit in Drake",
+        **EXECUTOR,
+    )
+    for (m, z, h), sim in zip(cases, sims, strict=True):
         pred = st.explicit_k_crit(m, z, h)
         poles = st.k_crit_from_poles(m, z, h)
-        sim = va.drake_k_crit(m, z, h, pred)
         entries.append(
             {
                 "mass_kg": m,
@@ -554,15 +562,20 @@ def device_boundary(quick: bool, summary: dict) -> list[str]:
     if quick:
         cases = cases[:1]
     entries, rows = [], []
-    for label, dev_kw, env, gd, duration in cases:
-        dev = dataclasses.replace(DEVICE, **dev_kw)
-        sc = scenario(device=dev, **env, gamma_d=gd)
+    scenarios = [scenario(device=dataclasses.replace(DEVICE, **c[1]), **c[2], gamma_d=c[3]) for c in cases]
+    sims = run_tasks(
+        va.drake_device_k_max_case,
+        [(sc, va.predicted_device_k_max(sc), c[4]) for sc, c in zip(scenarios, cases, strict=True)],
+        desc="device limit in Drake",
+        **EXECUTOR,
+    )
+    for (label, _dev_kw, env, gd, _duration), sc, sim in zip(cases, scenarios, sims, strict=True):
+        dev = sc.device
         pred = va.predicted_device_k_max(sc)
         rigid = st.device_stiffness_limit(
             dev, lambda kd, gd=gd, dev=dev: st.wall_impedance(kd, gd, dev.period, dev.delay)
         )
         approx = st.stiffness_limit_approx(dev, gd)
-        sim = va.drake_device_k_max(sc, pred, duration=duration)
         entries.append(
             {
                 "label": label,
@@ -723,7 +736,10 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory (created)")
     parser.add_argument("--quick", action="store_true", help="coarse grids and fewer Drake cases (tests)")
+    parser.add_argument("--workers", type=int, default=1, help="local processes for the Drake bisections")
+    parser.add_argument("--scheduler", help="Dask distributed scheduler address for the Drake bisections")
     args = parser.parse_args(argv)
+    EXECUTOR.update(workers=args.workers, scheduler=args.scheduler)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     summary: dict = {"quick": args.quick}

@@ -111,8 +111,9 @@ def build(args):
     return builder.Build(), scene, probe, coupling, logs, meshcat, chain
 
 
-def run(args):
-    """Build, run and measure; returns the metrics dict."""
+def run(args, with_states: bool = False):
+    """Build, run and measure; returns the metrics dict (and the plant's logged states, one row per
+    step, if ``with_states``)."""
     diagram, scene, probe, coupling, logs, meshcat, chain = build(args)
     plant = scene.plant
 
@@ -156,7 +157,7 @@ def run(args):
     }  # fmt: skip
     if args.record and meshcat is not None:
         metrics["recording_bytes"] = save_recording(meshcat, args.record)
-    return metrics
+    return (metrics, data["state"]) if with_states else metrics
 
 
 def make_parser():

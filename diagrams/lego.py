@@ -25,7 +25,7 @@ from godobject_drake.runner import (
     report,
     simulate,
 )
-from godobject_drake.scenes import CONTACT_MODELS, MODELS_DIR, add_scene_from_directives
+from godobject_drake.scenes import APPROXIMATIONS, CONTACT_MODELS, MODELS_DIR, add_scene_from_directives
 
 SCENE = "lego"
 DIRECTIVES = "package://godobject_models/lego/lego.dmd.yaml"
@@ -39,7 +39,9 @@ LIVE_WORKSPACE = ([-0.15, -0.10, 0.0], [0.15, 0.10, 0.12])
 def build(args):
     """Compose the whole diagram: device → coupling → plant, coupling → feedback."""
     builder = DiagramBuilder()
-    scene = add_scene_from_directives(builder, DIRECTIVES, args.time_step, contact=args.contact)
+    scene = add_scene_from_directives(
+        builder, DIRECTIVES, args.time_step, contact=args.contact, approximation=args.contact_approximation
+    )
     plant = scene.plant
     meshcat = make_meshcat(args)
     device = builder.AddNamedSystem("device", make_device(args, DEFAULT_PATH, meshcat, LIVE_WORKSPACE))
@@ -60,7 +62,8 @@ def run(args):
         diagram, scene.plant, scene.scene_graph, coupling, loggers,
         scene=SCENE, mode=args.mode, duration=args.duration, meshcat=meshcat, record=args.record,
         realtime=args.meshcat or args.device == "meshcat", progress=not args.no_progress, chain=chain,
-        extra={"contact": args.contact, "device": args.device, "device_rate_hz": args.device_rate,
+        extra={"contact": args.contact, "contact_approximation": args.contact_approximation,
+               "device": args.device, "device_rate_hz": args.device_rate,
                "haptic": args.haptic, "omega_n_rad_s": args.omega_n,
                "omega_n_rot_rad_s": gains_from_args(args).omega_r, "zeta": args.zeta, "seed": args.seed},
     )  # fmt: skip
@@ -73,6 +76,10 @@ def make_parser():
     )
     add_common_arguments(parser, default_duration=8.5)
     parser.add_argument("--contact", choices=CONTACT_MODELS, default="proxies", help="collision geometry")
+    parser.add_argument(
+        "--contact-approximation", choices=APPROXIMATIONS, default="sap",
+        help="Drake's discrete contact approximation (README 'Speed against error')",
+    )  # fmt: skip
     return parser
 
 

@@ -28,6 +28,9 @@ PROXY_PREFIX = "proxy_"
 CORNER_PREFIX = "proxy_corner_"  # a proxy at a vertex of its body's convex true shape
 FLAT_PREFIX = "flat_"  # a welded geometry only ever touched on one flat face (a floor, a baseplate)
 CONTACT_MODELS = ("proxies", "hydroelastic")
+# Drake's discrete contact approximations that work from Python on this scene kind (TAMSI is
+# deprecated in 1.51.1; a deformable body needs "sap").
+APPROXIMATIONS = ("sap", "lagged", "similar")
 
 
 def make_parser(plant: MultibodyPlant) -> Parser:
@@ -134,6 +137,7 @@ def add_scene_from_directives(
     relaxation_time: float | None = None,
     near_rigid_threshold: float | None = None,
     before_finalize=None,
+    approximation: str = "sap",
 ) -> SceneParts:
     """Add a SAP MultibodyPlant loaded from model directives and finalize it.
 
@@ -152,12 +156,17 @@ def add_scene_from_directives(
     before_finalize : callable | None
         ``before_finalize(plant, scene_graph)`` adds what must exist before
         ``Finalize()`` (a deformable god-object) after the directives load.
+    approximation : str
+        Drake's discrete contact approximation, one of :data:`APPROXIMATIONS`:
+        ``sap`` (the default), or the cheaper convex ``lagged`` and ``similar``.
     """
     if not time_step > 0.0:
         raise ValueError(f"time_step={time_step!r} s: SAP needs a discrete plant, give h > 0")
+    if approximation not in APPROXIMATIONS:
+        raise ValueError(f"approximation={approximation!r}; choose one of {APPROXIMATIONS}")
     config = MultibodyPlantConfig(
         time_step=time_step,
-        discrete_contact_approximation="sap",
+        discrete_contact_approximation=approximation,
         contact_model="point" if contact == "proxies" else "hydroelastic_with_fallback",
     )
     if near_rigid_threshold is not None:

@@ -320,3 +320,15 @@ def drake_device_k_max(
         )
 
     return bisect(stable, 0.7 * guess, 1.4 * guess, rel_tol)
+
+
+def drake_k_crit_case(case: tuple) -> float:
+    """:func:`drake_k_crit` of one ``(mass, zeta, time_step, guess)`` tuple, for
+    :func:`godobject_drake.sweep.run_tasks`."""
+    return drake_k_crit(*case)
+
+
+def drake_device_k_max_case(case: tuple) -> float:
+    """:func:`drake_device_k_max` of one ``(scenario, guess, duration)`` tuple, for
+    :func:`godobject_drake.sweep.run_tasks`."""
+    return drake_device_k_max(*case)

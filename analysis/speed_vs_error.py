@@ -1,0 +1,555 @@
+#!/usr/bin/env python3
+"""Speed against error for every scene: sweep, compare with a reference run, recommend.
+
+    python analysis/speed_vs_error.py --out reports/speed [--quick] [--scene lego] \
+        [--workers N | --scheduler tcp://host:8786] [--no-mujoco]
+
+For each scene, runs a grid of configurations (time step h; contact model and
+Drake's discrete contact approximation for the bricks; explicit or implicit
+coupling for the grasper; shell model for the probe; device rate) on the
+scene's own device path. Each configuration runs ``--repeats`` times (≥ 3);
+its cost is the median wall time per simulated second (min–max shown), its
+error is measured against the scene's reference run (finest h,
+highest-fidelity contact; ``godobject_drake.benchmark.compare``): RMS pose
+error of the god-object, max penetration, energy error. The brick scene is
+also rebuilt in MuJoCo (``analysis/mujoco_bricks.py``, the ``bench`` extra)
+on the same path.
+
+Writes ``report.md`` (tables, recommended configuration per error budget,
+where the time goes in the brick scene), one Pareto figure per scene and
+``results.json`` into ``--out``. Runs go through
+``godobject_drake.sweep.run_tasks``: local processes (default one worker, so
+timings do not share a core) or a Dask cluster (``--scheduler``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import dataclasses
+import json
+import math
+import pstats
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from godobject_drake import benchmark as bm
+from godobject_drake.runner import load_scene_script
+from godobject_drake.sweep import run_tasks
+
+SCENES = ("lego", "laparoscopy", "deformable")
+# Error budgets (m of RMS god-object pose error against the reference), spanning what each
+# scene's configurations reach, and the penetration each scene tolerates (m): a brick may sink
+# 1 mm into another, the grasper 5 mm into tissue (its issue), the probe 5 mm.
+BUDGETS_M = {
+    "lego": (0.01e-3, 0.05e-3, 0.1e-3, 0.5e-3, 10e-3),
+    "laparoscopy": (0.005e-3, 0.01e-3, 0.02e-3, 0.1e-3),
+    "deformable": (0.1e-3, 0.5e-3, 1e-3, 5e-3),
+}
+PENETRATION_BUDGET_M = {"lego": 1e-3, "laparoscopy": 5e-3, "deformable": 5e-3}
+# Performance goals of issue 6 (real-time factor at the stated configuration).
+GOALS = {"lego": 3.0, "laparoscopy": 2.0, "deformable": 1.0}
+COUPLING_GOAL_US = 30.0
+
+
+def sweep_configs(scene: str, quick: bool, repeats: int) -> tuple[bm.Config, list[bm.Config]]:
+    """(reference, configurations) of one scene. Quick: fewer steps, shorter runs."""
+    C = bm.Config
+    if scene == "lego":
+        T = 3.0 if quick else 8.5  # quick: grasp, carry, stop at the wall, start climbing
+        hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
+        approx = ("sap", "lagged") if quick else ("sap", "lagged", "similar")
+        ref = C("lego", 0.25e-3, T, contact="hydroelastic", approximation="sap", repeats=1)
+        grid = [
+            C("lego", h, T, contact=c, approximation=a, repeats=repeats)
+            for h in hs
+            for c in ("proxies", "hydroelastic")
+            for a in approx
+        ]
+        grid += [
+            C("lego", 1e-3, T, device_rate=r, contact="proxies", approximation="sap", repeats=repeats)
+            for r in (250.0, 1000.0)
+        ]
+        return ref, grid
+    if scene == "laparoscopy":
+        T = 3.0 if quick else 10.0
+        hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
+        ref = C("laparoscopy", 0.25e-3, T, coupling="joint_pd_sap", repeats=1)
+        grid = [
+            C("laparoscopy", h, T, coupling=c, repeats=repeats)
+            for h in hs
+            for c in ("cartesian", "joint_pd", "joint_pd_sap")
+        ]
+        grid += [
+            C("laparoscopy", 1e-3, T, device_rate=r, coupling="cartesian", repeats=repeats)
+            for r in (250.0, 1000.0)
+        ]
+        return ref, grid
+    if scene == "deformable":
+        T = 2.0 if quick else 6.5
+        ref = C("deformable", 1e-3, T, shell="fem", repeats=1)
+        hs = (2e-3, 5e-3, 10e-3) if quick else (1e-3, 2e-3, 5e-3, 10e-3)
+        grid = [C("deformable", h, T, shell=s, repeats=repeats) for h in hs for s in ("fem", "mass_spring")]
+        return ref, grid
+    raise ValueError(f"scene={scene!r}; choose from {SCENES}")
+
+
+def mujoco_configs(quick: bool, repeats: int) -> list[bm.Config]:
+    T = 3.0 if quick else 8.5
+    hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
+    return [
+        bm.Config("lego", h, T, coupling=mode, engine="mujoco", repeats=repeats)
+        for h in hs
+        for mode in ("weld", "perturb")
+    ]
+
+
+def mujoco_available() -> bool:
+    try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def evaluate(runs: list[dict], reference: dict, scene: str) -> list[dict]:
+    """One row per run: configuration, cost summary, errors against the reference."""
+    rows = []
+    for r in runs:
+        row = {
+            "scene": scene,
+            "label": r["label"],
+            "config": r["config"],
+            "refused": r["refused"],
+            "diverged": r.get("diverged", False),
+            "diagnosis": r.get("diagnosis"),
+            "wall_s_per_sim_s": r["wall_s_per_sim_s"],
+            **bm.summarize_cost(r["wall_s_per_sim_s"]),
+        }
+        if not r["refused"]:
+            row["max_penetration_m"] = r["max_penetration_m"]
+            row.update(bm.compare(r, reference))
+            if r.get("mujoco_version"):
+                row["mujoco_version"] = r["mujoco_version"]
+        rows.append(row)
+    return rows
+
+
+def feasible(row: dict, budget_m: float, penetration_m: float) -> bool:
+    return (
+        not row["refused"]
+        and not row["diverged"]
+        and row.get("cost_median_s") is not None
+        and row["pose_rms_m"] <= budget_m
+        and row["max_penetration_m"] <= penetration_m
+    )
+
+
+def recommend(rows: list[dict], budget_m: float, penetration_m: float) -> dict | None:
+    """The cheapest run (median cost) within the pose and penetration budgets."""
+    ok = [r for r in rows if feasible(r, budget_m, penetration_m)]
+    return min(ok, key=lambda r: r["cost_median_s"]) if ok else None
+
+
+def pareto(rows: list[dict]) -> list[dict]:
+    """Runs no other run beats on both cost and pose error."""
+    pts = sorted(
+        (r for r in rows if not r["refused"] and not r["diverged"] and r.get("cost_median_s")),
+        key=lambda r: (r["cost_median_s"], r["pose_rms_m"]),
+    )
+    front, best = [], math.inf
+    for r in pts:
+        if r["pose_rms_m"] < best:
+            front.append(r)
+            best = r["pose_rms_m"]
+    return front
+
+
+def figure(scene: str, rows: list[dict], peers: list[dict], out: Path) -> str:
+    """Error against cost, one marker per configuration, min–max cost bars, the Pareto front."""
+    fig, ax = plt.subplots(figsize=(8, 5.2))
+    floor = 1e-7  # the reference's own error is 0; plot it at the floor
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        if r["refused"] or r["diverged"] or not r.get("cost_median_s"):
+            continue
+        c = r["config"]
+        key = (
+            " ".join(
+                v for v in (c.get("contact"), c.get("approximation"), c.get("coupling"), c.get("shell")) if v
+            )
+            or "default"
+        )
+        if c["device_rate"] != 60.0:
+            key += f" dev={c['device_rate']:g}Hz"
+        groups.setdefault(key, []).append(r)
+    if peers:
+        for r in peers:
+            if not r["refused"] and not r["diverged"] and r.get("cost_median_s"):
+                groups.setdefault(f"MuJoCo {r['config']['coupling']}", []).append(r)
+    markers = "osD^v<>ph*"
+    for i, (key, group) in enumerate(sorted(groups.items())):
+        x = np.array([g["cost_median_s"] for g in group])
+        y = np.array([max(g["pose_rms_m"], floor) for g in group]) * 1e3
+        lo = x - np.array([g["cost_min_s"] for g in group])
+        hi = np.array([g["cost_max_s"] for g in group]) - x
+        style = dict(marker=markers[i % len(markers)], ls="none", capsize=2, label=key)
+        if key.startswith("MuJoCo"):
+            style.update(mfc="none", mew=1.5)
+        ax.errorbar(x, y, xerr=[lo, hi], **style)
+        for g, xx, yy in zip(group, x, y, strict=True):
+            ax.annotate(
+                f"{g['config']['time_step'] * 1e3:g}",
+                (xx, yy),
+                textcoords="offset points",
+                xytext=(4, 3),
+                fontsize=7,
+            )
+    front = pareto(rows)
+    if front:
+        ax.step(
+            [r["cost_median_s"] for r in front],
+            [max(r["pose_rms_m"], floor) * 1e3 for r in front],
+            where="post",
+            color="k",
+            lw=0.8,
+            alpha=0.6,
+            label="Drake Pareto front",
+        )
+    ax.axvline(1.0, color="grey", ls=":", lw=1)
+    ax.text(1.0, ax.get_ylim()[1] if False else 1, " real time", color="grey", fontsize=8, va="bottom")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time per simulated second (s), median of repeats, bars min–max")
+    ax.set_ylabel("RMS god-object pose error vs reference (mm)")
+    ax.set_title(f"{scene}: error against cost (numbers: h in ms)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    name = f"pareto_{scene}.png"
+    fig.tight_layout()
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+def fmt(v, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    return f"{v * scale:.{digits}g}{unit}"
+
+
+def scene_section(
+    scene: str, ref: dict, rows: list[dict], peers: list[dict], fig: str, budgets: tuple, pen: float
+) -> tuple[list[str], dict]:
+    ref_cost = bm.summarize_cost(ref["wall_s_per_sim_s"])["cost_median_s"]
+    md = [
+        f"## {scene}",
+        "",
+        f"Reference: `{ref['label']}` ({fmt(ref_cost, ' s')} per simulated second). Errors are "
+        "against it; penetration is the run's own.",
+        "",
+        f"![{scene}]({fig})",
+        "",
+    ]
+    md += [
+        "| configuration | cost s/s (min–max) | RTF | pose RMS | angle RMS | max penetration "
+        "| energy error | note |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in sorted(rows + peers, key=lambda r: (r["refused"] is not None, r.get("cost_median_s") or 0)):
+        if r["refused"]:
+            md.append(f"| {r['label']} | – | – | – | – | – | – | refused: {r['refused'].split('. ')[0]} |")
+            continue
+        note = "diverged: " + str(r["diagnosis"]) if r["diverged"] else ""
+        md.append(
+            f"| {r['label']} | {fmt(r['cost_median_s'])} ({fmt(r['cost_min_s'])}–{fmt(r['cost_max_s'])}) "
+            f"| {fmt(r['real_time_factor'], digits=2)} | {fmt(r['pose_rms_m'], ' mm', 1e3)} "
+            f"| {fmt(r['angle_rms_rad'], ' mrad', 1e3)} | {fmt(r['max_penetration_m'], ' mm', 1e3)} "
+            f"| {fmt(r['energy_error_j'], ' mJ', 1e3)} | {note} |"
+        )
+    md += [
+        "",
+        f"**Recommended** (cheapest within the pose budget and max penetration ≤ {pen * 1e3:g} mm):",
+        "",
+        "| pose budget | Drake configuration | cost s/s | RTF | pose RMS |"
+        + (" MuJoCo (cheapest in budget) | MuJoCo cost s/s | Drake / MuJoCo cost |" if peers else ""),
+        "|---|---|---|---|---|" + ("---|---|---|" if peers else ""),
+    ]
+    recs = {}
+    for b in budgets:
+        r = recommend(rows, b, pen)
+        line = f"| {b * 1e3:g} mm | "
+        line += (
+            (
+                f"`{r['label']}` | {fmt(r['cost_median_s'])} | {fmt(r['real_time_factor'], digits=2)} | "
+                f"{fmt(r['pose_rms_m'], ' mm', 1e3)} |"
+            )
+            if r
+            else "none within budget | – | – | – |"
+        )
+        entry = {
+            "budget_m": b,
+            "drake": r["label"] if r else None,
+            "drake_cost_s": r["cost_median_s"] if r else None,
+        }
+        if peers:
+            p = recommend(peers, b, pen)
+            ratio = r["cost_median_s"] / p["cost_median_s"] if (r and p) else None
+            line += (
+                f" `{p['label']}` | {fmt(p['cost_median_s'])} | {fmt(ratio, '×')} |"
+                if p
+                else " none within budget | – | – |"
+            )
+            entry.update(
+                mujoco=p["label"] if p else None,
+                mujoco_cost_s=p["cost_median_s"] if p else None,
+                drake_over_mujoco=ratio,
+            )
+        md.append(line)
+        recs[f"{b:g}"] = entry
+    md.append("")
+    return md, recs
+
+
+def performance_goals(scene: str, rows: list[dict]) -> list[tuple]:
+    """Rows of the goals table: (scene, at, configuration, RTF, goal).
+
+    Bricks and grasper: the scene's default configuration at h = 1 ms and the fastest one at
+    h = 1 ms (issue 6 states their goals at h = 1 ms); the probe: its fastest configuration.
+    """
+    ok = [r for r in rows if not r["refused"] and not r["diverged"] and r["cost_median_s"]]
+    out = []
+    if scene in ("lego", "laparoscopy"):
+        at_1ms = [r for r in ok if r["config"]["time_step"] == 1e-3 and r["config"]["device_rate"] == 60.0]
+        default = [
+            r
+            for r in at_1ms
+            if r["config"].get("contact") in (None, "proxies")
+            and r["config"].get("approximation") in (None, "sap")
+            and r["config"].get("coupling") in (None, "cartesian")
+        ]
+        picks = [("default configuration, h = 1 ms", default)]
+        picks.append(
+            ("fastest at h = 1 ms", [min(at_1ms, key=lambda r: r["cost_median_s"])] if at_1ms else [])
+        )
+    else:
+        picks = [("fastest configuration", [min(ok, key=lambda r: r["cost_median_s"])] if ok else [])]
+    for what, at in picks:
+        rtf = at[0]["real_time_factor"] if at else None
+        out.append((scene, what, at[0]["label"] if at else "–", rtf, GOALS[scene]))
+    return out
+
+
+def brick_profile(seconds: float = 2.0) -> dict:
+    """Where the time goes in the brick scene at h = 1 ms (the default configuration).
+
+    Splits one run's wall time with cProfile into Drake's C++ (inside ``AdvanceTo`` but not
+    in a Python callback) and the Python callbacks by module, and measures the parts of
+    the C++ side separately: the plant alone with its 32 resting contacts, and its
+    geometry query.
+    """
+    import time as _t
+
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+
+    from godobject_drake.runner import run_loop
+    from godobject_drake.scenes import add_scene_from_directives
+
+    lego = load_scene_script("diagrams/lego.py")
+    args = lego.make_parser().parse_args(["--duration", repr(seconds), "--no-progress"])
+    diagram, scene, *_ = lego.build(args)
+    prof = cProfile.Profile()
+    prof.enable()
+    loop = run_loop(diagram, scene.plant, seconds, progress=False)
+    prof.disable()
+    steps = round(seconds / 1e-3)
+    stats = pstats.Stats(prof).stats
+    by_module: dict[str, float] = {}
+    advance = 0.0
+    for (file, _line, func), (_cc, _nc, tt, _ct, _callers) in stats.items():
+        if "AdvanceTo" in func:
+            advance += tt
+            continue
+        key = (
+            Path(file).stem if "godobject_drake" in file else ("pydrake bindings" if file == "~" else "other")
+        )
+        by_module[key] = by_module.get(key, 0.0) + tt
+    per_step = {
+        k: v / steps * 1e6 for k, v in sorted(by_module.items(), key=lambda kv: -kv[1]) if v / steps > 1e-7
+    }
+    # The plant alone: the same scene, nothing grasped, 8 bricks resting (32 contacts).
+    builder = DiagramBuilder()
+    bare = add_scene_from_directives(builder, lego.DIRECTIVES, 1e-3)
+    sim = Simulator(builder.Build())
+    sim.Initialize()
+    sim.AdvanceTo(0.1)
+    t0 = _t.perf_counter()
+    sim.AdvanceTo(1.1)
+    plant_us = (_t.perf_counter() - t0) * 1e3
+    query = bare.scene_graph.get_query_output_port().Eval(
+        bare.scene_graph.GetMyContextFromRoot(sim.get_context())
+    )
+    contacts = len(query.ComputePointPairPenetration())
+    t0 = _t.perf_counter()
+    for _ in range(1000):
+        query.ComputePointPairPenetration()
+    query_us = (_t.perf_counter() - t0) * 1e3
+    return {
+        "step_us": loop.wall_time_s / steps * 1e6,
+        "drake_cpp_us": advance / steps * 1e6,
+        "python_us_by_module": per_step,
+        "plant_alone_us": plant_us,
+        "resting_contacts": contacts,
+        "geometry_query_us": query_us,
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output directory (created)")
+    parser.add_argument("--quick", action="store_true", help="fewer steps and shorter runs (under 10 min)")
+    parser.add_argument("--scene", choices=SCENES, action="append", help="only this scene (repeatable)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per configuration (≥ 3 for the report)")
+    parser.add_argument("--workers", type=int, default=1, help="local worker processes (timings: keep 1)")
+    parser.add_argument("--scheduler", help="Dask distributed scheduler address (tcp://host:8786)")
+    parser.add_argument("--no-mujoco", action="store_true", help="skip the MuJoCo peer")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    if args.repeats < 3:
+        parser.error(f"--repeats {args.repeats}: the report's medians need at least 3 runs per configuration")
+    args.out.mkdir(parents=True, exist_ok=True)
+    scenes = args.scene or list(SCENES)
+    t_start = time.perf_counter()
+    cases, owner = [], []
+    for scene in scenes:
+        ref, grid = sweep_configs(scene, args.quick, args.repeats)
+        cases += [ref, *grid]
+        owner += [(scene, "reference")] + [(scene, "grid")] * len(grid)
+    use_mujoco = "lego" in scenes and not args.no_mujoco
+    if use_mujoco and not mujoco_available():
+        print(
+            "MuJoCo not installed (pip install -e .[bench]); the peer comparison is skipped", file=sys.stderr
+        )
+        use_mujoco = False
+    if use_mujoco:
+        peer = mujoco_configs(args.quick, args.repeats)
+        cases += peer
+        owner += [("lego", "mujoco")] * len(peer)
+    results = run_tasks(
+        bm.run_config,
+        cases,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.no_progress,
+        desc="speed vs error",
+    )
+    overhead = bm.coupling_overhead_us()
+    profile = brick_profile() if "lego" in scenes else None
+
+    summary = {
+        "quick": args.quick,
+        "repeats": args.repeats,
+        "scenes": {},
+        "coupling_overhead_us": overhead,
+        "brick_profile": profile,
+    }
+    md = [
+        "# Speed against error",
+        "",
+        f"Generated by `python analysis/speed_vs_error.py --out {args.out}{' --quick' * args.quick}` "
+        f"({args.repeats} runs per configuration; cost = wall time of the simulation loop per simulated "
+        "second, median, min–max in brackets; RTF = 1/median). Pose error: RMS distance between the "
+        "god-object's frame in the run and in the reference, sampled every 10 ms; energy error: largest "
+        "difference of the rigid bodies' kinetic + potential energy. `refused`: the explicit coupling's "
+        "gains are past its stability limit at that h (THEORY.md §1) and the scene refuses to run.",
+        "",
+    ]
+    goals = []
+    for scene in scenes:
+        ref = next(r for r, o in zip(results, owner, strict=True) if o == (scene, "reference"))
+        grid = [r for r, o in zip(results, owner, strict=True) if o == (scene, "grid")]
+        peers = [r for r, o in zip(results, owner, strict=True) if o == (scene, "mujoco")]
+        rows = evaluate([ref, *grid], ref, scene)
+        peer_rows = evaluate(peers, ref, scene)
+        fig = figure(scene, rows, peer_rows, args.out)
+        section, recs = scene_section(
+            scene, ref, rows, peer_rows, fig, BUDGETS_M[scene], PENETRATION_BUDGET_M[scene]
+        )
+        md += section
+        summary["scenes"][scene] = {
+            "reference": ref["label"],
+            "rows": rows,
+            "mujoco": peer_rows,
+            "recommended": recs,
+            "figure": fig,
+        }
+        goals += performance_goals(scene, rows)
+    md += [
+        "## Performance goals",
+        "",
+        "| scene | at | configuration | RTF | goal | met |",
+        "|---|---|---|---|---|---|",
+    ]
+    for scene, what, label, rtf, goal in goals:
+        md.append(
+            f"| {scene} | {what} | `{label}` | {fmt(rtf, digits=3)} | ≥ {goal:g} | "
+            f"{'yes' if rtf and rtf >= goal else 'no'} |"
+        )
+    md.append(
+        f"| coupling LeafSystem | per step, alone | `coupling_overhead_us()` | "
+        f"{overhead['median_us']:.1f} µs (min {overhead['min_us']:.1f}) | ≤ {COUPLING_GOAL_US:g} µs | "
+        f"{'yes' if overhead['median_us'] <= COUPLING_GOAL_US else 'no'} |"
+    )
+    summary["goals"] = [dict(zip(("scene", "at", "label", "rtf", "goal"), g, strict=True)) for g in goals]
+    if profile:
+        py = profile["python_us_by_module"]
+        md += [
+            "",
+            "## Where the time goes: brick scene, h = 1 ms",
+            "",
+            f"One step costs {profile['step_us']:.0f} µs: {profile['drake_cpp_us']:.0f} µs in Drake's C++ "
+            f"(plant, SAP, geometry, logging, inside `AdvanceTo`) and the rest in Python callbacks:",
+            "",
+            "| Python, by module | µs per step |",
+            "|---|---|",
+        ]
+        md += [f"| {k} | {v:.1f} |" for k, v in py.items()]
+        md += [
+            "",
+            f"The plant alone (no device, no coupling, {profile['resting_contacts']} resting contacts) "
+            f"costs {profile['plant_alone_us']:.0f} µs per step, of which the geometry query is "
+            f"{profile['geometry_query_us']:.0f} µs; the rest is SAP's contact solve and the dynamics.",
+        ]
+    elapsed = time.perf_counter() - t_start
+    summary["elapsed_s"] = elapsed
+    md += ["", f"Report time {elapsed:.0f} s on this machine.", ""]
+    (args.out / "report.md").write_text("\n".join(md))
+    (args.out / "results.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    print(f"wrote {args.out / 'report.md'} and results.json in {elapsed:.0f} s")
+    return 0
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if dataclasses.is_dataclass(o):
+        return dataclasses.asdict(o)
+    raise TypeError(type(o))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

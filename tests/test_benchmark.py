@@ -1,0 +1,124 @@
+"""Speed-vs-error measurements: errors a reader can check by hand, energy against Drake's own,
+the recommendation rule, a refused configuration and the MuJoCo peer on the same path."""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import REPO, add_free_boxes, load_script
+from pydrake.systems.framework import DiagramBuilder
+
+from godobject_drake.benchmark import Config, compare, rigid_energy, run_config, summarize_cost
+
+
+def run_like(p, q, E):
+    return {"times": np.arange(len(p)) * 0.01, "p_WG": np.asarray(p), "q_WG": np.asarray(q), "energy_j": E}
+
+
+def test_compare_gives_the_offsets_put_in():
+    n = 50
+    p = np.zeros((n, 3))
+    q = np.tile([1.0, 0, 0, 0], (n, 1))
+    ref = run_like(p, q, np.linspace(0.0, 1.0, n))
+    a = 0.01  # rad about z
+    shifted = run_like(
+        p + np.array([0.003, 0.004, 0.0]),
+        np.tile([math.cos(a / 2), 0, 0, math.sin(a / 2)], (n, 1)),
+        np.linspace(0.0, 1.0, n) + 5.0,
+    )
+    err = compare(shifted, ref)
+    assert err["pose_rms_m"] == pytest.approx(0.005)  # a 3-4-5 triangle
+    assert err["angle_rms_rad"] == pytest.approx(a)
+    assert err["energy_error_j"] == pytest.approx(0.0, abs=1e-12)  # a constant offset is no error
+    drift = run_like(p, q, np.linspace(0.0, 1.0, n) * 1.1)
+    assert compare(drift, ref)["energy_error_j"] == pytest.approx(0.1)
+
+
+def test_rigid_energy_matches_drakes():
+    """The formula the MuJoCo peer is measured with equals Drake's kinetic + potential energy."""
+    builder = DiagramBuilder()
+    plant, bodies = add_free_boxes(builder, 1e-3, (0.5, 2.0))
+    context = plant.CreateDefaultContext()
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(plant.num_multibody_states())
+    for i in range(2):
+        x[7 * i : 7 * i + 4] /= np.linalg.norm(x[7 * i : 7 * i + 4])
+    plant.SetPositionsAndVelocities(context, x)
+    p, q, v, w = [], [], [], []
+    for b in bodies:
+        X = b.EvalPoseInWorld(context)
+        V = b.EvalSpatialVelocityInWorld(context)
+        p.append(X.translation())
+        q.append(X.rotation().ToQuaternion().wxyz())
+        v.append(V.translational())
+        w.append(V.rotational())
+    inertias = [np.diag([1e-3, 2e-3, 3e-3])] * 2
+    E = rigid_energy(*(np.array([a]) for a in (p, q, v, w)), [0.5, 2.0], inertias)
+    expected = plant.CalcKineticEnergy(context) + plant.CalcPotentialEnergy(context)
+    assert E[0] == pytest.approx(expected, rel=1e-12)
+
+
+def test_recommendation_is_the_cheapest_within_both_budgets():
+    sve = load_script("analysis/speed_vs_error.py")
+    rows = [
+        {
+            "label": "a",
+            "refused": None,
+            "diverged": False,
+            "cost_median_s": 0.1,
+            "pose_rms_m": 2e-3,
+            "max_penetration_m": 1e-4,
+        },
+        {
+            "label": "b",
+            "refused": None,
+            "diverged": False,
+            "cost_median_s": 0.2,
+            "pose_rms_m": 5e-4,
+            "max_penetration_m": 3e-3,
+        },
+        {
+            "label": "c",
+            "refused": None,
+            "diverged": False,
+            "cost_median_s": 0.4,
+            "pose_rms_m": 4e-4,
+            "max_penetration_m": 1e-4,
+        },
+        {
+            "label": "d",
+            "refused": None,
+            "diverged": True,
+            "cost_median_s": 0.05,
+            "pose_rms_m": 1e-5,
+            "max_penetration_m": 0.0,
+        },
+        {"label": "e", "refused": "past the limit", "diverged": False, "cost_median_s": None},
+    ]
+    assert sve.recommend(rows, 5e-3, 1e-3)["label"] == "a"
+    assert sve.recommend(rows, 1e-3, 1e-3)["label"] == "c"  # b penetrates too far
+    assert sve.recommend(rows, 1e-3, 5e-3)["label"] == "b"
+    assert sve.recommend(rows, 1e-6, 1e-3) is None
+    assert [r["label"] for r in sve.pareto(rows)] == ["a", "b", "c"]
+    assert summarize_cost([0.3, 0.1, 0.2])["cost_median_s"] == 0.2
+    assert summarize_cost([0.3, 0.1, 0.2])["real_time_factor"] == pytest.approx(5.0)
+
+
+def test_explicit_coupling_refuses_h_10_ms_with_the_limit():
+    r = run_config(Config("lego", 10e-3, 0.1, repeats=1))
+    assert "omega_n_rot=120 rad/s at time_step=0.01 s" in r["refused"] and "0.8284" in r["refused"]
+    assert r["wall_s_per_sim_s"] == []
+
+
+def test_mujoco_peer_follows_the_same_path():
+    """MuJoCo's weld and Drake's coupling lift brick_0 along the same path: after 0.5 s the
+    device is at z = 2 cm; both bricks are within 3 mm of it (the weld lags by 2ζv/ωn =
+    1.5 mm at the path's 3 cm/s: its mocap body has no velocity for the damping)."""
+    pytest.importorskip("mujoco")
+    drake = run_config(Config("lego", 1e-3, 0.5, repeats=1))
+    mj = run_config(Config("lego", 1e-3, 0.5, coupling="weld", engine="mujoco", repeats=1))
+    assert not mj["diverged"]
+    for r in (drake, mj):
+        assert abs(r["p_WG"][-1, 2] - 0.02) < 3e-3
+    assert len(mj["wall_s_per_sim_s"]) == 1 and mj["mujoco_version"]
+    assert (REPO / "analysis" / "mujoco_bricks.py").is_file()
