@@ -80,8 +80,8 @@ def run_tasks(
                 out.append(_call(fn, case))
                 bar.update(1)
             return out
-        # "spawn": a fresh interpreter per worker; forking a process that holds Drake's
-        # threads (Meshcat, the LCM-free simulator still links them) is not safe.
+        # "spawn": a fresh interpreter per worker. Forking a process that has loaded Drake
+        # (which may have started threads, e.g. a Meshcat server) is not safe.
         ctx = multiprocessing.get_context("spawn")
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
             futures = {pool.submit(_call, fn, case): i for i, case in enumerate(cases)}
