@@ -315,6 +315,36 @@ def scene_section(
         md.append(line)
         recs[f"{b:g}"] = entry
     md.append("")
+    if peers:
+        same = [
+            (r, p)
+            for r in rows
+            for p in peers
+            if r.get("cost_median_s")
+            and p.get("cost_median_s")
+            and not r["diverged"]
+            and not p["diverged"]
+            and r["config"]["time_step"] == p["config"]["time_step"] == 1e-3
+            and r["config"].get("contact") == "proxies"
+            and r["config"].get("approximation") == "sap"
+            and r["config"]["device_rate"] == 60.0
+        ]
+        for r, p in same:
+            md.append(
+                f"Same step (h = 1 ms), whatever the error: `{r['label']}` costs "
+                f"{r['cost_median_s'] / p['cost_median_s']:.1f}× `{p['label']}` "
+                f"(pose RMS {fmt(r['pose_rms_m'], ' mm', 1e3)} against {fmt(p['pose_rms_m'], ' mm', 1e3)}, "
+                f"max penetration {fmt(r['max_penetration_m'], ' mm', 1e3)} against "
+                f"{fmt(p['max_penetration_m'], ' mm', 1e3)})."
+            )
+            recs.setdefault("same_step_ratios", []).append(
+                {
+                    "drake": r["label"],
+                    "mujoco": p["label"],
+                    "drake_over_mujoco": r["cost_median_s"] / p["cost_median_s"],
+                }
+            )
+        md.append("")
     return md, recs
 
 
