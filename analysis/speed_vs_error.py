@@ -224,7 +224,7 @@ def figure(scene: str, rows: list[dict], peers: list[dict], out: Path) -> str:
             label="Drake Pareto front",
         )
     ax.axvline(1.0, color="grey", ls=":", lw=1)
-    ax.text(1.0, ax.get_ylim()[1] if False else 1, " real time", color="grey", fontsize=8, va="bottom")
+    ax.text(1.0, 1.0, " real time", color="grey", fontsize=8, va="bottom")  # at 1 mm on the error axis
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("wall time per simulated second (s), median of repeats, bars min–max")
