@@ -385,8 +385,6 @@ def brick_profile(seconds: float = 2.0) -> dict:
     the C++ side separately: the plant alone with its 32 resting contacts, and its
     geometry query.
     """
-    import time as _t
-
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
 
@@ -421,17 +419,17 @@ def brick_profile(seconds: float = 2.0) -> dict:
     sim = Simulator(builder.Build())
     sim.Initialize()
     sim.AdvanceTo(0.1)
-    t0 = _t.perf_counter()
+    t0 = time.perf_counter()
     sim.AdvanceTo(1.1)
-    plant_us = (_t.perf_counter() - t0) * 1e3
+    plant_us = (time.perf_counter() - t0) * 1e3
     query = bare.scene_graph.get_query_output_port().Eval(
         bare.scene_graph.GetMyContextFromRoot(sim.get_context())
     )
     contacts = len(query.ComputePointPairPenetration())
-    t0 = _t.perf_counter()
+    t0 = time.perf_counter()
     for _ in range(1000):
         query.ComputePointPairPenetration()
-    query_us = (_t.perf_counter() - t0) * 1e3
+    query_us = (time.perf_counter() - t0) * 1e3
     return {
         "step_us": loop.wall_time_s / steps * 1e6,
         "drake_cpp_us": advance / steps * 1e6,

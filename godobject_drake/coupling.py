@@ -625,7 +625,8 @@ class GodObjectCoupling(LeafSystem):
             return
         b = self._fast[held]
         tau, f = t[27:30].tolist(), t[30:33].tolist()
-        r = self._p_BoBcm_W(b, t[14:18].tolist())
+        p_WBo = self._state_port.Eval(context)[b.q_start + 4 : b.q_start + 7]
+        r = (t[18:21] - p_WBo).tolist()  # p_BoBcm_W = p_WG − p_WBo, no second rotation
         vs = b.v_start - self._nq
         out[vs : vs + 6] = [
             tau[0] + r[1] * f[2] - r[2] * f[1],
@@ -633,15 +634,6 @@ class GodObjectCoupling(LeafSystem):
             tau[2] + r[0] * f[1] - r[1] * f[0],
             f[0], f[1], f[2],
         ]  # fmt: skip
-
-    @staticmethod
-    def _p_BoBcm_W(b: _HotBody, q) -> tuple:
-        RB, c = _rot_of(q[0], q[1], q[2], q[3]), b.p_BoBcm_B
-        return (
-            RB[0] * c[0] + RB[1] * c[1] + RB[2] * c[2],
-            RB[3] * c[0] + RB[4] * c[1] + RB[5] * c[2],
-            RB[6] * c[0] + RB[7] * c[1] + RB[8] * c[2],
-        )
 
     def _calc_spatial_forces(self, context, output):
         t = self._terms.Eval(context)

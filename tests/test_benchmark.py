@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import REPO, add_free_boxes, load_script
+from conftest import add_free_boxes, load_script
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.benchmark import Config, compare, rigid_energy, run_config, summarize_cost
@@ -121,4 +121,3 @@ def test_mujoco_peer_follows_the_same_path():
     for r in (drake, mj):
         assert abs(r["p_WG"][-1, 2] - 0.02) < 3e-3
     assert len(mj["wall_s_per_sim_s"]) == 1 and mj["mujoco_version"]
-    assert (REPO / "analysis" / "mujoco_bricks.py").is_file()
