@@ -499,7 +499,7 @@ def main(argv=None) -> int:
         "second, median, min–max in brackets; RTF = 1/median). Pose error: RMS distance between the "
         "god-object's frame in the run and in the reference, sampled every 10 ms; energy error: largest "
         "difference of the rigid bodies' kinetic + potential energy. `refused`: the explicit coupling's "
-        "gains are past its stability limit at that h (THEORY.md §1) and the scene refuses to run.",
+        "gains are past its stability limit at that h (docs/theory.md §1) and the scene refuses to run.",
         "",
     ]
     goals = []

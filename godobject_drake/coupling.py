@@ -15,7 +15,7 @@ so ``k = m ωn²``, ``γ = 2 ζ m ωn`` and ``γ/√(mk) = 2ζ`` (the paper's
 1.4 … 2 is ζ ∈ [0.7, 1]). The force enters the plant through
 ``applied_spatial_force`` and is therefore explicit: the discrete plant
 integrates the coupled body with symplectic Euler, stable only while
-``ωn h < 2(√(1+ζ²) − ζ)`` (THEORY.md §1). The constructor refuses gains
+``ωn h < 2(√(1+ζ²) − ζ)`` (docs/theory.md §1). The constructor refuses gains
 past that limit.
 """
 

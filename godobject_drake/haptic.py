@@ -351,7 +351,7 @@ class AdmittanceDevice(LeafSystem):
 
 
 class PassivityController(LeafSystem):
-    """Hannaford & Ryu's passivity observer and controller on the feedback path (THEORY.md §2).
+    """Hannaford & Ryu's passivity observer and controller on the feedback path (docs/theory.md §2).
 
     .. pydrake_system::
 

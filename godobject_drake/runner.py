@@ -71,7 +71,7 @@ REPO_DIR = Path(__file__).resolve().parent.parent
 def load_scene_script(relative: str):
     """Import a script of the clone (``diagrams/lego.py``, ...) by path, as ``python`` would run it.
 
-    ``diagrams/`` and ``analysis/`` are not installed packages (DESIGN.md).
+    ``diagrams/`` and ``analysis/`` are not installed packages (docs/design.md).
     """
     path = REPO_DIR / relative
     spec = importlib.util.spec_from_file_location(path.stem, path)

@@ -77,7 +77,7 @@ def set_relaxation_time(plant: MultibodyPlant, scene_graph: SceneGraph, tau: flo
     """Set SAP's ``relaxation_time`` (s) on every proximity geometry of ``plant``.
 
     SAP's default (0.1 s) makes point contact far softer than its nominal
-    stiffness (DESIGN.md); ``tau ≈ h`` keeps the nominal stiffness.
+    stiffness (docs/design.md); ``tau ≈ h`` keeps the nominal stiffness.
     """
     set_contact_material(plant, scene_graph, relaxation_time=tau)
 

@@ -1,6 +1,6 @@
 """Stability and passivity of the god-object loop (python-control models).
 
-Two halves, as in ``../shared/THEORY.md``:
+Two halves, as in ``docs/theory.md``:
 
 *Simulation side* — the coupled body. One degree of freedom of the held body
 (mass ``m``) is pulled to its target by the coupling ``(k, γ)`` and pushed by
@@ -92,9 +92,8 @@ def spectral_radius(kappa, beta, scheme: str) -> np.ndarray:
 def stable_by_table(kappa, beta, scheme: str) -> np.ndarray:
     """Jury's conditions for each scheme, in closed form (a second method to the roots).
 
-    THEORY.md §1's table, with one correction: symplectic Euler also needs
-    ``β > 0`` (``|1 − β| < 1``); the table's ``β < 2`` alone admits negative
-    damping, whose root product ``1 − β`` exceeds 1.
+    docs/theory.md §1's table. Symplectic Euler needs ``β > 0`` as well as ``β < 2``
+    (``|1 − β| < 1``): negative damping makes the root product ``1 − β`` exceed 1.
     """
     k, b = np.broadcast_arrays(np.asarray(kappa, float), np.asarray(beta, float))
     if scheme == "symplectic_euler":
@@ -237,7 +236,7 @@ def symplectic_euler_matrix(M, K, D, time_step: float) -> np.ndarray:
     ``M v̇ = −K q − D v`` integrated as ``v⁺ = v + h M⁻¹(−K q − D v)``,
     ``q⁺ = q + h v⁺`` (the discrete plant with an explicit force). For a
     scalar ``M = m, K = m ωn², D = 2 ζ m ωn`` its eigenvalues are the roots
-    of THEORY.md §1's symplectic Euler polynomial.
+    of docs/theory.md §1's symplectic Euler polynomial.
     """
     M, K, D = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (M, K, D))
     n, h = M.shape[0], float(time_step)
@@ -486,7 +485,7 @@ def device_stiffness_limit(
 
 
 def stiffness_limit_approx(dev: DeviceParams, B: float) -> float:
-    """THEORY.md's approximations: ``2(b_d+B)/T`` (no delay), ``(b_d+B)/(T(d+½))`` (delay d)."""
+    """docs/theory.md's approximations: ``2(b_d+B)/T`` (no delay), ``(b_d+B)/(T(d+½))`` (delay d)."""
     if dev.delay == 0:
         return 2 * (dev.damping + B) / dev.period
     return (dev.damping + B) / (dev.period * (dev.delay + 0.5))
@@ -669,7 +668,7 @@ def rendered_impedance(
 
 
 def re_rendered_impedance_gamma_d0(mass, k, gamma, k_w, kd, omega) -> np.ndarray:
-    """THEORY.md's closed form of ``Re Z_env(jω)`` for ``γd = 0``, ``b_w = 0``."""
+    """docs/theory.md's closed form of ``Re Z_env(jω)`` for ``γd = 0``, ``b_w = 0``."""
     w2 = np.asarray(omega, float) ** 2
     return -kd * gamma * (k_w - mass * w2) / (gamma**2 * w2 + (k + k_w - mass * w2) ** 2)
 

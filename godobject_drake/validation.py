@@ -92,7 +92,7 @@ def free_body_error(
             CouplingGains(omega_n=omega_n, zeta=zeta, omega_n_rot=omega_n / 4),
             device_period_s=device.period_s,
             check_gains=False,
-            max_stretch_m=math.inf,  # the linear law THEORY.md §1 analyses: no force cap
+            max_stretch_m=math.inf,  # the linear law docs/theory.md §1 analyses: no force cap
         ),
     )
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))

@@ -89,7 +89,7 @@ def test_simulated_impedance_device_closes_the_force_loop_passively():
 
 
 def active_soft_tissue(**kw):
-    """The stability report's active loop: γd = 0 on soft tissue (THEORY.md §2)."""
+    """The stability report's active loop: γd = 0 on soft tissue (docs/theory.md §2)."""
     return va.HapticScenario(DEVICE, **SOFT, kd=1000.0, gamma_d=0.0, force_amplitude=0.05,
                              force_frequency=10.0, **kw)  # fmt: skip
 

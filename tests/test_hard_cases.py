@@ -1,4 +1,4 @@
-"""Hard numerical cases (THEORY.md §4), each with a pass criterion a reader can check.
+"""Hard numerical cases (docs/theory.md §4), each with a pass criterion a reader can check.
 
 Every case drives one 2x4 brick (the brick scene's, 2.3 g, proxies on its corners) as the
 god-object with the brick scene's default gains (ωn = 40 rad/s, ωr = 120 rad/s, ζ = 1,
@@ -125,7 +125,7 @@ def brick_v(states, plant):
 @pytest.mark.parametrize("factor", [0.97, 1.03])
 def test_stiff_coupling_near_the_explicit_limit(factor):
     """Pass: below the limit ωn h < 2(√(1+ζ²)−ζ) the brick settles on a 1 cm step; past it
-    the coupling refuses with the limit and the fix in the message (THEORY.md §1)."""
+    the coupling refuses with the limit and the fix in the message (docs/theory.md §1)."""
     limit = 2 * (math.sqrt(2) - 1) / H  # ζ = 1: 828.4 rad/s at h = 1 ms
     gains = CouplingGains(omega_n=factor * limit, zeta=1.0, omega_n_rot=factor * limit)
     builder = DiagramBuilder()

@@ -21,7 +21,7 @@ def test_roots_agree_with_jury_conditions(scheme):
 
 
 def test_symplectic_euler_needs_positive_damping():
-    # THEORY.md's table omits β > 0: with β = −0.1 the root product 1 − β exceeds 1.
+    # β > 0 is needed too (docs/theory.md §1): with β = −0.1 the root product 1 − β exceeds 1.
     assert st.spectral_radius(1.0, -0.1, "symplectic_euler") > 1.0
 
 
@@ -120,7 +120,7 @@ def test_colgate_one_sample_delay(B, expected):
 @pytest.mark.parametrize("delay", [0, 1])
 @pytest.mark.parametrize("damping", [0.5, 2.0])
 def test_stiffness_limit_near_theory_approximation(damping, delay):
-    # THEORY's 2b/T and b/(T(d+½)) hold to ~1 % while bT/m is small (here 0.005–0.02).
+    # docs/theory.md's 2b/T and b/(T(d+½)) hold to ~1 % while bT/m is small (here 0.005–0.02).
     dev = st.DeviceParams(0.1, damping, 1e-3, delay)
     k_max = st.device_stiffness_limit(dev, lambda K: st.wall_impedance(K, 0.0, 1e-3, delay))
     assert k_max == pytest.approx(st.stiffness_limit_approx(dev, 0.0), rel=0.01)

@@ -14,7 +14,7 @@ ZETAS = [0.0, 0.5, 0.7, 1.0, 2.0]
 
 
 def test_local_processes_return_results_in_case_order():
-    expected = [2 * (math.sqrt(1 + z * z) - z) for z in ZETAS]  # THEORY.md §1, by hand
+    expected = [2 * (math.sqrt(1 + z * z) - z) for z in ZETAS]  # docs/theory.md §1, by hand
     assert run_tasks(explicit_limit_omega_h, ZETAS, workers=0, progress=False) == expected
     assert run_tasks(explicit_limit_omega_h, ZETAS, workers=2, progress=False) == expected
 
