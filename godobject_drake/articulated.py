@@ -63,8 +63,8 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem, ValueProducer
 
 from godobject_drake.coupling import CouplingGainError, CouplingGains
 from godobject_drake.feedback import FeedbackGains
+from godobject_drake.limits import symplectic_euler_radius
 from godobject_drake.spatial import cross3, rotation_error, rotation_to_quat
-from godobject_drake.stability import symplectic_euler_radius
 
 COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
 ONE_DOF_JOINTS = ("revolute", "prismatic")

@@ -33,6 +33,7 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlan
 from pydrake.multibody.tree import BodyIndex, SpatialInertia
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
+from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.spatial import (
     cross3,
     pose_arrays,
@@ -51,16 +52,6 @@ class CouplingGainError(ValueError):
 
 class CouplingGainWarning(UserWarning):
     """Gains outside the paper's recommended damping range."""
-
-
-def explicit_limit_omega_h(zeta: float) -> float:
-    """Largest stable ``ωn h`` of symplectic Euler with explicit spring-damper.
-
-    From the characteristic polynomial ``z² − (2 − κ − β) z + (1 − β)`` with
-    ``κ = (ωn h)²`` and ``β = 2 ζ ωn h``: stable iff ``κ + 2β < 4`` and
-    ``β < 2``, i.e. ``ωn h < 2(√(1+ζ²) − ζ)`` (≈ 1.04 at ζ = 0.7, 0.83 at ζ = 1).
-    """
-    return 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -38,7 +38,9 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
-from godobject_drake.coupling import explicit_limit_omega_h
+from godobject_drake.limits import explicit_limit_omega_h as explicit_limit_omega_h
+from godobject_drake.limits import symplectic_euler_matrix as symplectic_euler_matrix
+from godobject_drake.limits import symplectic_euler_radius as symplectic_euler_radius
 
 # -- simulation side -------------------------------------------------------------------------------------
 
@@ -228,26 +230,6 @@ def coupled_body_model(loop: BodyLoop) -> ct.StateSpace:
 def body_spectral_radius(loop: BodyLoop) -> float:
     """Largest pole modulus of :func:`coupled_body_model` (< 1: stable)."""
     return float(np.max(np.abs(coupled_body_model(loop).poles())))
-
-
-def symplectic_euler_matrix(M, K, D, time_step: float) -> np.ndarray:
-    """One step of Drake's explicit coupling in joint space: ``[q; v]⁺ = A [q; v]``.
-
-    ``M v̇ = −K q − D v`` integrated as ``v⁺ = v + h M⁻¹(−K q − D v)``,
-    ``q⁺ = q + h v⁺`` (the discrete plant with an explicit force). For a
-    scalar ``M = m, K = m ωn², D = 2 ζ m ωn`` its eigenvalues are the roots
-    of docs/theory.md §1's symplectic Euler polynomial.
-    """
-    M, K, D = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (M, K, D))
-    n, h = M.shape[0], float(time_step)
-    MK, MD = np.linalg.solve(M, K), np.linalg.solve(M, D)
-    eye = np.eye(n)
-    return np.block([[eye - h * h * MK, h * (eye - h * MD)], [-h * MK, eye - h * MD]])
-
-
-def symplectic_euler_radius(M, K, D, time_step: float) -> float:
-    """Spectral radius of :func:`symplectic_euler_matrix` (< 1: the explicit loop is stable)."""
-    return float(np.max(np.abs(np.linalg.eigvals(symplectic_euler_matrix(M, K, D, time_step)))))
 
 
 def bisect(is_stable: Callable[[float], bool], lo: float, hi: float, rel_tol: float = 1e-4) -> float:
