@@ -39,7 +39,11 @@ from godobject_drake.spatial import (
     pose_arrays,
     quat_conjugate,
     quat_multiply,
+    quat_of_rotation_entries,
+    quat_product,
     quat_to_rotation,
+    rotation_entries,
+    rotation_vector_between,
 )
 
 PAPER_DAMPING_RATIO_RANGE = (0.7, 1.0)  # paper: 1.4 ≤ γ/√(mk) ≤ 2, i.e. 2ζ.
@@ -223,56 +227,6 @@ class _HotBody:
     mg: tuple  # m g (N), zero without gravity compensation
     force_cap: float  # N, the spring-damper's (gravity compensation comes on top)
     torque_cap: float  # N·m
-
-
-def _quat_of(R) -> tuple:
-    """``[w,x,y,z]`` (w ≥ 0) of a row-major 9-tuple rotation (Shepperd; floats only)."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R
-    tr = r00 + r11 + r22
-    if tr > 0.0:
-        t = 2.0 * math.sqrt(1.0 + tr)
-        q = (0.25 * t, (r21 - r12) / t, (r02 - r20) / t, (r10 - r01) / t)
-    elif r00 > r11 and r00 > r22:
-        t = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q = ((r21 - r12) / t, 0.25 * t, (r01 + r10) / t, (r02 + r20) / t)
-    elif r11 > r22:
-        t = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        q = ((r02 - r20) / t, (r01 + r10) / t, 0.25 * t, (r12 + r21) / t)
-    else:
-        t = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        q = ((r10 - r01) / t, (r02 + r20) / t, (r12 + r21) / t, 0.25 * t)
-    return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-
-
-def _rot_of(w, x, y, z) -> tuple:
-    """Row-major rotation of the unit quaternion ``[w,x,y,z]`` (floats only)."""
-    return (
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    )  # fmt: skip
-
-
-def _qmul(a, b) -> tuple:
-    """Hamilton product ``a ⊗ b`` (floats only)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def _rotvec(qT, qG) -> tuple:
-    """:func:`~godobject_drake.spatial.rotation_error` on float tuples: ``α u`` of ``qT ⊗ qG⁻¹``."""
-    e = _qmul(qT, (qG[0], -qG[1], -qG[2], -qG[3]))
-    if e[0] < 0.0:
-        e = (-e[0], -e[1], -e[2], -e[3])
-    s = math.sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3])
-    k = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, e[0]) / s
-    return (k * e[1], k * e[2], k * e[3])
 
 
 class GodObjectCoupling(LeafSystem):
@@ -530,7 +484,7 @@ class GodObjectCoupling(LeafSystem):
         V = self._V_WD_port.Eval(context).tolist()
         R = (M[0][0], M[0][1], M[0][2], M[1][0], M[1][1], M[1][2], M[2][0], M[2][1], M[2][2])
         pD = (M[0][3], M[1][3], M[2][3])
-        qD = _quat_of(R)
+        qD = quat_of_rotation_entries(R)
         held = int(s[0])
         if held < 0:
             pose = [*qD, *pD]
@@ -546,7 +500,7 @@ class GodObjectCoupling(LeafSystem):
         n = math.sqrt(qG[0] * qG[0] + qG[1] * qG[1] + qG[2] * qG[2] + qG[3] * qG[3])
         qG[0], qG[1], qG[2], qG[3] = qG[0] / n, qG[1] / n, qG[2] / n, qG[3] / n
         # G: the body's centre of mass (p_BoBcm rotated into W) and its velocity.
-        RB = _rot_of(qG[0], qG[1], qG[2], qG[3])
+        RB = rotation_entries(qG[0], qG[1], qG[2], qG[3])
         c = b.p_BoBcm_B
         r0 = RB[0] * c[0] + RB[1] * c[1] + RB[2] * c[2]
         r1 = RB[3] * c[0] + RB[4] * c[1] + RB[5] * c[2]
@@ -559,7 +513,7 @@ class GodObjectCoupling(LeafSystem):
         e0 = R[0] * d0 + R[1] * d1 + R[2] * d2
         e1 = R[3] * d0 + R[4] * d1 + R[5] * d2
         e2 = R[6] * d0 + R[7] * d1 + R[8] * d2
-        qT = _qmul(qD, (s[1], s[2], s[3], s[4]))
+        qT = quat_product(qD, (s[1], s[2], s[3], s[4]))
         pT = (pD[0] + e0, pD[1] + e1, pD[2] + e2)
         W0, W1, W2 = V[0], V[1], V[2]
         vT = (V[3] + W1 * e2 - W2 * e1, V[4] + W2 * e0 - W0 * e2, V[5] + W0 * e1 - W1 * e0)
@@ -577,7 +531,7 @@ class GodObjectCoupling(LeafSystem):
             if n > b.force_cap:
                 capped, m = 1.0, m * b.force_cap / n
             f0, f1, f2 = m * a0 - b.mg[0], m * a1 - b.mg[1], m * a2 - b.mg[2]
-            e = _rotvec(qT, qG)
+            e = rotation_vector_between(qT, qG)
             kr, dr = self._wr2, self._2zwr
             u0 = kr * e[0] + dr * (W0 - w0)
             u1 = kr * e[1] + dr * (W1 - w1)

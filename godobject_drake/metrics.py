@@ -21,6 +21,13 @@ from pydrake.multibody.plant import MultibodyPlant
 
 from godobject_drake.coupling import GraspableBody, graspable_bodies
 from godobject_drake.scenes import is_proxy
+from godobject_drake.spatial import quats_to_rotations
+
+
+def _rotations(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(N, 3, 3)`` of logged quaternions ``(N, 4)``, normalised first (they drift)."""
+    return quats_to_rotations(q / np.linalg.norm(q, axis=1, keepdims=True))
+
 
 # Keys every scene's metrics JSON has, in table order (README "Metrics JSON").
 METRIC_KEYS = (
@@ -103,20 +110,6 @@ def box_overlap(cA, RA, hA, cB, RB, hB) -> np.ndarray:
     return best
 
 
-def _quat_to_rotations(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(N, 3, 3)`` of quaternions ``(N, 4)`` [w, x, y, z]."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=1,
-    )
-
-
 class TrueShapeMetrics:
     """Measures penetration and clearance of bodies on their true box shapes."""
 
@@ -129,7 +122,7 @@ class TrueShapeMetrics:
         if box.body_index is None:
             return np.broadcast_to(box.p_BG, (n, 3)), np.broadcast_to(box.R_BG, (n, 3, 3))
         b = self.bodies[box.body_index]
-        R_WB = _quat_to_rotations(states[:, b.q_start : b.q_start + 4])
+        R_WB = _rotations(states[:, b.q_start : b.q_start + 4])
         p_WB = states[:, b.q_start + 4 : b.q_start + 7]
         return p_WB + R_WB @ box.p_BG, R_WB @ box.R_BG
 
@@ -185,12 +178,12 @@ def compute_metrics(
 
 
 def _cm_positions(body: GraspableBody, states: np.ndarray) -> np.ndarray:
-    R = _quat_to_rotations(states[:, body.q_start : body.q_start + 4])
+    R = _rotations(states[:, body.q_start : body.q_start + 4])
     return states[:, body.q_start + 4 : body.q_start + 7] + R @ body.p_BoBcm_B
 
 
 def _cm_velocities(body: GraspableBody, states: np.ndarray) -> np.ndarray:
-    R = _quat_to_rotations(states[:, body.q_start : body.q_start + 4])
+    R = _rotations(states[:, body.q_start : body.q_start + 4])
     w = states[:, body.v_start : body.v_start + 3]
     return states[:, body.v_start + 3 : body.v_start + 6] + np.cross(w, R @ body.p_BoBcm_B)
 
