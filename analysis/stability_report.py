@@ -37,7 +37,7 @@ from godobject_drake.sweep import run_tasks
 # The reference haptic setup of the report (SI). A desktop impedance device;
 # the 1 kg probe held at the brick scene's default bandwidth; soft tissue and
 # a stiff obstacle.
-DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period=1e-3)
+DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)
 PROBE_OMEGA_N, PROBE_ZETA = 40.0, 1.0
 SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
 STIFF = {"k_w": 1e5, "tau_w": 1e-3}
@@ -299,7 +299,7 @@ def lego_contact_stiffness() -> float:
 
 def device_side(out: Path, quick: bool, summary: dict) -> str:
     md = ["## 2. The device: when a haptic device buzzes", ""]
-    T = DEVICE.period
+    T = DEVICE.period_s
     k, g = probe_gains()
     md += [
         f"Reference setup: device m_d = {DEVICE.mass} kg, b_d = {DEVICE.damping} N·s/m, T = {T * 1e3:g} ms "
@@ -465,7 +465,7 @@ def margin_maps(out: Path, quick: bool) -> list[str]:
     k, g = probe_gains()
     fig, axes = plt.subplots(1, len(periods), figsize=(13, 3.8), sharey=True)
     for ax, T in zip(axes, periods, strict=True):
-        dev = dataclasses.replace(DEVICE, period=T)
+        dev = dataclasses.replace(DEVICE, period_s=T)
         margin = np.zeros((len(gds), len(kds)))
         radius = np.zeros_like(margin)
         for i, gd in enumerate(gds):
@@ -573,7 +573,7 @@ def device_boundary(quick: bool, summary: dict) -> list[str]:
         dev = sc.device
         pred = va.predicted_device_k_max(sc)
         rigid = st.device_stiffness_limit(
-            dev, lambda kd, gd=gd, dev=dev: st.wall_impedance(kd, gd, dev.period, dev.delay)
+            dev, lambda kd, gd=gd, dev=dev: st.wall_impedance(kd, gd, dev.period_s, dev.delay)
         )
         approx = st.stiffness_limit_approx(dev, gd)
         entries.append(
@@ -584,7 +584,7 @@ def device_boundary(quick: bool, summary: dict) -> list[str]:
                 "relative_error": sim / pred - 1,
                 "rigid_wall_predicted": rigid,
                 "theory_approximation": approx,
-                "device_period_s": dev.period,
+                "device_period_s": dev.period_s,
                 "delay": dev.delay,
                 "gamma_d": gd,
                 "k_w": env["k_w"],
@@ -637,13 +637,14 @@ def energy(out: Path, quick: bool, summary: dict) -> list[str]:
     for label, kd, gd, F0, w in cases:
         sc = scenario(kd=kd, gamma_d=gd, force_amplitude=F0, force_frequency=w)
         H = st.pipeline_impedance(sc.pipeline(1.0))
-        colgate = st.colgate_required_damping(H, DEVICE.period)
+        colgate = st.colgate_required_damping(H, DEVICE.period_s)
         Y = st.human_port_admittance(DEVICE, H)
         pc = st.passivity_check(Y)
         radius = st.closed_loop_radius(DEVICE, H)
         G = st.device_closed_loop(DEVICE, H)
-        z = np.exp(1j * w * DEVICE.period)
-        mean_power = float(0.5 * F0**2 * np.real((z - 1) * st.evaluate(G, np.array([z]))[0]) / DEVICE.period)
+        T = DEVICE.period_s
+        z = np.exp(1j * w * T)
+        mean_power = float(0.5 * F0**2 * np.real((z - 1) * st.evaluate(G, np.array([z]))[0]) / T)
         run = va.simulate_haptic(sc, duration)
         u = F0 * np.sin(w * run.times)
         x_pred = ct.forced_response(G, T=run.times, U=u).outputs

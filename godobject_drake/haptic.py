@@ -31,7 +31,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from godobject_drake.spatial import pose_arrays, rotation_error
 
 
-def zoh_mass_damper(mass: float, damping: float, period: float) -> tuple[np.ndarray, np.ndarray]:
+def zoh_mass_damper(mass: float, damping: float, period_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact one-period map of ``m ẍ + b ẋ = f`` with ``f`` held: ``[x, v]⁺ = A [x, v] + B f``.
 
     Closed form (``a = b/m``, ``e = exp(−a T)``): ``A = [[1, (1−e)/a], [0, e]]``,
@@ -41,15 +41,15 @@ def zoh_mass_damper(mass: float, damping: float, period: float) -> tuple[np.ndar
         raise ValueError(f"device mass={mass!r} kg must be > 0")
     if not (math.isfinite(damping) and damping >= 0):
         raise ValueError(f"device damping={damping!r} N·s/m must be ≥ 0 (a physical damper)")
-    if not (math.isfinite(period) and period > 0):
-        raise ValueError(f"device period={period!r} s must be > 0")
+    if not (math.isfinite(period_s) and period_s > 0):
+        raise ValueError(f"device period_s={period_s!r} s must be > 0")
     a = damping / mass
-    if a * period < 1e-9:
-        return np.array([[1.0, period], [0.0, 1.0]]), np.array([period**2 / (2 * mass), period / mass])
-    e = math.exp(-a * period)
-    one_minus_e_over_a = -math.expm1(-a * period) / a
+    if a * period_s < 1e-9:
+        return np.array([[1.0, period_s], [0.0, 1.0]]), np.array([period_s**2 / (2 * mass), period_s / mass])
+    e = math.exp(-a * period_s)
+    one_minus_e_over_a = -math.expm1(-a * period_s) / a
     A = np.array([[1.0, one_minus_e_over_a], [0.0, e]])
-    B = np.array([(period - one_minus_e_over_a) / damping, one_minus_e_over_a * a / damping])
+    B = np.array([(period_s - one_minus_e_over_a) / damping, one_minus_e_over_a * a / damping])
     return A, B
 
 
@@ -96,7 +96,7 @@ class HapticDevice(LeafSystem):
         Moving mass per axis m_d (kg).
     damping : float
         Physical damping per axis b_d (N·s/m).
-    period : float
+    period_s : float
         Servo period T (s).
     delay : int
         Samples between the feedback force being computed and being applied.
@@ -112,7 +112,7 @@ class HapticDevice(LeafSystem):
         self,
         mass: float = 0.1,
         damping: float = 1.0,
-        period: float = 1e-3,
+        period_s: float = 1e-3,
         delay: int = 0,
         axes: str = "z",
         X_WD_home: RigidTransform | None = None,
@@ -123,8 +123,8 @@ class HapticDevice(LeafSystem):
             raise ValueError(f"axes={axes!r}; choose one of {sorted(AXES)}")
         if int(delay) != delay or delay < 0:
             raise ValueError(f"delay={delay!r} must be a whole number of samples ≥ 0")
-        self.mass, self.damping, self.period, self.delay = mass, damping, period, int(delay)
-        self._A, self._B = zoh_mass_damper(mass, damping, period)
+        self.mass, self.damping, self.period_s, self.delay = mass, damping, period_s, int(delay)
+        self._A, self._B = zoh_mass_damper(mass, damping, period_s)
         self._E = np.array(AXES[axes], float)  # (n, 3): rows are the axes in W
         n = self.num_axes = len(self._E)
         self._X_home = X_WD_home or RigidTransform()
@@ -140,9 +140,9 @@ class HapticDevice(LeafSystem):
         self._state = self.DeclareDiscreteState(self._n_state)
         # The mechanics advance at kT with the force computed from the sample x_k; the sample
         # x_{k+1} is published just before (k+1)T, so plant steps between samples see x_k.
-        self.sample_lead_s = 1e-6 * period
-        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._advance)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, period - self.sample_lead_s, self._sample)
+        self.sample_lead_s = 1e-6 * period_s
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._advance)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, period_s - self.sample_lead_s, self._sample)
 
         self.DeclareAbstractOutputPort(
             "X_WD",
@@ -219,7 +219,7 @@ class HapticDevice(LeafSystem):
     def _calc_V_WD(self, context, output: BasicVector):
         n = self.num_axes
         s = context.get_discrete_state_vector().value()
-        v_hat = (s[:n] - s[n : 2 * n]) / self.period
+        v_hat = (s[:n] - s[n : 2 * n]) / self.period_s
         output.SetFromVector(np.concatenate([np.zeros(3), v_hat @ self._E]))
 
     def _calc_grasp(self, context, output):
@@ -310,11 +310,11 @@ class AdmittanceDevice(LeafSystem):
     period old.
     """
 
-    def __init__(self, hand: HandImpedance, period: float = 1e-3, X_WD0: RigidTransform | None = None):
+    def __init__(self, hand: HandImpedance, period_s: float = 1e-3, X_WD0: RigidTransform | None = None):
         super().__init__()
-        if not (math.isfinite(period) and period > 0.0):
-            raise ValueError(f"admittance device period={period!r} s must be > 0")
-        self.hand, self.period = hand, float(period)
+        if not (math.isfinite(period_s) and period_s > 0.0):
+            raise ValueError(f"admittance device period_s={period_s!r} s must be > 0")
+        self.hand, self.period_s = hand, float(period_s)
         self._X_WH = self.DeclareAbstractInputPort("X_WH", AbstractValue.Make(RigidTransform()))
         self._V_WH = self.DeclareVectorInputPort("V_WH", 6)
         self._grasp_in = self.DeclareAbstractInputPort("grasp_in", AbstractValue.Make(""))
@@ -324,7 +324,7 @@ class AdmittanceDevice(LeafSystem):
         q0, p0, _ = pose_arrays(X)
         # [F (6), handle pose q p (7), handle velocity w v (6)]
         self._state = self.DeclareDiscreteState(np.concatenate([np.zeros(6), q0, p0, np.zeros(6)]))
-        self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._update)
         xd = {self.xd_ticket()}
         self.DeclareVectorOutputPort("F_device_W", 6, lambda c, o: o.SetFromVector(self._x(c)[:6]), xd)
         self.DeclareAbstractOutputPort(
@@ -376,8 +376,8 @@ class PassivityController(LeafSystem):
     or the controller itself drives the device unstable), and sends
     ``f_k − α v_k``.
 
-    Timing: it updates just before each multiple of ``period`` (offset
-    ``period·(1 − 5e-7)``), after :class:`HapticDevice` has published its
+    Timing: it updates just before each multiple of ``period_s`` (offset
+    ``period_s·(1 − 5e-7)``), after :class:`HapticDevice` has published its
     sample (``1e-6·T`` before) and before the device reads the force.
 
     ``energy`` is ``[E_trans, E_rot, dissipated_trans, dissipated_rot]`` (J):
@@ -385,7 +385,7 @@ class PassivityController(LeafSystem):
 
     Parameters
     ----------
-    period : float
+    period_s : float
         The device's servo period T (s).
     max_damping : float
         Cap on the injected translational damping (N·s/m).
@@ -393,21 +393,21 @@ class PassivityController(LeafSystem):
         Cap on the injected rotational damping (N·m·s/rad); 0 = translation only.
     """
 
-    def __init__(self, period: float, max_damping: float, max_damping_rot: float = 0.0):
+    def __init__(self, period_s: float, max_damping: float, max_damping_rot: float = 0.0):
         super().__init__()
-        if not (math.isfinite(period) and period > 0.0):
-            raise ValueError(f"passivity controller period={period!r} s must be > 0")
+        if not (math.isfinite(period_s) and period_s > 0.0):
+            raise ValueError(f"passivity controller period_s={period_s!r} s must be > 0")
         for name, v in (("max_damping", max_damping), ("max_damping_rot", max_damping_rot)):
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"passivity controller {name}={v!r} must be a finite number ≥ 0")
-        self.period, self.max_damping, self.max_damping_rot = float(period), max_damping, max_damping_rot
+        self.period_s, self.max_damping, self.max_damping_rot = float(period_s), max_damping, max_damping_rot
         self._F_in = self.DeclareVectorInputPort("F_in", 6)
         self._X_WD = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
         # [F_out (6), q_prev (4), p_prev (3), E_t, E_r, D_t, D_r]
         x0 = np.zeros(17)
         x0[6] = 1.0
         self._state = self.DeclareDiscreteState(x0)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, period * (1.0 - 5e-7), self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, period_s * (1.0 - 5e-7), self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         xd = {self.xd_ticket()}
         self.DeclareVectorOutputPort("F_out", 6, lambda c, o: o.SetFromVector(self._x(c)[:6]), xd)
@@ -425,7 +425,7 @@ class PassivityController(LeafSystem):
 
     def _update(self, context, discrete_state):
         x = self._x(context).copy()
-        T = self.period
+        T = self.period_s
         q, p, _ = pose_arrays(self._X_WD.Eval(context))
         dtheta = rotation_error(q, x[6:10])
         dp = p - x[10:13]

@@ -341,7 +341,7 @@ class DeviceParams:
         Moving mass m_d (kg).
     damping : float
         Physical (viscous) damping b_d (N·s/m).
-    period : float
+    period_s : float
         Servo period T (s): position sampled, force zero-order held.
     delay : int
         Force delay in samples d.
@@ -349,11 +349,11 @@ class DeviceParams:
 
     mass: float = 0.1
     damping: float = 1.0
-    period: float = 1e-3
+    period_s: float = 1e-3
     delay: int = 0
 
     def __post_init__(self):
-        _positive(mass=self.mass, period=self.period)
+        _positive(mass=self.mass, period_s=self.period_s)
         if not (math.isfinite(self.damping) and self.damping >= 0):
             raise ValueError(f"device damping={self.damping!r} N·s/m must be ≥ 0")
         if int(self.delay) != self.delay or self.delay < 0:
@@ -366,7 +366,7 @@ def device_model(dev: DeviceParams) -> ct.StateSpace:
     State ``[x, v]``, ``dt = T``. The delay is not included (it sits in ``H``).
     """
     sys_c = ct.ss([[0.0, 1.0], [0.0, -dev.damping / dev.mass]], [[0.0], [1.0 / dev.mass]], [[1.0, 0.0]], 0.0)
-    return ct.c2d(sys_c, dev.period, method="zoh")
+    return ct.c2d(sys_c, dev.period_s, method="zoh")
 
 
 def delay_tf(d: int, dt: float) -> ct.TransferFunction:
@@ -402,15 +402,15 @@ class Pipeline:
     body: BodyLoop
     kd: float
     gamma_d: float
-    period: float
+    period_s: float
     delay: int = 0
     reads_post_step: bool = True
 
     def substeps(self) -> int:
-        n = self.period / self.body.time_step
+        n = self.period_s / self.body.time_step
         if abs(n - round(n)) > 1e-9 * n or round(n) < 1:
             raise ValueError(
-                f"device period {self.period:g} s is not a whole multiple of the simulation step "
+                f"device period {self.period_s:g} s is not a whole multiple of the simulation step "
                 f"{self.body.time_step:g} s; choose T = n·h"
             )
         return round(n)
@@ -424,7 +424,7 @@ def pipeline_impedance(p: Pipeline) -> ct.StateSpace:
     target ``[x_k, (x_k − x_prev)/T]`` held. The force is read from the body
     state before the sample's first step, or after it (``reads_post_step``).
     """
-    n, T = p.substeps(), p.period
+    n, T = p.substeps(), p.period_s
     A1, B1 = coupled_body_matrices(p.body)
     An = np.linalg.matrix_power(A1, n)
     Bn = sum(np.linalg.matrix_power(A1, j) for j in range(n)) @ B1
@@ -462,15 +462,15 @@ def device_stiffness_limit(
     dev: DeviceParams, H_of_k: Callable[[float], object], k_hi: float | None = None, rel_tol: float = 1e-5
 ) -> float:
     """Largest virtual stiffness for which the device loop is stable (bisection on the poles)."""
-    k_hi = k_hi or 100.0 * dev.mass / dev.period**2
+    k_hi = k_hi or 100.0 * dev.mass / dev.period_s**2
     return bisect(lambda k: closed_loop_radius(dev, H_of_k(k)) < 1.0, 1e-9 * k_hi, k_hi, rel_tol)
 
 
 def stiffness_limit_approx(dev: DeviceParams, B: float) -> float:
     """docs/theory.md's approximations: ``2(b_d+B)/T`` (no delay), ``(b_d+B)/(T(d+½))`` (delay d)."""
     if dev.delay == 0:
-        return 2 * (dev.damping + B) / dev.period
-    return (dev.damping + B) / (dev.period * (dev.delay + 0.5))
+        return 2 * (dev.damping + B) / dev.period_s
+    return (dev.damping + B) / (dev.period_s * (dev.delay + 0.5))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -546,7 +546,7 @@ def human_port_admittance(dev: DeviceParams, H) -> ct.StateSpace:
     """
     G = device_closed_loop(dev, H)
     A, B, C = (np.asarray(M) for M in (G.A, G.B, G.C))
-    T = dev.period
+    T = dev.period_s
     # y_k = (x_{k+1} − x_k)/T = (C A s_k + C B u_k − C s_k)/T; the device has no feedthrough (G.D = 0).
     return ct.ss(A, B, (C @ A - C) / T, (C @ B) / T, dt=T, name="human_admittance")
 

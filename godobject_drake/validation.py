@@ -136,7 +136,7 @@ class HapticScenario:
     device : DeviceParams
         The device (mass, damping, period, delay).
     time_step : float
-        Plant step h (s); ``device.period`` must be a whole multiple.
+        Plant step h (s); ``device.period_s`` must be a whole multiple.
     omega_n, zeta : float
         Coupling bandwidth (rad/s) and damping ratio (probe: ``k = m ωn²``).
     k_w, tau_w : float
@@ -167,7 +167,7 @@ class HapticScenario:
         body = BodyLoop.by_bandwidth(
             mass, self.omega_n, self.zeta, self.time_step, k_w=self.k_w, b_w=self.k_w * self.tau_w
         )
-        return Pipeline(body, self.kd, self.gamma_d, self.device.period, self.device.delay)
+        return Pipeline(body, self.kd, self.gamma_d, self.device.period_s, self.device.delay)
 
 
 def predicted_device_k_max(sc: HapticScenario, probe_mass: float = 1.0) -> float:
@@ -238,7 +238,7 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
         HapticDevice(
             d.mass,
             d.damping,
-            d.period,
+            d.period_s,
             d.delay,
             axes="z",
             X_WD_home=RigidTransform([0, 0, z0]),
@@ -250,7 +250,7 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
         GodObjectCoupling(
             plant,
             CouplingGains(omega_n=sc.omega_n, zeta=sc.zeta),
-            device_period_s=d.period,
+            device_period_s=d.period_s,
             gravity_compensation=False,
             check_gains=False,
             max_stretch_m=math.inf,  # the linear loop the report analyses: no force cap
@@ -266,20 +266,20 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
         builder.Connect(coupling.GetOutputPort(name), feedback.GetInputPort(name))
     log_pc = None
     if sc.passivity_max_damping > 0.0:
-        pc = builder.AddNamedSystem("passivity", PassivityController(d.period, sc.passivity_max_damping))
+        pc = builder.AddNamedSystem("passivity", PassivityController(d.period_s, sc.passivity_max_damping))
         builder.Connect(feedback.GetOutputPort("F_Do_W"), pc.GetInputPort("F_in"))
         builder.Connect(device.GetOutputPort("X_WD"), pc.GetInputPort("X_WD"))
         builder.Connect(pc.GetOutputPort("F_out"), device.GetInputPort("F_Do_W"))
-        log_pc = LogVectorOutput(pc.GetOutputPort("energy"), builder, d.period)
+        log_pc = LogVectorOutput(pc.GetOutputPort("energy"), builder, d.period_s)
     else:
         builder.Connect(feedback.GetOutputPort("F_Do_W"), device.GetInputPort("F_Do_W"))
     if sc.force_amplitude:
         user = builder.AddNamedSystem("user", Sine(sc.force_amplitude, sc.force_frequency, 0.0, 1))
         builder.Connect(user.get_output_port(0), device.GetInputPort("human_force"))
-    log_dev = LogVectorOutput(device.GetOutputPort("device_state"), builder, d.period)
-    log_work = LogVectorOutput(device.GetOutputPort("work"), builder, d.period)
-    log_G = LogVectorOutput(coupling.GetOutputPort("X_WG"), builder, d.period)
-    log_F = LogVectorOutput(feedback.GetOutputPort("F_Do_W"), builder, d.period)
+    log_dev = LogVectorOutput(device.GetOutputPort("device_state"), builder, d.period_s)
+    log_work = LogVectorOutput(device.GetOutputPort("work"), builder, d.period_s)
+    log_G = LogVectorOutput(coupling.GetOutputPort("X_WG"), builder, d.period_s)
+    log_F = LogVectorOutput(feedback.GetOutputPort("F_Do_W"), builder, d.period_s)
     diagram = builder.Build()
     sim = Simulator(diagram)
     root = sim.get_mutable_context()

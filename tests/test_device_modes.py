@@ -18,7 +18,7 @@ from godobject_drake.coupling import graspable_bodies
 from godobject_drake.devices import IncrementLog, ScriptedDevice, load_device_path, write_increment_log
 from godobject_drake.spatial import rotation_error
 
-DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period=1e-3)
+DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)
 SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
 STIFF = {"k_w": 1e5, "tau_w": 1e-3}
 
@@ -97,9 +97,9 @@ def active_soft_tissue(**kw):
 def test_passivity_controller_stops_the_active_loop_giving_energy():
     sc = active_soft_tissue()
     H = st.pipeline_impedance(sc.pipeline(1.0))
-    assert st.colgate_required_damping(H, DEVICE.period).margin(DEVICE.damping) < 0  # marked active
+    assert st.colgate_required_damping(H, DEVICE.period_s).margin(DEVICE.damping) < 0  # marked active
     off = va.simulate_haptic(sc, 2.0)
-    on = va.simulate_haptic(dataclasses.replace(sc, passivity_max_damping=DEVICE.mass / DEVICE.period), 2.0)
+    on = va.simulate_haptic(dataclasses.replace(sc, passivity_max_damping=DEVICE.mass / DEVICE.period_s), 2.0)
     assert np.max(off.energy_to_user) > 1e-4  # without: the device gives the user 0.19 mJ and growing
     assert np.max(on.energy_to_user) <= 1e-9  # with: never
     # The observer's energy dips below zero by at most one interval's worth before the damping acts.
@@ -122,7 +122,7 @@ def test_passivity_controller_stabilizes_a_stiffness_past_the_limit(cap):
 def test_passivity_controller_refuses_bad_settings():
     from godobject_drake.haptic import PassivityController
 
-    with pytest.raises(ValueError, match=r"period=0\.0 s must be > 0"):
+    with pytest.raises(ValueError, match=r"period_s=0\.0 s must be > 0"):
         PassivityController(0.0, 10.0)
     with pytest.raises(ValueError, match=r"max_damping=-1\.0 must be a finite number ≥ 0"):
         PassivityController(1e-3, -1.0)

@@ -31,13 +31,13 @@ def run_device(device, force, human=None, steps=3):
     device.GetInputPort("F_Do_W").FixValue(ctx, np.concatenate([np.zeros(3), force]))
     if human is not None:
         device.GetInputPort("human_force").FixValue(ctx, human)
-    sim.AdvanceTo(steps * device.period)
+    sim.AdvanceTo(steps * device.period_s)
     return sim.get_context()
 
 
 def test_constant_force_moves_the_device_as_the_exact_zoh():
     dev = HapticDevice(
-        mass=0.2, damping=1.0, period=1e-3, axes="z", X_WD_home=RigidTransform([0.1, 0.0, 0.3])
+        mass=0.2, damping=1.0, period_s=1e-3, axes="z", X_WD_home=RigidTransform([0.1, 0.0, 0.3])
     )
     f = 0.5
     ctx = run_device(dev, [0.0, 0.0, f], steps=3)
@@ -71,7 +71,7 @@ def test_delay_holds_the_force_back_by_whole_samples():
 
 
 def test_user_force_and_3dof_axes():
-    dev = HapticDevice(mass=0.1, damping=0.0, period=1e-3, axes="xyz")
+    dev = HapticDevice(mass=0.1, damping=0.0, period_s=1e-3, axes="xyz")
     ctx = run_device(dev, [0.0, 0.0, 0.0], human=np.array([0.0, 2.0, 0.0]), steps=0)
     # one update at t = 0 with 2 N along y: x = f T²/(2m)
     x = dev.GetOutputPort("device_state").Eval(ctx)[:3]
@@ -84,7 +84,7 @@ def test_user_force_and_3dof_axes():
     [
         ({"mass": 0.0}, "mass=0.0 kg must be > 0"),
         ({"damping": -1.0}, "damping=-1.0"),
-        ({"period": math.nan}, "period=nan"),
+        ({"period_s": math.nan}, "period_s=nan"),
         ({"delay": 1.5}, "delay=1.5"),
         ({"axes": "w"}, "axes='w'"),
     ],

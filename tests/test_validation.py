@@ -10,7 +10,7 @@ from godobject_drake import stability as st
 from godobject_drake import validation as va
 
 BRICK_MASS = 0.0023
-DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period=1e-3)
+DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)
 STIFF = {"k_w": 1e5, "tau_w": 1e-3}
 SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
 
@@ -38,7 +38,7 @@ def forced(sc: va.HapticScenario, duration: float):
 
 @pytest.mark.parametrize(
     "device",
-    [DEVICE, dataclasses.replace(DEVICE, delay=1), dataclasses.replace(DEVICE, period=2e-3)],
+    [DEVICE, dataclasses.replace(DEVICE, delay=1), dataclasses.replace(DEVICE, period_s=2e-3)],
     ids=["1kHz", "delay1", "500Hz"],
 )
 def test_pipeline_model_reproduces_drake_trajectory(device):
@@ -80,7 +80,7 @@ def test_passive_gains_never_give_the_user_energy():
         DEVICE, **SOFT, kd=1600.0 / 80, gamma_d=80.0 / 80, force_amplitude=0.2, force_frequency=20.0
     )
     H = st.pipeline_impedance(sc.pipeline(1.0))
-    assert st.colgate_required_damping(H, DEVICE.period).margin(DEVICE.damping) > 0
+    assert st.colgate_required_damping(H, DEVICE.period_s).margin(DEVICE.damping) > 0
     assert st.passivity_check(st.human_port_admittance(DEVICE, H)).passive
     run, x_pred, u = forced(sc, 0.5)
     assert np.max(run.energy_to_user) <= 1e-12
@@ -91,7 +91,7 @@ def test_passive_gains_never_give_the_user_energy():
 def test_gamma_d_zero_on_soft_tissue_is_active_and_grows():
     sc = va.HapticScenario(DEVICE, **SOFT, kd=1000.0, gamma_d=0.0, force_amplitude=0.05, force_frequency=10.0)
     H = st.pipeline_impedance(sc.pipeline(1.0))
-    colgate = st.colgate_required_damping(H, DEVICE.period)
+    colgate = st.colgate_required_damping(H, DEVICE.period_s)
     # Continuous: Re Z_env → −kd γ k_w/(k+k_w)² = −12.35 N·s/m as ω → 0; the sampled requirement peaks there
     # too (12.57 N·s/m: the wall damping and the hold shift it), six times the device's b_d = 2.
     assert st.re_rendered_impedance_gamma_d0(1.0, 1600.0, 80.0, 2000.0, 1000.0, 1e-3) == pytest.approx(
