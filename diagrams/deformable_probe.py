@@ -96,8 +96,8 @@ def build(args):
     coupling.validate_grasp_names(device.grasp_names(args.duration))
     chain = connect_device(builder, args, device, plant, coupling)
 
-    logs = {"state": plant.get_state_output_port(), "X_WT": coupling.GetOutputPort("X_WT")}
-    for name in ("vertex_positions", "rest_positions", "X_WC"):
+    logs = {"state": plant.get_state_output_port(), "pose_WT": coupling.GetOutputPort("pose_WT")}
+    for name in ("vertex_positions", "rest_positions", "pose_WC"):
         logs[name] = observer.GetOutputPort(name)
     logs = {name: LogVectorOutput(port, builder, args.time_step) for name, port in logs.items()}
     for name, log in logs.items():
@@ -106,8 +106,8 @@ def build(args):
         add_meshcat_visualization(builder, meshcat, scene.scene_graph)
         drawing = builder.AddNamedSystem("shell_visualizer", ShellVisualizer(meshcat, probe))
         builder.Connect(observer.GetOutputPort("vertex_positions"), drawing.GetInputPort("vertex_positions"))
-        builder.Connect(observer.GetOutputPort("X_WC"), drawing.GetInputPort("X_WC"))
-        builder.Connect(coupling.GetOutputPort("X_WT"), drawing.GetInputPort("X_WT"))
+        builder.Connect(observer.GetOutputPort("pose_WC"), drawing.GetInputPort("pose_WC"))
+        builder.Connect(coupling.GetOutputPort("pose_WT"), drawing.GetInputPort("pose_WT"))
     return builder.Build(), scene, probe, coupling, logs, meshcat, chain
 
 
@@ -135,7 +135,7 @@ def run(args, with_states: bool = False):
     data = {name: d[finite] for name, d in data.items()}
     measured = shell_metrics(
         diagram, plant, probe, obstacle_geometries(scene.scene_graph, probe, plant), data["state"],
-        data["vertex_positions"], data["rest_positions"], data["X_WC"], data["X_WT"],
+        data["vertex_positions"], data["rest_positions"], data["pose_WC"], data["pose_WT"],
     )  # fmt: skip
     gains = gains_from_args(args, rot_factor=1.0)
     steps = max(round(loop.sim_time_s / args.time_step), 1)

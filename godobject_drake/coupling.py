@@ -209,7 +209,8 @@ _IDX, _XT, _VT, _XG, _VG, _F = 0, slice(1, 8), slice(8, 14), slice(14, 21), slic
 _CAPPED = 33
 _TERMS = 34
 TERMS_LAYOUT = {
-    "held_body": _IDX, "X_WT": _XT, "V_WT": _VT, "X_WG": _XG, "V_WG": _VG, "F_Go_W": _F, "capped": _CAPPED
+    "held_body": _IDX, "pose_WT": _XT, "V_WT": _VT, "pose_WG": _XG, "V_WG": _VG, "F_Go_W": _F,
+    "capped": _CAPPED,
 }  # fmt: skip
 DEFAULT_MAX_STRETCH_M = 0.2
 DEFAULT_MAX_TWIST_RAD = math.pi  # the largest possible error: only a velocity spike is cut
@@ -243,9 +244,9 @@ class GodObjectCoupling(LeafSystem):
         output_ports:
         - spatial_forces
         - F_Go_W
-        - X_WT
+        - pose_WT
         - V_WT
-        - X_WG
+        - pose_WG
         - V_WG
         - held_body
         - terms
@@ -257,10 +258,10 @@ class GodObjectCoupling(LeafSystem):
     ``generalized_force`` (the same wrench as generalized forces of the held
     body's floating joint, cheaper per step: the runner wires this one) to
     its ``applied_generalized_force``. ``terms`` is every per-step result
-    in one vector, ``[held_body, X_WT, V_WT, X_WG, V_WG, F_Go_W, capped]``
+    in one vector, ``[held_body, pose_WT, V_WT, pose_WG, V_WG, F_Go_W, capped]``
     (:data:`TERMS_LAYOUT`), for logging with one port.
     ``F_Go_W`` is the coupling wrench ``[τ; f]`` (N·m, N) on G at Go in W,
-    gravity compensation included. ``X_WT``/``X_WG`` are the target's and
+    gravity compensation included. ``pose_WT``/``pose_WG`` are the target's and
     the god-object's poses ``[qw qx qy qz x y z]``, ``V_WT``/``V_WG`` their
     spatial velocities ``[w; v]``. ``held_body`` is the held BodyIndex, or −1.
     With nothing held, T and G both equal the device frame D and the wrench
@@ -270,7 +271,7 @@ class GodObjectCoupling(LeafSystem):
     directly"): if the optional input ``F_device_W`` (``[τ; f]``, N·m and N,
     at Go in W) is connected, it *is* the wrench on the held body, gravity
     compensation added; the PD spring is not used, and the device gets the
-    god-object's pose from ``X_WG`` (:class:`~godobject_drake.haptic.AdmittanceDevice`).
+    god-object's pose from ``pose_WG`` (:class:`~godobject_drake.haptic.AdmittanceDevice`).
 
     Grasping: when ``grasp`` changes, the coupling stores the pose of G in D
     at that instant (``X_DG``), so grasping does not move the target and
@@ -371,7 +372,7 @@ class GodObjectCoupling(LeafSystem):
             self._calc_spatial_forces,
             {self._terms.ticket()},
         )
-        for name, sl in (("F_Go_W", _F), ("X_WT", _XT), ("V_WT", _VT), ("X_WG", _XG), ("V_WG", _VG)):
+        for name, sl in (("F_Go_W", _F), ("pose_WT", _XT), ("V_WT", _VT), ("pose_WG", _XG), ("V_WG", _VG)):
             self.DeclareVectorOutputPort(
                 name, sl.stop - sl.start, self._slice_calc(sl), {self._terms.ticket()}
             )

@@ -430,10 +430,10 @@ class ShellObserver(LeafSystem):
         output_ports:
         - vertex_positions
         - rest_positions
-        - X_WC
+        - pose_WC
 
     ``vertex_positions`` and ``rest_positions`` are the tracked points in W,
-    ``[x0 y0 z0 x1 ...]``; ``X_WC`` the core pose ``[qw qx qy qz x y z]``.
+    ``[x0 y0 z0 x1 ...]``; ``pose_WC`` the core pose ``[qw qx qy qz x y z]``.
     """
 
     def __init__(self, shell: DeformableGodObject, plant: MultibodyPlant):
@@ -453,7 +453,7 @@ class ShellObserver(LeafSystem):
             positions = self._node_positions
         self.DeclareVectorOutputPort("vertex_positions", n, positions)
         self.DeclareVectorOutputPort("rest_positions", n, self._rest_positions)
-        self.DeclareVectorOutputPort("X_WC", 7, self._core_pose)
+        self.DeclareVectorOutputPort("pose_WC", 7, self._core_pose)
 
     def _fem_positions(self, context, output):
         output.SetFromVector(np.asarray(self._config.Eval(context).value(self._gid)).ravel())

@@ -62,9 +62,9 @@ class FeedbackPort(LeafSystem):
         name: FeedbackPort
         input_ports:
         - X_WD
-        - X_WT
+        - pose_WT
         - V_WT
-        - X_WG
+        - pose_WG
         - V_WG
         output_ports:
         - F_Do_W
@@ -79,17 +79,17 @@ class FeedbackPort(LeafSystem):
         super().__init__()
         self.gains = gains or FeedbackGains()
         self._X_WD = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
-        self._X_WT = self.DeclareVectorInputPort("X_WT", 7)
+        self._pose_WT = self.DeclareVectorInputPort("pose_WT", 7)
         self._V_WT = self.DeclareVectorInputPort("V_WT", 6)
-        self._X_WG = self.DeclareVectorInputPort("X_WG", 7)
+        self._pose_WG = self.DeclareVectorInputPort("pose_WG", 7)
         self._V_WG = self.DeclareVectorInputPort("V_WG", 6)
         self.DeclareVectorOutputPort("F_Do_W", 6, self._calc, {self.all_input_ports_ticket()})
 
     def _calc(self, context, output):
         g = self.gains
-        X_WT, V_WT = self._X_WT.Eval(context), self._V_WT.Eval(context)
-        X_WG, V_WG = self._X_WG.Eval(context), self._V_WG.Eval(context)
-        f = g.kd * (X_WG[4:] - X_WT[4:]) + g.gamma_d * (V_WG[3:] - V_WT[3:])
-        tau_T = g.kd_rot * rotation_error(X_WG[:4], X_WT[:4]) + g.gamma_d_rot * (V_WG[:3] - V_WT[:3])
+        pose_WT, V_WT = self._pose_WT.Eval(context), self._V_WT.Eval(context)
+        pose_WG, V_WG = self._pose_WG.Eval(context), self._V_WG.Eval(context)
+        f = g.kd * (pose_WG[4:] - pose_WT[4:]) + g.gamma_d * (V_WG[3:] - V_WT[3:])
+        tau_T = g.kd_rot * rotation_error(pose_WG[:4], pose_WT[:4]) + g.gamma_d_rot * (V_WG[:3] - V_WT[:3])
         _, p_WD, _ = pose_arrays(self._X_WD.Eval(context))
-        output.SetFromVector(np.concatenate([tau_T + cross3(X_WT[4:] - p_WD, f), f]))
+        output.SetFromVector(np.concatenate([tau_T + cross3(pose_WT[4:] - p_WD, f), f]))

@@ -268,10 +268,10 @@ class HandImpedance:
             b_rot=2.0 * gains.zeta_r * inertia * gains.omega_r,
         )
 
-    def wrench(self, X_WH: np.ndarray, V_WH: np.ndarray, X_WD: np.ndarray, V_WD: np.ndarray) -> np.ndarray:
+    def wrench(self, pose_WH, V_WH, pose_WD, V_WD) -> np.ndarray:
         """``[τ; f]`` from poses ``[qw qx qy qz x y z]`` and velocities ``[w; v]`` of H and D."""
-        f = self.k * (X_WH[4:] - X_WD[4:]) + self.b * (V_WH[3:] - V_WD[3:])
-        tau = self.k_rot * rotation_error(X_WH[:4], X_WD[:4]) + self.b_rot * (V_WH[:3] - V_WD[:3])
+        f = self.k * (pose_WH[4:] - pose_WD[4:]) + self.b * (V_WH[3:] - V_WD[3:])
+        tau = self.k_rot * rotation_error(pose_WH[:4], pose_WD[:4]) + self.b_rot * (V_WH[:3] - V_WD[:3])
         return np.concatenate([tau, f])
 
 
@@ -285,7 +285,7 @@ class AdmittanceDevice(LeafSystem):
         - X_WH
         - V_WH
         - grasp_in
-        - X_WG
+        - pose_WG
         - V_WG
         output_ports:
         - F_device_W
@@ -298,8 +298,8 @@ class AdmittanceDevice(LeafSystem):
     source's ``X_WD``/``V_WD``). Every period T the device samples the
     sensor and sends the wrench ``F_device_W`` (held for the period) to
     the god-object coupling's ``F_device_W`` input, which applies it to the
-    held body; it reads back the god-object's pose ``X_WG``/``V_WG`` and its
-    position servo puts the handle there (ideal servo: ``X_WD`` is ``X_WG``
+    held body; it reads back the god-object's pose ``pose_WG``/``V_WG`` and its
+    position servo puts the handle there (ideal servo: ``X_WD`` is ``pose_WG``
     as of the last sample). ``grasp`` passes ``grasp_in`` on.
 
     Timing: at ``kT`` the device reads the god-object (the plant's state
@@ -318,7 +318,7 @@ class AdmittanceDevice(LeafSystem):
         self._X_WH = self.DeclareAbstractInputPort("X_WH", AbstractValue.Make(RigidTransform()))
         self._V_WH = self.DeclareVectorInputPort("V_WH", 6)
         self._grasp_in = self.DeclareAbstractInputPort("grasp_in", AbstractValue.Make(""))
-        self._X_WG = self.DeclareVectorInputPort("X_WG", 7)
+        self._pose_WG = self.DeclareVectorInputPort("pose_WG", 7)
         self._V_WG = self.DeclareVectorInputPort("V_WG", 6)
         X = X_WD0 or RigidTransform()
         q0, p0, _ = pose_arrays(X)
@@ -344,10 +344,10 @@ class AdmittanceDevice(LeafSystem):
         output.set_value(RigidTransform(Quaternion(x[6:10] / np.linalg.norm(x[6:10])), x[10:13]))
 
     def _update(self, context, discrete_state):
-        X_WD, V_WD = self._X_WG.Eval(context), self._V_WG.Eval(context)  # the servo follows G
+        pose_WD, V_WD = self._pose_WG.Eval(context), self._V_WG.Eval(context)  # the servo follows G
         q_WH, p_WH, _ = pose_arrays(self._X_WH.Eval(context))
-        F = self.hand.wrench(np.concatenate([q_WH, p_WH]), self._V_WH.Eval(context), X_WD, V_WD)
-        discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([F, X_WD, V_WD]))
+        F = self.hand.wrench(np.concatenate([q_WH, p_WH]), self._V_WH.Eval(context), pose_WD, V_WD)
+        discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([F, pose_WD, V_WD]))
 
 
 class PassivityController(LeafSystem):

@@ -296,8 +296,8 @@ def shell_metrics(
     states: np.ndarray,
     vertices: np.ndarray,
     rest: np.ndarray,
-    X_WC: np.ndarray,
-    X_WT: np.ndarray,
+    pose_WC: np.ndarray,
+    pose_WT: np.ndarray,
 ) -> dict:
     """Deformation and penetration of a deformable god-object, from per-step logs.
 
@@ -315,7 +315,7 @@ def shell_metrics(
     ----------
     obstacles : set of GeometryId
         Rigid geometries that count as obstacles.
-    states, vertices, rest, X_WC, X_WT : (N, ·)
+    states, vertices, rest, pose_WC, pose_WT : (N, ·)
         Plant states, shell points and their rest positions (W, flattened),
         core and target poses ``[qw qx qy qz x y z]``, at the same steps.
     """
@@ -345,9 +345,9 @@ def shell_metrics(
         shell_depth = max(depth(query, p, rn) for p in points)
         if shell_depth > max_pen:
             max_pen, k_max = shell_depth, k
-        max_core = max(max_core, depth(query, X_WC[k, 4:], rc))
+        max_core = max(max_core, depth(query, pose_WC[k, 4:], rc))
         if shell_depth <= -FREE_SPACE_MARGIN_M:
-            sq_err += float(np.sum((X_WC[k, 4:] - X_WT[k, 4:]) ** 2))
+            sq_err += float(np.sum((pose_WC[k, 4:] - pose_WT[k, 4:]) ** 2))
             n_free += 1
     return {
         "max_penetration_m": max_pen,

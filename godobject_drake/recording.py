@@ -54,8 +54,8 @@ class GodObjectVisualizer(LeafSystem):
 
         name: GodObjectVisualizer
         input_ports:
-        - X_WT
-        - X_WG
+        - pose_WT
+        - pose_WG
         - held_body
 
     Connect the ports of the same names on
@@ -73,8 +73,8 @@ class GodObjectVisualizer(LeafSystem):
         super().__init__()
         self._meshcat = meshcat
         self._prefix = prefix
-        self._X_WT = self.DeclareVectorInputPort("X_WT", 7)
-        self._X_WG = self.DeclareVectorInputPort("X_WG", 7)
+        self._pose_WT = self.DeclareVectorInputPort("pose_WT", 7)
+        self._pose_WG = self.DeclareVectorInputPort("pose_WG", 7)
         self._held = self.DeclareVectorInputPort("held_body", 1)
         self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish)
@@ -98,7 +98,7 @@ class GodObjectVisualizer(LeafSystem):
     def _publish(self, context):
         t = context.get_time()
         mc, pre = self._meshcat, self._prefix
-        X_WT, X_WG = self._X_WT.Eval(context), self._X_WG.Eval(context)
+        pose_WT, pose_WG = self._pose_WT.Eval(context), self._pose_WG.Eval(context)
         held = int(self._held.Eval(context)[0])
         if held != self._shown or t == 0.0:
             for index, (path, _) in self._ghosts.items():
@@ -106,17 +106,17 @@ class GodObjectVisualizer(LeafSystem):
             mc.SetProperty(f"{pre}/spring", "visible", held >= 0, t)
             mc.SetProperty(f"{pre}/device", "visible", held < 0, t)
             self._shown = held
-        R_WT = RotationMatrix(Quaternion(X_WT[:4] / np.linalg.norm(X_WT[:4])))
+        R_WT = RotationMatrix(Quaternion(pose_WT[:4] / np.linalg.norm(pose_WT[:4])))
         if held < 0:
-            mc.SetTransform(f"{pre}/device", RigidTransform(R_WT, X_WT[4:]), t)
+            mc.SetTransform(f"{pre}/device", RigidTransform(R_WT, pose_WT[4:]), t)
             return
         path, p_BoBcm_B = self._ghosts[held]
-        mc.SetTransform(path, RigidTransform(R_WT, X_WT[4:] - R_WT.multiply(p_BoBcm_B)), t)
-        d = X_WT[4:] - X_WG[4:]
+        mc.SetTransform(path, RigidTransform(R_WT, pose_WT[4:] - R_WT.multiply(p_BoBcm_B)), t)
+        d = pose_WT[4:] - pose_WG[4:]
         length = float(np.linalg.norm(d))
         z = d / length if length > 1e-9 else np.array([0.0, 0.0, 1.0])
         R = RotationMatrix.MakeFromOneVector(z, 2)
-        mc.SetTransform(f"{pre}/spring", RigidTransform(R, 0.5 * (X_WT[4:] + X_WG[4:])), t)
+        mc.SetTransform(f"{pre}/spring", RigidTransform(R, 0.5 * (pose_WT[4:] + pose_WG[4:])), t)
         mc.SetProperty(f"{pre}/spring/cylinder", "scale", [1.0, 1.0, max(length, 1e-6)], t)
 
 
@@ -227,11 +227,11 @@ class ShellVisualizer(LeafSystem):
         name: ShellVisualizer
         input_ports:
         - vertex_positions
-        - X_WC
-        - X_WT
+        - pose_WC
+        - pose_WT
 
     Connect the first two to :class:`~godobject_drake.deformable.ShellObserver`
-    and ``X_WT`` to the coupling's target. Meshcat recordings replay
+    and ``pose_WT`` to the coupling's target. Meshcat recordings replay
     transforms and properties but not changing triangle meshes (Drake issue
     #23206), so the shell is drawn as one sphere per surface point, moved
     every frame: the mass–spring nodes at their contact radius, FEM surface
@@ -252,8 +252,8 @@ class ShellVisualizer(LeafSystem):
         self._prefix = prefix or f"/{shell.name}"
         n = 3 * shell.vertex_count
         self._vertices = self.DeclareVectorInputPort("vertex_positions", n)
-        self._X_WC = self.DeclareVectorInputPort("X_WC", 7)
-        self._X_WT = self.DeclareVectorInputPort("X_WT", 7)
+        self._pose_WC = self.DeclareVectorInputPort("pose_WC", 7)
+        self._pose_WT = self.DeclareVectorInputPort("pose_WT", 7)
         self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish)
         pre, spec = self._prefix, shell.spec
@@ -273,8 +273,8 @@ class ShellVisualizer(LeafSystem):
         points = self._vertices.Eval(context).reshape(-1, 3)[self._shell.surface]
         for i, p in enumerate(points):
             mc.SetTransform(f"{pre}/shell/{i}", RigidTransform(p), t)
-        mc.SetTransform(f"{pre}/core", pose_from_array(self._X_WC.Eval(context)), t)
-        mc.SetTransform(f"{pre}/device", pose_from_array(self._X_WT.Eval(context)), t)
+        mc.SetTransform(f"{pre}/core", pose_from_array(self._pose_WC.Eval(context)), t)
+        mc.SetTransform(f"{pre}/device", pose_from_array(self._pose_WT.Eval(context)), t)
 
 
 def add_meshcat_visualization(

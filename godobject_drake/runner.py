@@ -331,7 +331,7 @@ def connect_device(
         builder.Connect(source.GetOutputPort("X_WD"), adm.GetInputPort("X_WH"))
         builder.Connect(source.GetOutputPort("V_WD"), adm.GetInputPort("V_WH"))
         builder.Connect(source.GetOutputPort("grasp"), adm.GetInputPort("grasp_in"))
-        for name in ("X_WG", "V_WG"):
+        for name in ("pose_WG", "V_WG"):
             builder.Connect(coupling.GetOutputPort(name), adm.GetInputPort(name))
         builder.Connect(adm.GetOutputPort("F_device_W"), coupling.GetInputPort("F_device_W"))
         chain.haptic = chain.device = adm
@@ -342,7 +342,7 @@ def connect_device(
             coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
         )
     builder.Connect(chain.device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
-    for name in ("X_WT", "V_WT", "X_WG", "V_WG"):
+    for name in ("pose_WT", "V_WT", "pose_WG", "V_WG"):
         builder.Connect(coupling.GetOutputPort(name), feedback.GetInputPort(name))
     return chain
 
@@ -361,7 +361,7 @@ def add_visualization(
         return None
     add_meshcat_visualization(builder, meshcat, scene_graph)
     ghost = builder.AddNamedSystem("god_object_visualizer", GodObjectVisualizer(meshcat, plant, scene_graph))
-    for name in ("X_WT", "X_WG", "held_body"):
+    for name in ("pose_WT", "pose_WG", "held_body"):
         builder.Connect(coupling.GetOutputPort(name), ghost.GetInputPort(name))
     return meshcat
 
@@ -374,7 +374,7 @@ class RunResult:
     times: np.ndarray
     states: np.ndarray
     held: np.ndarray
-    X_WT: np.ndarray
+    pose_WT: np.ndarray
     F_Go_W: np.ndarray
 
 
@@ -440,12 +440,12 @@ def simulate(
     states = log["state"].data()[:, :n].T
     terms = log["terms"].data()[:, :n].T
     held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
-    X_WT = terms[:, TERMS_LAYOUT["X_WT"]]
+    pose_WT = terms[:, TERMS_LAYOUT["pose_WT"]]
     F = terms[:, TERMS_LAYOUT["F_Go_W"]]
     capped = terms[:, TERMS_LAYOUT["capped"]]
-    finite = np.all(np.isfinite(states), axis=1) & np.all(np.isfinite(X_WT), axis=1)
+    finite = np.all(np.isfinite(states), axis=1) & np.all(np.isfinite(pose_WT), axis=1)
     measured = compute_metrics(
-        TrueShapeMetrics(plant, scene_graph), states[finite], held[finite], X_WT[finite, 4:]
+        TrueShapeMetrics(plant, scene_graph), states[finite], held[finite], pose_WT[finite, 4:]
     )
     metrics = {
         "scene": scene,
@@ -463,7 +463,7 @@ def simulate(
     }
     if record and meshcat is not None:
         metrics["recording_bytes"] = save_recording(meshcat, record)
-    return RunResult(metrics, times, states, held, X_WT, F)
+    return RunResult(metrics, times, states, held, pose_WT, F)
 
 
 @dataclasses.dataclass
@@ -552,13 +552,13 @@ def impose_target(plant, plant_context, coupling, coupling_context) -> None:
     held = int(coupling.GetOutputPort("held_body").Eval(coupling_context)[0])
     if held < 0:
         return
-    X_WT = coupling.GetOutputPort("X_WT").Eval(coupling_context)
+    pose_WT = coupling.GetOutputPort("pose_WT").Eval(coupling_context)
     V_WT = coupling.GetOutputPort("V_WT").Eval(coupling_context)
     body = plant.get_body(BodyIndex(held))
     p_BoBcm_B = coupling.bodies[body.scoped_name().get_full()].p_BoBcm_B
-    X_WG = RigidTransform(Quaternion(X_WT[:4] / np.linalg.norm(X_WT[:4])), X_WT[4:])
+    X_WG = RigidTransform(Quaternion(pose_WT[:4] / np.linalg.norm(pose_WT[:4])), pose_WT[4:])
     X_WB = X_WG.multiply(RigidTransform(-p_BoBcm_B))
-    p_GB_W = X_WB.translation() - X_WT[4:]
+    p_GB_W = X_WB.translation() - pose_WT[4:]
     plant.SetFreeBodyPose(plant_context, body, X_WB)
     plant.SetFreeBodySpatialVelocity(
         plant_context, body, SpatialVelocity(V_WT[:3], V_WT[3:] + np.cross(V_WT[:3], p_GB_W))

@@ -99,8 +99,8 @@ def free_body_error(
     for name in ("X_WD", "V_WD", "grasp"):
         builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
     builder.Connect(coupling.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port())
-    log_G = LogVectorOutput(coupling.GetOutputPort("X_WG"), builder, time_step)
-    log_T = LogVectorOutput(coupling.GetOutputPort("X_WT"), builder, time_step)
+    log_G = LogVectorOutput(coupling.GetOutputPort("pose_WG"), builder, time_step)
+    log_T = LogVectorOutput(coupling.GetOutputPort("pose_WT"), builder, time_step)
     diagram = builder.Build()
     sim = Simulator(diagram)
     ctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
@@ -262,7 +262,7 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
         builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
     builder.Connect(coupling.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port())
     builder.Connect(device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
-    for name in ("X_WT", "V_WT", "X_WG", "V_WG"):
+    for name in ("pose_WT", "V_WT", "pose_WG", "V_WG"):
         builder.Connect(coupling.GetOutputPort(name), feedback.GetInputPort(name))
     log_pc = None
     if sc.passivity_max_damping > 0.0:
@@ -278,7 +278,7 @@ def simulate_haptic(sc: HapticScenario, duration: float, v0_device: float = 0.0)
         builder.Connect(user.get_output_port(0), device.GetInputPort("human_force"))
     log_dev = LogVectorOutput(device.GetOutputPort("device_state"), builder, d.period_s)
     log_work = LogVectorOutput(device.GetOutputPort("work"), builder, d.period_s)
-    log_G = LogVectorOutput(coupling.GetOutputPort("X_WG"), builder, d.period_s)
+    log_G = LogVectorOutput(coupling.GetOutputPort("pose_WG"), builder, d.period_s)
     log_F = LogVectorOutput(feedback.GetOutputPort("F_Do_W"), builder, d.period_s)
     diagram = builder.Build()
     sim = Simulator(diagram)

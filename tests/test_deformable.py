@@ -122,9 +122,9 @@ def test_mass_spring_nodes_hang_on_their_anchor_springs_by_m_g_over_k(probe, tmp
     rest = logs["rest_positions"].FindLog(loop.context).data()[:, -1].reshape(-1, 3)
     sag = shell.node_mass_kg * G / shell.anchor_stiffness  # 18 µm at E = 50 kPa
     assert np.allclose(v - rest, [0.0, 0.0, -sag], atol=0.02 * sag)
-    X_WC = logs["X_WC"].FindLog(loop.context).data()[:, -1]
-    X_WT = logs["X_WT"].FindLog(loop.context).data()[:, -1]
-    assert np.linalg.norm(X_WC[4:] - X_WT[4:]) < 1e-5  # without the shell's weight: 9.7 mm low
+    pose_WC = logs["pose_WC"].FindLog(loop.context).data()[:, -1]
+    pose_WT = logs["pose_WT"].FindLog(loop.context).data()[:, -1]
+    assert np.linalg.norm(pose_WC[4:] - pose_WT[4:]) < 1e-5  # without the shell's weight: 9.7 mm low
 
 
 # -- the library pieces ----------------------------------------------------------------------------

@@ -9,11 +9,11 @@ from godobject_drake.feedback import FeedbackGains, FeedbackPort
 IDENTITY_Q = [1.0, 0, 0, 0]
 
 
-def wrench(gains, p_WD, X_WT, V_WT, X_WG, V_WG):
+def wrench(gains, p_WD, pose_WT, V_WT, pose_WG, V_WG):
     port = FeedbackPort(gains)
     context = port.CreateDefaultContext()
     port.GetInputPort("X_WD").FixValue(context, RigidTransform(p_WD))
-    for name, value in (("X_WT", X_WT), ("V_WT", V_WT), ("X_WG", X_WG), ("V_WG", V_WG)):
+    for name, value in (("pose_WT", pose_WT), ("V_WT", V_WT), ("pose_WG", pose_WG), ("V_WG", V_WG)):
         port.GetInputPort(name).FixValue(context, np.asarray(value, float))
     return port.GetOutputPort("F_Do_W").Eval(context)
 
@@ -23,9 +23,9 @@ def test_stiffness_pulls_device_toward_god_object_and_moves_to_device_point():
     F = wrench(
         FeedbackGains(kd=100.0),
         p_WD=[0, 0, 0],
-        X_WT=[*IDENTITY_Q, 0, 0.1, 0],
+        pose_WT=[*IDENTITY_Q, 0, 0.1, 0],
         V_WT=np.zeros(6),
-        X_WG=[*IDENTITY_Q, 0.01, 0.1, 0],
+        pose_WG=[*IDENTITY_Q, 0.01, 0.1, 0],
         V_WG=np.zeros(6),
     )
     # f = kd (p_G − p_T) = 100 · 0.01 x̂ = 1 N x̂; τ_Do = p_DoT × f = 0.1 ŷ × 1 x̂ = −0.1 ẑ N·m.
@@ -37,9 +37,9 @@ def test_damping_and_rotation():
     F = wrench(
         FeedbackGains(gamma_d=2.0, kd_rot=0.5, gamma_d_rot=0.1),
         p_WD=[0, 0, 0],
-        X_WT=[*IDENTITY_Q, 0, 0, 0],
+        pose_WT=[*IDENTITY_Q, 0, 0, 0],
         V_WT=[0, 0, 1.0, 0, 0, 0.5],
-        X_WG=[np.cos(a / 2), 0, 0, np.sin(a / 2), 0, 0, 0],
+        pose_WG=[np.cos(a / 2), 0, 0, np.sin(a / 2), 0, 0, 0],
         V_WG=np.zeros(6),
     )
     # f = γd (v_G − v_T) = 2 · (−0.5 ẑ); τ = kd_r · 30° ẑ + γd_r (w_G − w_T) = 0.5 a − 0.1.
