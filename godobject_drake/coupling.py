@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -179,6 +180,27 @@ def graspable_bodies(plant: MultibodyPlant) -> dict[str, GraspableBody]:
     return {k: v for k, v in found.items() if counts[k] == 1 or k == v.name}
 
 
+def fixed_bodies(plant: MultibodyPlant) -> dict[str, str]:
+    """Bodies that are not free, by the names a device might use, with why they cannot be grasped."""
+    out = {}
+    for i in range(1, plant.num_bodies()):
+        body = plant.get_body(BodyIndex(i))
+        if body.is_floating_base_body() and body.has_quaternion_dofs():
+            continue
+        why = (
+            "is welded to the world (an obstacle)"
+            if plant.IsAnchored(body)
+            else "is a link of an articulated model (use add_articulated_god_object for it)"
+        )
+        instance = plant.GetModelInstanceName(body.model_instance())
+        aliases = [body.scoped_name().get_full(), body.name()]
+        if len(plant.GetBodyIndices(body.model_instance())) == 1:
+            aliases.append(instance)
+        for alias in aliases:
+            out.setdefault(alias, f"{body.scoped_name().get_full()} {why}")
+    return out
+
+
 def with_carried_inertia(body: GraspableBody, M_BBo_B: SpatialInertia) -> GraspableBody:
     """``body`` as the coupling sees it when it carries ``M_BBo_B`` (about Bo, in B).
 
@@ -303,6 +325,9 @@ class GodObjectCoupling(LeafSystem):
     grasp_reach_m : float
         How near (m) a body's centre of mass must be to the device point for
         ``"*"`` to take it.
+    graspable : sequence of str | None
+        The bodies this coupling may hold (names as a device gives them); None: every
+        free body. A welded or unknown name is refused here, naming what it is.
     max_stretch_m, max_twist_rad : float
         Force and torque caps, as the stretch and twist whose spring force they equal
         (:meth:`force_caps`); ``math.inf`` turns a cap off.
@@ -319,6 +344,7 @@ class GodObjectCoupling(LeafSystem):
         grasp_reach_m: float = 0.05,
         max_stretch_m: float = DEFAULT_MAX_STRETCH_M,
         max_twist_rad: float = DEFAULT_MAX_TWIST_RAD,
+        graspable: Sequence[str] | None = None,
     ):
         super().__init__()
         for label, value in (("max_stretch_m", max_stretch_m), ("max_twist_rad", max_twist_rad)):
@@ -332,7 +358,13 @@ class GodObjectCoupling(LeafSystem):
         if check_gains:
             gains.check(h)
         self.gains = gains
-        self.bodies = graspable_bodies(plant)
+        self.plant = plant
+        self._free = graspable_bodies(plant)
+        self._fixed = fixed_bodies(plant)
+        self.bodies = self._free
+        if graspable:
+            chosen = {self.body_for_grasp(name).index for name in graspable}
+            self.bodies = {k: v for k, v in self._free.items() if v.index in chosen}
         for name, M in (carried or {}).items():
             body = self.body_for_grasp(name)
             heavier = with_carried_inertia(body, M)
@@ -418,14 +450,16 @@ class GodObjectCoupling(LeafSystem):
         """The body a grasp name selects; None for ``""`` (and ``"*"``). Raises for unknown names."""
         if not name or name == GRASP_NEAREST:
             return None
-        try:
+        if name in self.bodies:
             return self.bodies[name]
-        except KeyError:
-            known = sorted(k for k in self.bodies if "::" not in k) or sorted(self.bodies)
-            raise ValueError(
-                f"grasp names unknown body {name!r}; graspable (free) bodies are {known}. "
-                "Fix the device path or log."
-            ) from None
+        known = sorted(k for k in self.bodies if "::" not in k) or sorted(self.bodies)
+        if name in self._fixed and name not in self._free:
+            why = f"{name!r} names {self._fixed[name]}: only a free body can be a god-object"
+        elif name in self._free:
+            why = f"{name!r} is a free body, but not one of this coupling's graspable bodies"
+        else:
+            why = f"unknown body {name!r}"
+        raise ValueError(f"grasp names {why}; graspable bodies are {known}. Fix the device path or log.")
 
     def validate_grasp_names(self, names) -> None:
         """Raise early if any of ``names`` is not a graspable body."""

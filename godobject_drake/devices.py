@@ -289,8 +289,14 @@ class DeviceSource(LeafSystem):
         n = math.floor(duration_s / self.period_s + 1e-9)
         return [(k * self.period_s, self._sample(k * self.period_s)) for k in range(n + 1)]
 
-    def grasp_names(self, duration_s: float) -> set[str]:
-        """Every non-empty grasp name the device reports on ``[0, duration_s]``."""
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
+        """Every non-empty grasp name the device reports on ``[0, duration_s]``.
+
+        ``None``: over everything it will report: a path or log to its end (``end_time_s``),
+        a source without one at its first sample.
+        """
+        if duration_s is None:
+            duration_s = getattr(self, "end_time_s", 0.0)
         return {s[2] for _, s in self.samples(duration_s) if s is not None and s[2]}
 
     @staticmethod

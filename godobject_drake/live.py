@@ -151,7 +151,7 @@ class MeshcatDevice(DeviceSource):
             self._shown = sliders
         return self._commanded
 
-    def grasp_names(self, duration_s: float) -> set[str]:
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
         """A live device names no body in advance (``"*"`` picks the nearest)."""
         return {self._fixed_grasp} if self._fixed_grasp else set()
 

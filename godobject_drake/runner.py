@@ -49,6 +49,7 @@ from godobject_drake.haptic import (
 from godobject_drake.live import MeshcatDevice, MeshcatJointDevice, stop_requested
 from godobject_drake.metrics import TrueShapeMetrics, compute_metrics, format_table, write_metrics
 from godobject_drake.recording import GodObjectVisualizer, add_meshcat_visualization, save_recording
+from godobject_drake.safeguards import DIVERGED_SPEED, DivergenceError, Safeguards
 
 MODES = ("god_object", "position")
 DEVICES = ("scripted", "replay", "relative", "meshcat")
@@ -61,7 +62,6 @@ HAPTIC_DEVICE_DAMPING = 2.0
 HAND_ON_HANDLE = HandImpedance(
     k=HAPTIC_DEVICE_MASS_KG * (2 * math.pi * 10) ** 2, b=2 * HAPTIC_DEVICE_MASS_KG * 2 * math.pi * 10
 )
-DIVERGED_SPEED = 1000.0  # m/s or rad/s: any generalized velocity past this is a blow-up
 CHECK_EVERY_S = 0.05
 
 
@@ -502,39 +502,34 @@ def run_loop(
     """
     if not (duration > 0 and math.isfinite(duration)):
         raise ValueError(f"duration={duration!r} s must be > 0")
-    h = plant.time_step()
     simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
     if prepare is not None:
         prepare(simulator)
     simulator.set_target_realtime_rate(1.0 if realtime else 0.0)
+    stop = (lambda: stop_requested(meshcat)) if live and meshcat is not None else None
+    guard = Safeguards(plant, check_period_s=CHECK_EVERY_S, max_speed=DIVERGED_SPEED, stop=stop,
+                       before_step=impose).install(simulator)  # fmt: skip
+    context = simulator.get_context()
     simulator.Initialize()
     if record and meshcat is not None:
         meshcat.StartRecording(frames_per_second=64.0, set_visualizations_while_recording=False)
 
     diagnosis = None
+    h = plant.time_step()
     n_steps = round(duration / h)
     chunk = max(1, round(CHECK_EVERY_S / h))
     bar = _progress(n_steps, progress)
     wall0 = time.perf_counter()
     k = 0
     try:
-        while k < n_steps:
+        while k < n_steps and not guard.stopped:
             k_next = min(k + chunk, n_steps)
-            if impose is not None:
-                for j in range(k, k_next):
-                    impose(plant_context, context)
-                    simulator.AdvanceTo((j + 1) * h)
-            else:
-                simulator.AdvanceTo(k_next * h)
+            simulator.AdvanceTo(k_next * h)
             bar.update(k_next - k)
             k = k_next
-            diagnosis = _check_state(plant, plant_context)
-            if diagnosis is None:
-                _normalize_quaternions(plant, plant_context)
-            if diagnosis or (live and meshcat is not None and stop_requested(meshcat)):
-                break
+        guard.check()
+    except DivergenceError:
+        diagnosis = guard.diagnosis
     except RuntimeError as e:
         diagnosis = f"Drake stopped at t={context.get_time():.4f} s: {e}"
     wall = time.perf_counter() - wall0
@@ -563,40 +558,6 @@ def impose_target(plant, plant_context, coupling, coupling_context) -> None:
     plant.SetFreeBodySpatialVelocity(
         plant_context, body, SpatialVelocity(V_WT[:3], V_WT[3:] + np.cross(V_WT[:3], p_GB_W))
     )
-
-
-def _normalize_quaternions(plant: MultibodyPlant, plant_context) -> None:
-    """Put every free body's quaternion back on unit norm (same rotation, same velocities).
-
-    Drake 1.51.1's discrete update integrates ``q̇ = ½ q ⊗ w`` without projecting, so ``|q|``
-    grows by about ``(h|w|)²/8`` per step: to 170 after 274 s of a brick twisted at ~10 rad/s.
-    Done every check (50 ms), it stays within 1e-3 of 1.
-    """
-    q = plant.GetPositions(plant_context)
-    changed = False
-    for index in plant.GetFloatingBaseBodies():
-        body = plant.get_body(index)
-        if not body.has_quaternion_dofs():
-            continue
-        i = body.floating_positions_start()
-        n = float(np.linalg.norm(q[i : i + 4]))
-        if n > 0.0 and abs(n - 1.0) > 1e-9:
-            q[i : i + 4] /= n
-            changed = True
-    if changed:
-        plant.SetPositions(plant_context, q)
-
-
-def _check_state(plant: MultibodyPlant, plant_context) -> str | None:
-    x = plant.GetPositionsAndVelocities(plant_context)
-    t = plant_context.get_time()
-    if not np.all(np.isfinite(x)):
-        return f"non-finite plant state at t={t:.4f} s"
-    v = plant.GetVelocities(plant_context)
-    if v.size and np.max(np.abs(v)) > DIVERGED_SPEED:
-        i = int(np.argmax(np.abs(v)))
-        return f"velocity {i} reached {v[i]:.3g} (> {DIVERGED_SPEED:g} m/s or rad/s) at t={t:.4f} s"
-    return None
 
 
 class _NoBar:

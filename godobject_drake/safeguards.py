@@ -1,0 +1,343 @@
+"""Safeguards that work under a plain ``Simulator``: divergence, quaternion drift, Stop, wiring.
+
+A god-object diagram needs a few things no Drake system can do for it:
+
+- **Divergence.** A run whose state turns non-finite, or moves a body faster
+  than anything physical (:data:`DIVERGED_SPEED`), is stopped at the next
+  check with a :class:`DivergenceError` that names the body, the value and
+  the time, before NaNs fill the logs.
+- **Quaternion drift.** Drake's discrete update integrates ``q̇ = ½ q ⊗ w``
+  without projecting, so a free body's ``|q|`` grows by about ``(h|w|)²/8``
+  per step (170 after 274 s of a brick twisted at ~10 rad/s). Every check puts
+  each free body's quaternion back on unit norm (same rotation, same
+  velocities); over a 50 ms check period ``|q|`` stays within 1e-3 of 1.
+- **Stop.** A live page's Stop button (or Escape) ends the run at the next
+  check, as a normal end.
+- **Before each plant step** (``before_step``): the position baseline sets
+  the held body to its target (paper Fig. 5), an articulated tool's imposed
+  joints are set to the device's values.
+
+:func:`install_safeguards` puts all of this on a simulator as its monitor
+(called by Drake after every simulator step; ~2 µs when it has nothing to
+do), and checks the diagram's wiring first (:func:`check_wiring`)::
+
+    simulator = Simulator(diagram)
+    install_safeguards(simulator)
+    simulator.AdvanceTo(10.0)  # raises DivergenceError naming the body if the run blows up
+
+The checks run every ``check_period_s`` of simulated time, at multiples of
+the plant step, so a run is the same whatever chunks it is advanced in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import JointIndex
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Diagram, EventStatus
+
+DIVERGED_SPEED = 1000.0  # m/s or rad/s: any generalized velocity past this is a blow-up
+CHECK_PERIOD_S = 0.05
+
+
+class DivergenceError(RuntimeError):
+    """The simulation left physics (a non-finite state or an absurd speed).
+
+    Attributes
+    ----------
+    time_s : float
+        Simulated time of the check that caught it (s).
+    body : str
+        Scoped name of the body whose state went wrong.
+    """
+
+    def __init__(self, message: str, time_s: float, body: str):
+        super().__init__(message)
+        self.time_s, self.body = time_s, body
+
+
+class WiringError(ValueError):
+    """A diagram wired so that the god-object cannot work as intended; the message says what to connect."""
+
+
+def find_plant(diagram: Diagram) -> MultibodyPlant:
+    """The one MultibodyPlant of ``diagram`` (searched in nested diagrams too)."""
+    plants = [s for s in _all_systems(diagram) if isinstance(s, MultibodyPlant)]
+    if len(plants) != 1:
+        raise WiringError(
+            f"the diagram has {len(plants)} MultibodyPlants; pass the one to guard as plant=..."
+        )
+    return plants[0]
+
+
+def _all_systems(diagram: Diagram):
+    for system in diagram.GetSystems():
+        yield system
+        if isinstance(system, Diagram):
+            yield from _all_systems(system)
+
+
+class Safeguards:
+    """The monitor :func:`install_safeguards` puts on a simulator, and what it saw.
+
+    Attributes
+    ----------
+    diagnosis : str | None
+        Why the run was stopped as diverged (also the :class:`DivergenceError`'s message).
+    stopped : bool
+        The Stop button ended the run.
+    checks : int
+        Checks made so far.
+    projections : int
+        Checks at which some free body's quaternion had drifted off unit norm and was projected back.
+    """
+
+    def __init__(
+        self,
+        plant: MultibodyPlant,
+        *,
+        check_period_s: float = CHECK_PERIOD_S,
+        max_speed: float = DIVERGED_SPEED,
+        stop: Callable[[], bool] | None = None,
+        before_step: Callable | None = None,
+        project_quaternions: bool = True,
+    ):
+        h = plant.time_step()
+        if not h > 0.0:
+            raise ValueError(f"plant time_step={h!r} s: the safeguards check a discrete plant; give h > 0")
+        if not (math.isfinite(check_period_s) and check_period_s > 0.0):
+            raise ValueError(f"check_period_s={check_period_s!r} s must be > 0")
+        if not max_speed > 0.0:
+            raise ValueError(f"max_speed={max_speed!r} (m/s or rad/s) must be > 0")
+        self.plant, self.time_step = plant, h
+        self.every = max(1, round(check_period_s / h))  # plant steps between checks
+        self.max_speed, self.stop, self.before_step = float(max_speed), stop, before_step
+        self.project_quaternions = project_quaternions
+        self.diagnosis: str | None = None
+        self.stopped = False
+        self.checks = self.projections = 0
+        self._quaternion_starts = [
+            plant.get_body(i).floating_positions_start()
+            for i in plant.GetFloatingBaseBodies()
+            if plant.get_body(i).has_quaternion_dofs()
+        ]
+        self._velocity_names = plant.GetVelocityNames()
+        self._simulator = None
+        self._plant_context = None
+
+    def install(self, simulator: Simulator) -> Safeguards:
+        """Become ``simulator``'s monitor (replacing any other)."""
+        self._simulator = simulator
+        self._root = simulator.get_mutable_context()
+        self._plant_context = self.plant.GetMyMutableContextFromRoot(self._root)
+        self._next_check = self.every
+        simulator.set_monitor(self._monitor)
+        return self
+
+    def _monitor(self, context) -> EventStatus:
+        t = context.get_time()
+        n = round(t / self.time_step)
+        if n * self.time_step != t:
+            return EventStatus.DidNothing()  # between plant steps (a device or drawing event)
+        if n >= self._next_check:
+            self._next_check = n + self.every
+            self.checks += 1
+            self.check(t)  # raises DivergenceError
+            if self.project_quaternions:
+                self._project()
+            if self.stop is not None and self.stop():
+                self.stopped = True
+                return EventStatus.ReachedTermination(
+                    self._simulator.get_system(), f"Stop pressed at t={t:.3f} s"
+                )
+        if self.before_step is not None:
+            self.before_step(self._plant_context, self._root)
+        return EventStatus.DidNothing()
+
+    def check(self, t: float | None = None) -> None:
+        """Raise :class:`DivergenceError` if the plant's state is non-finite or too fast."""
+        ctx = self._plant_context
+        t = ctx.get_time() if t is None else t
+        x = self.plant.GetPositionsAndVelocities(ctx)
+        nq = self.plant.num_positions()
+        bad = np.flatnonzero(~np.isfinite(x))
+        if bad.size:
+            i = int(bad[0])
+            what = self.plant.GetPositionNames()[i] if i < nq else self._velocity_names[i - nq]
+            self._fail(f"non-finite state ({what} = {x[i]}) at t={t:.4f} s", t, i, nq)
+        v = x[nq:]
+        if v.size:
+            i = int(np.argmax(np.abs(v)))
+            if abs(v[i]) > self.max_speed:
+                self._fail(
+                    f"its velocity {self._velocity_names[i]} reached {v[i]:.3g} (> {self.max_speed:g} m/s "
+                    f"or rad/s) at t={t:.4f} s",
+                    t,
+                    nq + i,
+                    nq,
+                )
+
+    def _fail(self, what: str, t: float, index: int, nq: int) -> None:
+        body = self._body_of(index, nq)
+        self.diagnosis = (
+            f"{body} diverged: {what}. The run was stopped there; lower the coupling's bandwidth "
+            "(omega_n, omega_n_rot) or the time step, or stiffen/soften the contact it met"
+        )
+        raise DivergenceError(self.diagnosis, t, body)
+
+    def _body_of(self, index: int, nq: int) -> str:
+        """The scoped name of the body moved by state entry ``index`` of ``[q; v]``."""
+        plant = self.plant
+        for j in range(plant.num_joints()):
+            joint = plant.get_joint(JointIndex(j))
+            start, size = (
+                (joint.position_start(), joint.num_positions())
+                if index < nq
+                else (nq + joint.velocity_start(), joint.num_velocities())
+            )
+            if start <= index < start + size:
+                return joint.child_body().scoped_name().get_full()
+        return "a body"
+
+    def _project(self) -> None:
+        """Put every free body's quaternion back on unit norm (same rotation, same velocities)."""
+        if not self._quaternion_starts:
+            return
+        ctx = self._plant_context
+        q = self.plant.GetPositions(ctx)
+        changed = False
+        for i in self._quaternion_starts:
+            n = float(np.linalg.norm(q[i : i + 4]))
+            if n > 0.0 and abs(n - 1.0) > 1e-9:
+                q[i : i + 4] /= n
+                changed = True
+        if changed:
+            self.projections += 1
+            self.plant.SetPositions(ctx, q)
+
+
+def install_safeguards(
+    simulator: Simulator,
+    plant: MultibodyPlant | None = None,
+    *,
+    check_period_s: float = CHECK_PERIOD_S,
+    max_speed: float = DIVERGED_SPEED,
+    meshcat=None,
+    before_step: Callable | None = None,
+    project_quaternions: bool = True,
+    mode: str = "god_object",
+) -> Safeguards:
+    """Check ``simulator``'s diagram's wiring, then watch the run (module docstring).
+
+    Parameters
+    ----------
+    plant : MultibodyPlant | None
+        The plant to watch; None finds the diagram's only one.
+    check_period_s : float
+        Simulated time between checks (s); rounded to whole plant steps.
+    max_speed : float
+        A generalized velocity past this (m/s or rad/s) is a divergence.
+    meshcat : Meshcat | None
+        A live page: its Stop button (added if missing, key Escape) ends the run.
+    before_step : callable | None
+        ``before_step(plant_context, root_context)``, called before every plant step.
+    project_quaternions : bool
+        Put free bodies' quaternions back on unit norm at every check.
+    mode : str
+        ``god_object`` (the coupling's force must reach the plant) or ``position`` (it must not:
+        the position baseline sets the body instead); see :func:`check_wiring`.
+    """
+    diagram = simulator.get_system()
+    plant = plant or find_plant(diagram)
+    check_wiring(diagram, mode=mode)
+    stop = None
+    if meshcat is not None:
+        from godobject_drake.live import add_stop_button, stop_requested
+
+        add_stop_button(meshcat)
+
+        def stop():
+            return stop_requested(meshcat)
+
+    guard = Safeguards(
+        plant,
+        check_period_s=check_period_s,
+        max_speed=max_speed,
+        stop=stop,
+        before_step=before_step,
+        project_quaternions=project_quaternions,
+    )
+    return guard.install(simulator)
+
+
+MODES = ("god_object", "position")
+_FORCE_PORTS = {"generalized_force": "applied_generalized_force", "spatial_forces": "applied_spatial_force"}
+
+
+def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
+    """Raise :class:`WiringError` where a god-object coupling is wired so that it cannot work.
+
+    For every :class:`~godobject_drake.coupling.GodObjectCoupling` in ``diagram`` (at any
+    depth, with its plant in the same diagram):
+
+    - ``god_object`` mode: exactly one of its ``generalized_force`` and ``spatial_forces``
+      outputs reaches the plant's matching input (none: the body never moves; both: it gets
+      the wrench twice);
+    - ``position`` mode: neither does (the baseline sets the body's pose instead);
+    - its ``plant_state`` comes from the plant's ``state`` output;
+    - every grasp name a connected device can report names a free body of the plant.
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode={mode!r}; choose one of {MODES}")
+    from godobject_drake.coupling import GodObjectCoupling
+
+    for sub in [diagram, *(s for s in _all_systems(diagram) if isinstance(s, Diagram))]:
+        children = set(sub.GetSystems())
+        wires = {
+            (src, src.get_output_port(o).get_name()): (dst, dst.get_input_port(i).get_name())
+            for (dst, i), (src, o) in sub.connection_map().items()
+        }
+        for coupling in (s for s in children if isinstance(s, GodObjectCoupling)):
+            plant = coupling.plant
+            if plant not in children:
+                continue
+            name = coupling.get_name()
+            into_plant = [
+                port
+                for port, plant_port in _FORCE_PORTS.items()
+                if wires.get((coupling, port)) == (plant, plant_port)
+            ]
+            fix = (
+                f"builder.Connect({name}.GetOutputPort('generalized_force'), "
+                "plant.get_applied_generalized_force_input_port())"
+            )
+            if mode == "god_object" and not into_plant:
+                raise WiringError(
+                    f"coupling {name!r} drives no force into the plant: the held body would never move "
+                    f"while the feedback reads its weight. Connect it: {fix} (or build with "
+                    "godobject_drake.building.add_god_object, which wires it)"
+                )
+            if mode == "god_object" and len(into_plant) > 1:
+                raise WiringError(
+                    f"coupling {name!r} drives both 'generalized_force' and 'spatial_forces' into the "
+                    "plant: the held body gets the coupling's wrench twice. Connect only one "
+                    "('generalized_force' is the cheaper)"
+                )
+            if mode == "position" and into_plant:
+                raise WiringError(
+                    f"mode=position imposes the held body's pose, but coupling {name!r} also drives "
+                    f"{into_plant} into the plant; leave its force outputs unconnected in this mode"
+                )
+            state_from = [src for (src, _), dst in wires.items() if dst == (coupling, "plant_state")]
+            if state_from and state_from[0] is not plant:
+                raise WiringError(
+                    f"coupling {name!r} reads 'plant_state' from {state_from[0].get_name()!r}; connect "
+                    "plant.get_state_output_port() to it"
+                )
+            for (src, _), dst in wires.items():
+                if dst == (coupling, "grasp") and hasattr(src, "grasp_names"):
+                    coupling.validate_grasp_names(src.grasp_names())
