@@ -19,8 +19,6 @@ integrates the coupled body with symplectic Euler, stable only while
 past that limit.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 import warnings
@@ -59,9 +57,12 @@ class CouplingGainWarning(UserWarning):
     """Gains outside the paper's recommended damping range."""
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class CouplingGains:
     """Coupling gains by bandwidth, scaled per body by its mass and inertia.
+
+    A plain, mutable config (a scenario file fills it field by field); :meth:`check`
+    validates it where it is used.
 
     Attributes
     ----------
@@ -70,7 +71,9 @@ class CouplingGains:
     zeta : float
         Translational damping ratio ζ: ``γ = 2 ζ m ωn``.
     omega_n_rot : float | None
-        Rotational natural frequency (rad/s), ``kr = I ωr²``; None = omega_n.
+        Rotational natural frequency (rad/s), ``kr = I ωr²``; None = omega_n (the same
+        bandwidth). The brick scene sets 3 × omega_n: a hand holds a tool's orientation
+        firmer than its position.
     zeta_rot : float | None
         Rotational damping ratio; None = zeta.
     """

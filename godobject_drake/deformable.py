@@ -37,8 +37,6 @@ grows as the cube of its node count (the nodes are one kinematic tree with
 the core, and SAP factors each tree densely).
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 
@@ -76,7 +74,7 @@ class ShellSpecError(ValueError):
     """A shell specification that cannot be built or simulated."""
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class ShellSpec:
     """Geometry and material of a spherical deformable god-object (SI units).
 
@@ -256,7 +254,7 @@ class DeformableGodObject:
     def _inertia_inner_radius(self) -> float:
         return self.spec.core_radius_m
 
-    def connect(self, builder: DiagramBuilder, plant: MultibodyPlant) -> ShellObserver:
+    def connect(self, builder: DiagramBuilder, plant: MultibodyPlant) -> "ShellObserver":
         raise NotImplementedError
 
     def impose_core(self, plant: MultibodyPlant, plant_context, set_core) -> None:

@@ -54,7 +54,7 @@ DEVICE_STATUS_KEYS = (
 )
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class SampleGuard:
     """What a device does with samples it cannot use (README "Bad device input").
 
@@ -84,6 +84,10 @@ class SampleGuard:
     quaternion_tolerance: float = 1e-3
 
     def __post_init__(self):
+        self.check()
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming a setting out of its range."""
         if not (self.max_speed_m_s > 0.0):
             raise ValueError(f"SampleGuard max_speed_m_s={self.max_speed_m_s!r} must be > 0 m/s (inf: off)")
         if int(self.confirm_samples) != self.confirm_samples or self.confirm_samples < 1:
@@ -171,6 +175,7 @@ class DeviceSource(LeafSystem):
         self.latency_s = float(latency_s)
         self.interpolation = interpolation
         self.guard = guard or SampleGuard()
+        self.guard.check()
         self._sampler = sampler
         first = self._sample(0.0)
         problem = None if first is None else self._problem(first)

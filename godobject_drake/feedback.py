@@ -13,8 +13,6 @@ an obstacle stops G short of T, the user feels the obstacle. All gains zero
 (the default) is a non-haptic device: zero wrench, same god-object loop.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 
@@ -26,7 +24,7 @@ from pydrake.systems.framework import LeafSystem
 from godobject_drake.spatial import cross3, pose_arrays, rotation_error
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class FeedbackGains:
     """Feedback (virtual coupling) gains, absolute: they suit the device, not the body.
 
@@ -48,6 +46,10 @@ class FeedbackGains:
     gamma_d_rot: float = 0.0
 
     def __post_init__(self):
+        self.check()
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming a gain that is negative or not finite."""
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if not (math.isfinite(v) and v >= 0.0):
@@ -78,6 +80,7 @@ class FeedbackPort(LeafSystem):
     def __init__(self, gains: FeedbackGains | None = None):
         super().__init__()
         self.gains = gains or FeedbackGains()
+        self.gains.check()
         self._X_WD = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
         self._pose_WT = self.DeclareVectorInputPort("pose_WT", 7)
         self._V_WT = self.DeclareVectorInputPort("V_WT", 6)

@@ -19,7 +19,13 @@ from pydrake.geometry import (
     RoleAssign,
     SceneGraph,
 )
-from pydrake.multibody.parsing import LoadModelDirectives, Parser, ProcessModelDirectives
+from pydrake.multibody.parsing import (
+    AddDirectives,
+    ModelDirective,
+    ModelDirectives,
+    Parser,
+    ProcessModelDirectives,
+)
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
@@ -129,6 +135,49 @@ class SceneParts:
     contact: str
 
 
+def add_plant(
+    builder: DiagramBuilder,
+    config: MultibodyPlantConfig,
+    directives,
+    contact: str = "proxies",
+    relaxation_time: float | None = None,
+    before_finalize=None,
+) -> SceneParts:
+    """Add a discrete MultibodyPlant with the scene's models, finalize it, set its contact.
+
+    Parameters
+    ----------
+    config : MultibodyPlantConfig
+        Drake's plant settings; ``time_step`` must be > 0 (SAP is discrete).
+    directives : list[ModelDirective]
+        Model directives (``package://godobject_models/...`` resolves to the project's models).
+    contact : str
+        Which geometry touches (:func:`apply_contact_model`): ``proxies`` or ``hydroelastic``.
+    relaxation_time : float | None
+        SAP relaxation time (s) for every rigid contact geometry; None = the time step.
+    before_finalize : callable | None
+        ``before_finalize(plant, scene_graph)`` adds what must exist before
+        ``Finalize()`` (a deformable god-object) after the directives load.
+    """
+    h = config.time_step
+    if not h > 0.0:
+        raise ValueError(f"time_step={h!r} s: SAP needs a discrete plant, give h > 0")
+    if config.discrete_contact_approximation not in APPROXIMATIONS:
+        raise ValueError(
+            f"discrete_contact_approximation={config.discrete_contact_approximation!r}; "
+            f"choose one of {APPROXIMATIONS}"
+        )
+    plant, scene_graph = AddMultibodyPlant(config, builder)
+    parser = make_parser(plant)
+    ProcessModelDirectives(ModelDirectives(directives=list(directives)), plant, parser)
+    if before_finalize is not None:
+        before_finalize(plant, scene_graph)
+    plant.Finalize()
+    set_relaxation_time(plant, scene_graph, h if relaxation_time is None else relaxation_time)
+    apply_contact_model(plant, scene_graph, contact)
+    return SceneParts(plant, scene_graph, contact)
+
+
 def add_scene_from_directives(
     builder: DiagramBuilder,
     directives: str | Path,
@@ -139,31 +188,13 @@ def add_scene_from_directives(
     before_finalize=None,
     approximation: str = "sap",
 ) -> SceneParts:
-    """Add a SAP MultibodyPlant loaded from model directives and finalize it.
+    """:func:`add_plant` for one ``*.dmd.yaml`` file, with SAP and the contact model ``contact`` needs.
 
-    Parameters
-    ----------
-    directives : str | Path
-        A ``*.dmd.yaml`` path or ``package://godobject_models/...`` URL.
-    time_step : float
-        Plant step h (s); must be > 0 (SAP is discrete).
-    contact : str
-        ``proxies`` (point contact on sphere proxies) or ``hydroelastic``.
-    relaxation_time : float | None
-        SAP relaxation time (s) for every contact; None = ``time_step``.
-    near_rigid_threshold : float | None
-        SAP near-rigid threshold; None keeps Drake's default.
-    before_finalize : callable | None
-        ``before_finalize(plant, scene_graph)`` adds what must exist before
-        ``Finalize()`` (a deformable god-object) after the directives load.
-    approximation : str
-        Drake's discrete contact approximation, one of :data:`APPROXIMATIONS`:
-        ``sap`` (the default), or the cheaper convex ``lagged`` and ``similar``.
+    ``directives`` is a ``*.dmd.yaml`` path or ``package://godobject_models/...`` URL;
+    ``time_step`` h (s); ``contact`` ``proxies`` (point contact) or ``hydroelastic``
+    (hydroelastic with fallback); ``near_rigid_threshold`` SAP's (None: Drake's default);
+    ``approximation`` one of :data:`APPROXIMATIONS`.
     """
-    if not time_step > 0.0:
-        raise ValueError(f"time_step={time_step!r} s: SAP needs a discrete plant, give h > 0")
-    if approximation not in APPROXIMATIONS:
-        raise ValueError(f"approximation={approximation!r}; choose one of {APPROXIMATIONS}")
     config = MultibodyPlantConfig(
         time_step=time_step,
         discrete_contact_approximation=approximation,
@@ -171,18 +202,11 @@ def add_scene_from_directives(
     )
     if near_rigid_threshold is not None:
         config.sap_near_rigid_threshold = near_rigid_threshold
-    plant, scene_graph = AddMultibodyPlant(config, builder)
-    parser = make_parser(plant)
-    path = str(directives)
-    if path.startswith("package://"):
-        path = parser.package_map().ResolveUrl(path)
-    ProcessModelDirectives(LoadModelDirectives(path), plant, parser)
-    if before_finalize is not None:
-        before_finalize(plant, scene_graph)
-    plant.Finalize()
-    set_relaxation_time(plant, scene_graph, time_step if relaxation_time is None else relaxation_time)
-    apply_contact_model(plant, scene_graph, contact)
-    return SceneParts(plant, scene_graph, contact)
+    url = str(directives)
+    if "://" not in url:
+        url = "file://" + str(Path(url).resolve())
+    directive = ModelDirective(add_directives=AddDirectives(file=url))
+    return add_plant(builder, config, [directive], contact, relaxation_time, before_finalize)
 
 
 def exclude_self_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, model: str) -> None:

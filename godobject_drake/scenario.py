@@ -1,0 +1,644 @@
+"""A scene described once: the typed scenario a YAML file is loaded into.
+
+A :class:`Scenario` says everything a god-object run needs: the plant and
+its models, the contact settings, which god-object (rigid, articulated or
+deformable) and its gains, the device, the feedback and haptic chain, how
+long to run, what to draw and record, and the metrics' budget. It is loaded
+with Drake's ``yaml_load_typed``, like Drake's own ``hardware_sim`` scenarios:
+a union field takes a YAML tag naming its type (``device: !Replay {log:
+path.csv}``), and a key the schema does not know is an error naming the key
+and the file. :func:`godobject_drake.building.build_station` turns a scenario
+into a diagram; ``python -m godobject_drake run SCENARIO.yaml`` runs one.
+
+Every length is in m, time in s, angle in rad unless a field says degrees,
+mass in kg, frequency in Hz, bandwidth in rad/s. Input files (model files in
+the directives, device paths and logs) may be ``package://`` URLs or paths
+relative to the YAML file; output files (recording, metrics) are relative to
+the working directory, like the command line's.
+
+This module must not use ``from __future__ import annotations``:
+``yaml_load_typed`` reads the field types at run time.
+"""
+
+import copy
+import dataclasses
+import math
+from pathlib import Path
+
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+from pydrake.multibody.parsing import ModelDirective
+from pydrake.multibody.plant import MultibodyPlantConfig
+
+from godobject_drake.coupling import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
+from godobject_drake.deformable import SHELL_MODELS, ShellSpec
+from godobject_drake.devices import INTERPOLATIONS, JointWaypoint, SampleGuard, Waypoint
+from godobject_drake.feedback import FeedbackGains
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be loaded or built: names the file or field, the value and the fix."""
+
+
+def default_plant_config() -> MultibodyPlantConfig:
+    """SAP, point contact, h = 1 ms: what the shipped scenes use."""
+    return MultibodyPlantConfig(time_step=1e-3, discrete_contact_approximation="sap", contact_model="point")
+
+
+CONTACT_GEOMETRIES = ("proxies", "hydroelastic")
+
+
+@dataclasses.dataclass
+class Contact:
+    """Which geometry touches, and SAP's contact compliance.
+
+    Attributes
+    ----------
+    geometry : str
+        ``proxies``: a geometry named ``proxy_*`` (the paper's small spheres) touches other
+        bodies' true shapes, never another proxy; a body's true shape touches only bodies
+        without proxies; a ``flat_*`` welded geometry only ``proxy_corner_*`` proxies. With no
+        proxies in the scene every true shape touches every other. ``hydroelastic``: proxies
+        are ignored and true shapes touch (needs a hydroelastic ``plant.contact_model``).
+    relaxation_time_s : float | None
+        SAP's relaxation time on every rigid contact geometry (s); None: the plant's time
+        step, which keeps point contact at its nominal stiffness (Drake's default, 0.1 s,
+        makes it far softer).
+    """
+
+    geometry: str = "proxies"
+    relaxation_time_s: float | None = None
+
+
+@dataclasses.dataclass
+class Rigid:
+    """Free rigid bodies a device grasps by name (paper Eq. 2).
+
+    Attributes
+    ----------
+    gains : CouplingGains
+        Bandwidth ``omega_n`` (rad/s), damping ratio ``zeta``, and the rotation's
+        ``omega_n_rot``/``zeta_rot`` (None: as the translation's).
+    graspable : list[str]
+        The bodies the device may hold (``model``, ``model::body`` or a unique body name);
+        empty: every free body.
+    gravity_compensation : bool
+        Add ``−m g`` so a held body hangs at its target.
+    max_stretch_m, max_twist_rad : float
+        Force and torque caps, as the stretch (m) and twist (rad) whose spring force they
+        equal (``.inf``: no cap).
+    grasp_reach_m : float
+        A live grasp (``"*"``) takes the free body nearest the device within this (m).
+    """
+
+    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
+    graspable: list[str] = dataclasses.field(default_factory=list)
+    gravity_compensation: bool = True
+    max_stretch_m: float = DEFAULT_MAX_STRETCH_M
+    max_twist_rad: float = DEFAULT_MAX_TWIST_RAD
+    grasp_reach_m: float = 0.05
+
+
+ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
+
+
+@dataclasses.dataclass
+class Articulated:
+    """A tree model whose joints a joint-space device drives (paper Eq. 4–9).
+
+    Attributes
+    ----------
+    model : str
+        The tool's model instance.
+    device_joints : list[str]
+        The joints the device gives values for, in the device's order.
+    coupling : str
+        ``cartesian`` (paper Eq. 6, explicit), ``joint_pd`` (explicit) or ``joint_pd_sap``
+        (SAP's implicit PD actuators).
+    imposed_joints : list[str]
+        Device joints set to the device's values instead of coupled (the paper's jaws).
+    gains : CouplingGains
+        As for :class:`Rigid` (joint modes use ``omega_n``, ``zeta``).
+    self_collisions : bool
+        Let the tool's own parts touch each other (usually they overlap at their joints).
+    check_every : int
+        The explicit modes' stability is checked at every ``check_every``-th device sample
+        of the path (≥ 1).
+    tip_body : str
+        Metrics: the body whose origin is the tip tracked against the device's (empty: the
+        last of the coupled bodies).
+    pivot_body : str
+        Metrics: a body welded at a pivot (a trocar); ``max_trocar_offset_m`` is its distance
+        from the tip body's z axis. Empty: not measured.
+    """
+
+    model: str = ""
+    device_joints: list[str] = dataclasses.field(default_factory=list)
+    coupling: str = "cartesian"
+    imposed_joints: list[str] = dataclasses.field(default_factory=list)
+    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
+    self_collisions: bool = False
+    check_every: int = 6
+    tip_body: str = ""
+    pivot_body: str = ""
+
+
+@dataclasses.dataclass
+class Deformable:
+    """A rigid core (a god-object) carrying a deformable shell (paper Fig. 4).
+
+    Attributes
+    ----------
+    name : str
+        The core's name (its model instance; the device holds it).
+    shell : str
+        ``fem`` (Drake's FEM) or ``mass_spring`` (the paper's net).
+    spec : ShellSpec
+        Geometry and material (radius_m, core_radius_m, youngs_modulus_pa, nodes, ...).
+    gains : CouplingGains
+        As for :class:`Rigid`, scaled by core + shell.
+
+    A light shell node at a large step presses a contact far softer than its nominal
+    stiffness unless ``plant.sap_near_rigid_threshold`` is lowered (the shipped probe: 0.1).
+    """
+
+    name: str = "probe"
+    shell: str = "fem"
+    spec: ShellSpec = dataclasses.field(default_factory=ShellSpec)
+    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
+
+
+@dataclasses.dataclass
+class _PoseDevice:
+    """What every pose device has: its rate, latency, interpolation, noise and sample guard."""
+
+    rate_hz: float = 60.0
+    latency_s: float = 0.0
+    interpolation: str = "hold"
+    noise_m: float = 0.0
+    guard: SampleGuard = dataclasses.field(default_factory=SampleGuard)
+
+
+@dataclasses.dataclass
+class Scripted(_PoseDevice):
+    """A scripted path: waypoints, linear in position, slerp in orientation.
+
+    Attributes
+    ----------
+    path : str
+        A YAML file of ``waypoints`` (t, xyz, rpy_deg, grasp); or give them inline.
+    waypoints : list[Waypoint]
+        Inline waypoints (when ``path`` is empty).
+    rate_hz, latency_s, interpolation, noise_m, guard :
+        The device's sampling: rate (Hz), latency (s), ``hold`` or ``linear`` between
+        samples, Gaussian noise on each position sample (m, seeded by the scenario's
+        ``random_seed``), what to do with bad samples.
+    """
+
+    path: str = ""
+    waypoints: list[Waypoint] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class Replay(_PoseDevice):
+    """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``)."""
+
+    log: str = ""
+
+
+@dataclasses.dataclass
+class Relative(_PoseDevice):
+    """Increments with a clutch, the paper's mouse (CSV ``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
+
+    ``start_xyz`` (m) and ``start_rpy_deg`` (degrees) are where the target starts.
+    """
+
+    log: str = ""
+    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
+class MeshcatSliders(_PoseDevice):
+    """Driven live from the browser: pose sliders and keys, a gamepad, Grasp and Stop buttons.
+
+    ``grasp``: empty for the Grasp button (it takes the nearest free body), or a body the
+    device always holds. The sliders span the scenario's ``workspace``; the target starts at
+    ``start_xyz`` (m), ``start_rpy_deg`` (degrees).
+    """
+
+    grasp: str = ""
+    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
+class _JointDevice:
+    """What every joint-space device has.
+
+    Attributes
+    ----------
+    channels : list[str]
+        The interface's channels (rad or m each), in the order it reports them.
+    mix : list[list[float]]
+        Rows: the tool's device joints; columns: channels (``q_device = mix · channels``);
+        empty: identity.
+    limits : list[list[float]]
+        Each channel's ``[lower, upper]``: the live sliders' range.
+    rate_hz, latency_s : float
+        Sampling rate (Hz) and latency (s).
+    """
+
+    channels: list[str] = dataclasses.field(default_factory=list)
+    mix: list[list[float]] = dataclasses.field(default_factory=list)
+    limits: list[list[float]] = dataclasses.field(default_factory=list)
+    rate_hz: float = 60.0
+    latency_s: float = 0.0
+
+
+@dataclasses.dataclass
+class ScriptedJoints(_JointDevice):
+    """A scripted joint-space path (``path`` YAML with ``channels`` and ``waypoints``, or inline)."""
+
+    path: str = ""
+    waypoints: list[JointWaypoint] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class ReplayJoints(_JointDevice):
+    """A joint-space device log replayed (CSV ``t,<channels>``)."""
+
+    log: str = ""
+
+
+@dataclasses.dataclass
+class MeshcatJointSliders(_JointDevice):
+    """Joint channels driven live from the browser, one slider and key pair each; ``start``: values."""
+
+    start: list[float] = dataclasses.field(default_factory=list)
+
+
+POSE_DEVICES = (Scripted, Replay, Relative, MeshcatSliders)
+JOINT_DEVICES = (ScriptedJoints, ReplayJoints, MeshcatJointSliders)
+PoseDevice = Scripted | Replay | Relative | MeshcatSliders
+JointDevice = ScriptedJoints | ReplayJoints | MeshcatJointSliders
+HAPTIC_MODES = ("none", "impedance", "admittance")
+
+
+@dataclasses.dataclass
+class Haptic:
+    """The haptic device the loop closes with (pose devices only).
+
+    Attributes
+    ----------
+    mode : str
+        ``none`` (the device's pose is the target), ``impedance`` (a simulated 3-axis haptic
+        device held by a simulated hand; the feedback force acts on its handle) or
+        ``admittance`` (the hand's sensed wrench drives the god-object).
+    rate_hz : float
+        Servo rate (Hz).
+    device_mass_kg, device_damping : float
+        The handle's moving mass (kg) and physical damping (N·s/m).
+    hand_frequency_hz : float
+        The simulated hand: critically damped at this frequency on the handle (Hz).
+    passivity_damping : float
+        A passivity observer/controller on the feedback path, its damping capped at this
+        (N·s/m); 0: off.
+    """
+
+    mode: str = "none"
+    rate_hz: float = 1000.0
+    device_mass_kg: float = 0.1
+    device_damping: float = 2.0
+    hand_frequency_hz: float = 10.0
+    passivity_damping: float = 0.0
+
+
+SIMULATION_MODES = ("god_object", "position")
+
+
+@dataclasses.dataclass
+class Simulation:
+    """How long and how to run.
+
+    Attributes
+    ----------
+    duration_s : float
+        Simulated time (s).
+    mode : str
+        ``god_object`` (the coupling drives the tool) or ``position`` (the device's pose is
+        imposed on it every step: the baseline the paper argues against).
+    realtime_rate : float
+        Target real-time rate; 0 runs as fast as it can. A live device runs at 1.
+    check_period_s : float
+        Simulated time between the safeguards' checks (s).
+    max_speed : float
+        A generalized velocity past this is a divergence (m/s or rad/s).
+    """
+
+    duration_s: float = 10.0
+    mode: str = "god_object"
+    realtime_rate: float = 0.0
+    check_period_s: float = 0.05
+    max_speed: float = 1000.0
+
+
+@dataclasses.dataclass
+class Workspace:
+    """Where the device may go (m, world frame): the live sliders' range and the camera's frame."""
+
+    lower_m: list[float] = dataclasses.field(default_factory=lambda: [-0.1, -0.1, 0.0])
+    upper_m: list[float] = dataclasses.field(default_factory=lambda: [0.1, 0.1, 0.1])
+
+
+@dataclasses.dataclass
+class Camera:
+    """Where Meshcat's camera stands and what it looks at (m, world frame, z up)."""
+
+    position_m: list[float] = dataclasses.field(default_factory=lambda: [0.3, -0.4, 0.3])
+    target_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
+class Visualization:
+    """Drawing in Meshcat.
+
+    Attributes
+    ----------
+    serve : bool
+        Serve the run live (real-time rate) at a Meshcat URL.
+    publish_period_s : float
+        Drawing period (s), live and in recordings.
+    camera : Camera | None
+        The view to open on; None: Meshcat's default.
+    """
+
+    serve: bool = False
+    publish_period_s: float = 1.0 / 64.0
+    camera: Camera | None = None
+
+
+@dataclasses.dataclass
+class Recording:
+    """A self-contained Meshcat HTML recording of the run (``file`` empty: none)."""
+
+    file: str = ""
+    frames_per_second: float = 64.0
+
+
+@dataclasses.dataclass
+class Metrics:
+    """Where the metrics JSON goes (``file`` empty: printed only) and what the run may cost.
+
+    ``penetration_budget_m``: how deep a god-object may go into an obstacle (m). At build,
+    a god-object whose capped pull could push it deeper (capped force / contact stiffness)
+    gets a :class:`~godobject_drake.building.PenetrationBudgetWarning`.
+    """
+
+    file: str = ""
+    penetration_budget_m: float = 1e-3
+
+
+@dataclasses.dataclass
+class Scenario:
+    """A whole god-object scene (module docstring). Field by field, YAML keys of the same names.
+
+    Attributes
+    ----------
+    name : str
+        The scene's name (the metrics' ``scene``).
+    random_seed : int
+        Seed of every random draw (device noise).
+    plant : MultibodyPlantConfig
+        Drake's plant settings: ``time_step`` h (s), ``discrete_contact_approximation``,
+        ``contact_model``, ``sap_near_rigid_threshold``, ... (default SAP, point, 1 ms).
+    directives : list[ModelDirective]
+        Drake model directives: ``add_model``, ``add_weld``, ``add_directives`` (a whole
+        ``*.dmd.yaml``), ``add_frame``, ``add_collision_filter_group``.
+    contact : Contact
+        Which geometry touches, and SAP's relaxation time.
+    god_object : Rigid | Articulated | Deformable
+        The tool (YAML tag ``!Rigid``, ``!Articulated`` or ``!Deformable``).
+    device : PoseDevice | JointDevice
+        The device, by YAML tag: ``!Scripted``, ``!Replay``, ``!Relative``, ``!MeshcatSliders``
+        (pose devices, for rigid and deformable tools) or ``!ScriptedJoints``,
+        ``!ReplayJoints``, ``!MeshcatJointSliders`` (joint devices, for articulated tools).
+    workspace : Workspace
+        Where the device may go (the live sliders' range).
+    feedback : FeedbackGains
+        Feedback gains ``kd`` (N/m), ``gamma_d`` (N·s/m), ``kd_rot`` (N·m/rad),
+        ``gamma_d_rot`` (N·m·s/rad); all zero for a non-haptic device.
+    haptic, simulation, visualization, recording, metrics :
+        See their classes.
+    """
+
+    name: str = "scene"
+    random_seed: int = 0
+    plant: MultibodyPlantConfig = dataclasses.field(default_factory=default_plant_config)
+    directives: list[ModelDirective] = dataclasses.field(default_factory=list)
+    contact: Contact = dataclasses.field(default_factory=Contact)
+    god_object: Rigid | Articulated | Deformable = dataclasses.field(default_factory=Rigid)
+    device: PoseDevice | JointDevice = dataclasses.field(default_factory=Scripted)
+    workspace: Workspace = dataclasses.field(default_factory=Workspace)
+    feedback: FeedbackGains = dataclasses.field(default_factory=FeedbackGains)
+    haptic: Haptic = dataclasses.field(default_factory=Haptic)
+    simulation: Simulation = dataclasses.field(default_factory=Simulation)
+    visualization: Visualization = dataclasses.field(default_factory=Visualization)
+    recording: Recording = dataclasses.field(default_factory=Recording)
+    metrics: Metrics = dataclasses.field(default_factory=Metrics)
+
+    @property
+    def kind(self) -> str:
+        """``rigid``, ``articulated`` or ``deformable``."""
+        return type(self.god_object).__name__.lower()
+
+    @property
+    def time_step(self) -> float:
+        """The plant step h (s)."""
+        return self.plant.time_step
+
+
+def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenario:
+    """Load a scenario YAML file; relative input paths are taken relative to it.
+
+    ``overrides`` is YAML text merged on top (e.g. ``"simulation: {duration_s: 1.0}"``).
+    Raises :class:`ScenarioError` naming the file (and the key) on any problem.
+    """
+    path = Path(filename)
+    if not path.is_file():
+        raise ScenarioError(f"scenario file {path} does not exist")
+    try:
+        scenario = yaml_load_typed(schema=Scenario, filename=str(path))
+        if overrides:
+            scenario = yaml_load_typed(schema=Scenario, data=overrides, defaults=scenario)
+    except (RuntimeError, ValueError, TypeError, AssertionError) as e:
+        raise ScenarioError(f"{path}: {_explain(e)}") from None
+    resolve_paths(scenario, path.resolve().parent)
+    check_scenario(scenario, where=str(path))
+    return scenario
+
+
+def scenario_from_yaml(text: str, base_dir: str | Path = ".") -> Scenario:
+    """A scenario from YAML text (relative paths against ``base_dir``)."""
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text)
+    except (RuntimeError, ValueError, TypeError, AssertionError) as e:
+        raise ScenarioError(f"scenario text: {_explain(e)}") from None
+    resolve_paths(scenario, Path(base_dir).resolve())
+    check_scenario(scenario, where="scenario text")
+    return scenario
+
+
+def scenario_to_yaml(scenario: Scenario) -> str:
+    """The scenario as YAML text (what :func:`scenario_from_yaml` reads back)."""
+    return yaml_dump_typed(scenario)
+
+
+def _explain(e: Exception) -> str:
+    text = str(e) or type(e).__name__
+    if "were unknown to the schema" in text:
+        return f"{text}: a key the scenario does not know (check its spelling and indentation)"
+    if "did not match any of the allowed type options" in text:
+        return f"{text}: give the YAML tag of one of those types, e.g. device: !Scripted {{...}}"
+    return text
+
+
+PACKAGE_URL = "package://godobject_models/"
+
+
+def _resolve(value: str, base: Path) -> str:
+    """A path relative to ``base`` made absolute; ``package://godobject_models/`` to the models."""
+    if value.startswith(PACKAGE_URL):
+        from godobject_drake.scenes import MODELS_DIR
+
+        return str(MODELS_DIR / value[len(PACKAGE_URL) :])
+    if not value or "://" in value or Path(value).is_absolute():
+        return value
+    return str((base / value).resolve())
+
+
+def _resolve_url(value: str, base: Path) -> str:
+    """A model file for Drake's parser: ``package://`` kept, anything else a ``file://`` URL."""
+    if not value or "://" in value:
+        return value
+    return "file://" + _resolve(value, base)
+
+
+def resolve_paths(scenario: Scenario, base: Path) -> None:
+    """Make the scenario's relative input paths absolute against ``base`` (in place)."""
+    for directive in scenario.directives:
+        if directive.add_model is not None:
+            directive.add_model.file = _resolve_url(directive.add_model.file, base)
+        if directive.add_directives is not None:
+            directive.add_directives.file = _resolve_url(directive.add_directives.file, base)
+    device = scenario.device
+    for attribute in ("path", "log"):
+        if hasattr(device, attribute):
+            setattr(device, attribute, _resolve(getattr(device, attribute), base))
+
+
+def _fail(where: str, field: str, message: str):
+    raise ScenarioError(f"{where}: {field}: {message}")
+
+
+def check_scenario(s: Scenario, where: str = "scenario") -> None:
+    """Raise :class:`ScenarioError` naming the field, its value and the fix; no value is clamped."""
+    h = s.plant.time_step
+    if not (isinstance(h, float | int) and math.isfinite(h) and h > 0):
+        _fail(where, "plant.time_step", f"{h!r} s; SAP is discrete: give a step h > 0 (e.g. 0.001)")
+    if s.plant.discrete_contact_approximation not in ("sap", "lagged", "similar"):
+        _fail(
+            where,
+            "plant.discrete_contact_approximation",
+            f"{s.plant.discrete_contact_approximation!r}; use sap, lagged or similar (the god-object's "
+            "joint modes and deformable shells need sap)",
+        )
+    if s.contact.geometry not in CONTACT_GEOMETRIES:
+        _fail(where, "contact.geometry", f"{s.contact.geometry!r}; choose one of {CONTACT_GEOMETRIES}")
+    if s.contact.geometry == "hydroelastic" and s.plant.contact_model == "point":
+        _fail(
+            where,
+            "contact.geometry",
+            "hydroelastic needs plant.contact_model hydroelastic or hydroelastic_with_fallback (it is point)",
+        )
+    tau = s.contact.relaxation_time_s
+    if tau is not None and not (math.isfinite(tau) and tau >= 0):
+        _fail(where, "contact.relaxation_time_s", f"{tau!r} s must be ≥ 0 (None: the time step)")
+    sim = s.simulation
+    if not (math.isfinite(sim.duration_s) and sim.duration_s > 0):
+        _fail(where, "simulation.duration_s", f"{sim.duration_s!r} s must be > 0")
+    if sim.mode not in SIMULATION_MODES:
+        _fail(where, "simulation.mode", f"{sim.mode!r}; choose one of {SIMULATION_MODES}")
+    if not (math.isfinite(sim.realtime_rate) and sim.realtime_rate >= 0):
+        _fail(where, "simulation.realtime_rate", f"{sim.realtime_rate!r} must be ≥ 0 (0: as fast as it can)")
+    if s.haptic.mode not in HAPTIC_MODES:
+        _fail(where, "haptic.mode", f"{s.haptic.mode!r}; choose one of {HAPTIC_MODES}")
+    if not (math.isfinite(s.haptic.rate_hz) and s.haptic.rate_hz > 0):
+        _fail(where, "haptic.rate_hz", f"{s.haptic.rate_hz!r} Hz must be > 0")
+    if s.haptic.passivity_damping and s.haptic.mode != "impedance":
+        _fail(
+            where,
+            "haptic.passivity_damping",
+            f"{s.haptic.passivity_damping} N·s/m acts on an impedance device's handle; with haptic.mode "
+            f"{s.haptic.mode!r} there is none: set haptic.mode: impedance, or 0",
+        )
+    device = s.device
+    if not (math.isfinite(device.rate_hz) and device.rate_hz > 0):
+        _fail(where, "device.rate_hz", f"{device.rate_hz!r} Hz must be > 0")
+    if isinstance(device, _PoseDevice) and device.interpolation not in INTERPOLATIONS:
+        _fail(where, "device.interpolation", f"{device.interpolation!r}; choose one of {INTERPOLATIONS}")
+    kind = s.kind
+    if kind == "articulated":
+        if not isinstance(device, JOINT_DEVICES):
+            _fail(
+                where,
+                "device",
+                f"an articulated god-object needs a joint-space device (!ScriptedJoints, !ReplayJoints, "
+                f"!MeshcatJointSliders); got !{type(device).__name__}",
+            )
+        if s.haptic.mode != "none" or s.feedback != FeedbackGains():
+            _fail(
+                where,
+                "haptic/feedback",
+                "the joint-space devices here are non-haptic: leave haptic.mode none and the feedback "
+                "gains zero (ArticulatedFeedback computes Eq. 8/9 wrenches for a device of your own)",
+            )
+        god = s.god_object
+        if god.coupling not in ARTICULATED_COUPLINGS:
+            _fail(where, "god_object.coupling", f"{god.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")
+        if not god.model or not god.device_joints:
+            _fail(where, "god_object", "an articulated god-object needs model and device_joints")
+        if not (isinstance(god.check_every, int) and god.check_every >= 1):
+            _fail(where, "god_object.check_every", f"{god.check_every!r} must be an integer ≥ 1")
+    elif not isinstance(device, POSE_DEVICES):
+        _fail(
+            where,
+            "device",
+            f"a {kind} god-object needs a pose device (!Scripted, !Replay, !Relative, !MeshcatSliders); "
+            f"got !{type(device).__name__}",
+        )
+    if kind == "deformable" and s.god_object.shell not in SHELL_MODELS:
+        _fail(where, "god_object.shell", f"{s.god_object.shell!r}; choose one of {SHELL_MODELS}")
+    for attribute in ("lower_m", "upper_m"):
+        if len(getattr(s.workspace, attribute)) != 3:
+            _fail(where, f"workspace.{attribute}", "needs 3 values (x, y, z in m)")
+    budget = s.metrics.penetration_budget_m
+    if not (budget > 0):
+        _fail(where, "metrics.penetration_budget_m", f"{budget!r} m must be > 0")
+
+
+def replace(scenario: Scenario, **changes) -> Scenario:
+    """A copy of ``scenario`` with fields changed; nested fields as ``"simulation.duration_s"``.
+
+    ``replace(s, **{"simulation.duration_s": 2.0, "plant.time_step": 2e-3})``. The copy is
+    deep, so the original is never changed.
+    """
+    out = copy.deepcopy(scenario)
+    for key, value in changes.items():
+        *parents, last = key.split(".")
+        target = out
+        for name in parents:
+            target = getattr(target, name)
+        if not hasattr(target, last):
+            raise ScenarioError(f"replace: {type(target).__name__} has no field {last!r} (in {key!r})")
+        setattr(target, last, value)
+    return out
