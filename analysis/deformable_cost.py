@@ -3,7 +3,7 @@
 
     python analysis/deformable_cost.py [--repeats 3] [--out deformable_cost.md]
 
-Runs diagrams/deformable_probe.py's default path for each shell model and
+Runs the probe scene's (diagrams/deformable_probe.yaml) default path for each shell model and
 time step (the interactive sizes: 129 FEM vertices, 42 mass–spring nodes)
 and prints ms per step (median of ``--repeats`` runs, in this process, one
 after the other) with the deformation and penetration metrics; then the
@@ -15,19 +15,23 @@ import statistics
 import sys
 from pathlib import Path
 
-from godobject_drake.runner import load_scene_script
+from godobject_drake.building import build_station
+from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.simulation import simulate
 
-INTERACTIVE = {"fem": ["--fem-resolution", "0.02"], "mass_spring": ["--nodes", "42"]}
-BIG = {"fem": ["--fem-resolution", "0.01"], "mass_spring": ["--nodes", "162"]}
+INTERACTIVE = {
+    "fem": {"god_object.spec.fem_resolution_m": 0.02},
+    "mass_spring": {"god_object.spec.nodes": 42},
+}
+BIG = {"fem": {"god_object.spec.fem_resolution_m": 0.01}, "mass_spring": {"god_object.spec.nodes": 162}}
 
 
-def measure(probe, shell, size_args, time_step, duration, repeats):
-    runs = []
-    for _ in range(repeats):
-        argv = ["--shell", shell, *size_args, "--time-step", str(time_step), "--no-progress"]
-        if duration is not None:
-            argv += ["--duration", str(duration)]
-        runs.append(probe.run(probe.make_parser().parse_args(argv)))
+def measure(shell, size, time_step, duration, repeats):
+    scenario = replace(shipped_scenario("deformable_probe"), **size,
+                       **{"god_object.shell": shell, "plant.time_step": time_step})  # fmt: skip
+    if duration is not None:
+        scenario = replace(scenario, **{"simulation.duration_s": duration})
+    runs = [simulate(build_station(scenario), progress=False).metrics for _ in range(repeats)]
     m = runs[0]
     m["ms_per_step"] = statistics.median(r["step_cost_us"] for r in runs) / 1e3
     return m
@@ -43,7 +47,6 @@ def main(argv=None):
     )
     parser.add_argument("--out", type=Path, help="also write the table here (Markdown)")
     args = parser.parse_args(argv)
-    probe = load_scene_script("diagrams/deformable_probe.py")
     lines = [
         "| shell | vertices | h (ms) | ms/step | real-time factor | max deformation (mm) "
         "| final deformation (mm) | max shell penetration (mm) | max core penetration (mm) |",
@@ -51,7 +54,7 @@ def main(argv=None):
     ]
     for shell, size in INTERACTIVE.items():
         for h in (0.001, 0.01):
-            m = measure(probe, shell, size, h, None, args.repeats)
+            m = measure(shell, size, h, None, args.repeats)
             lines.append(
                 f"| {shell} | {m['shell_vertices']} | {h * 1e3:g} | {m['ms_per_step']:.2f} "
                 f"| {h * 1e3 / m['ms_per_step']:.2f} | {m['max_shell_deformation_m'] * 1e3:.2f} "
@@ -61,7 +64,7 @@ def main(argv=None):
             print(lines[-1], file=sys.stderr)
     if args.big:
         for shell, size in BIG.items():
-            m = measure(probe, shell, size, 0.01, 0.1, 1)
+            m = measure(shell, size, 0.01, 0.1, 1)
             lines.append(
                 f"| {shell} | {m['shell_vertices']} | 10 | {m['ms_per_step']:.1f} "
                 f"| {10 / m['ms_per_step']:.2f} | (0.1 s run: cost only) | | | |"

@@ -19,17 +19,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, Ellipse
 
-from godobject_drake.runner import load_scene_script
+from godobject_drake.building import build_station
+from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.simulation import simulate
 
 
-def load_scene():
-    return load_scene_script("diagrams/laparoscopy.py")
-
-
-def tips(scene_module, args, states, q_device):
+def tips(station, states, q_device):
     """God-object and interface tip positions (m) at every logged step."""
-    _, scene, coupling, _, _ = scene_module.build(args)
-    plant, tool = scene.plant, coupling.tool
+    plant, tool = station.plant, station.god_object.tool
     tip = plant.GetBodyByName("tube", tool.model)
     ctx = plant.CreateDefaultContext()
     god, dev = [], []
@@ -49,23 +46,24 @@ def main(argv=None):
         "--duration", type=float, default=10.0, help="simulated time (s); the path lasts 10 s"
     )
     args_cli = parser.parse_args(argv)
-    lap = load_scene()
     fig, (ax, ax_pen) = plt.subplots(1, 2, figsize=(11, 4.6), gridspec_kw={"width_ratios": [1.1, 1]})
     ax.add_patch(Ellipse((0, 0), 0.09, 0.05, color=(0.85, 0.45, 0.5), alpha=0.5, label="uterus (E = 50 kPa)"))
     ax.add_patch(Circle((-0.075, -0.005), 0.025, color=(0.9, 0.8, 0.45), alpha=0.5, label="bladder"))
     ax.plot([0], [0.10], "k+", ms=12, mew=2, label="insertion point P")
     for mode, style in (("position", "--"), ("god_object", "-")):
-        args = lap.make_parser().parse_args(
-            ["--no-progress", "--mode", mode, "--duration", str(args_cli.duration)]
+        scenario = replace(
+            shipped_scenario("laparoscopy"),
+            **{"simulation.mode": mode, "simulation.duration_s": args_cli.duration},
         )
-        metrics, states, q_device = lap.run(args)
-        god, dev = tips(lap, args, states, q_device)
-        t = np.arange(len(states)) * args.time_step
+        result = simulate(build_station(scenario), progress=False)
+        metrics, states, q_device = result.metrics, result.states, result.data["q_device"]
+        god, dev = tips(result.station, states, q_device)
+        t = result.times
         if mode == "god_object":
             ax.plot(dev[:, 0], dev[:, 2], color="tab:blue", lw=1, label="interface's tip (jaw hinge)")
         ax.plot(god[:, 0], god[:, 2], style, color="tab:red" if mode == "god_object" else "tab:gray", lw=1.5,
                 label=f"{mode} tip (jaw hinge)")  # fmt: skip
-        pen = penetration_series(lap, args, states)
+        pen = penetration_series(result.station, states)
         ax_pen.plot(t, 1e3 * pen, style, color="tab:red" if mode == "god_object" else "tab:gray",
                     label=f"{mode}: max {1e3 * metrics['max_penetration_m']:.1f} mm")  # fmt: skip
     ax.set(xlabel="x (m)", ylabel="z (m)", aspect="equal", xlim=(-0.11, 0.08), ylim=(-0.04, 0.11),
@@ -80,13 +78,14 @@ def main(argv=None):
     print(f"figure written to {args_cli.out}")
 
 
-def penetration_series(lap, args, states):
+def penetration_series(station, states):
     """Deepest tool/organ overlap (m, ≥ 0) at every logged step, Drake's signed distance."""
-    diagram, scene, coupling, _, _ = lap.build(args)
-    plant, inspector = scene.plant, scene.scene_graph.model_inspector()
-    context = diagram.CreateDefaultContext()
+    plant, inspector = station.plant, station.scene_graph.model_inspector()
+    context = station.diagram.CreateDefaultContext()
     plant_context = plant.GetMyMutableContextFromRoot(context)
-    tool_frames = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(coupling.tool.model)}
+    tool_frames = {
+        plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(station.god_object.tool.model)
+    }
     out = np.zeros(len(states))
     for k, x in enumerate(states):
         plant.SetPositions(plant_context, x[: plant.num_positions()])

@@ -11,13 +11,10 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from godobject_drake.runner import load_scene_script
+from godobject_drake.building import build_station
+from godobject_drake.scenario import shipped_scenario
 
 REPO = Path(__file__).resolve().parent.parent
-
-
-def load_lego():
-    return load_scene_script("diagrams/lego.py")
 
 
 def main(argv=None):
@@ -27,8 +24,7 @@ def main(argv=None):
     dot = shutil.which("dot")
     if dot is None:
         raise SystemExit("Graphviz's `dot` is not on PATH; install it (Debian: apt-get install graphviz)")
-    lego = load_lego()
-    diagram = lego.build(lego.make_parser().parse_args([]))[0]
+    diagram = build_station(shipped_scenario("lego")).diagram
     graph = diagram.GetGraphvizString(max_depth=1)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     subprocess.run([dot, "-Tpng", "-Gdpi=110", "-o", str(args.out)], input=graph.encode(), check=True)

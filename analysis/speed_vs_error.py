@@ -12,7 +12,7 @@ its cost is the median wall time per simulated second (min–max shown), its
 error is measured against the scene's reference run (finest h,
 highest-fidelity contact; ``godobject_drake.benchmark.compare``): RMS pose
 error of the god-object, max penetration, energy error. The brick scene is
-also rebuilt in MuJoCo (``analysis/mujoco_bricks.py``, the ``bench`` extra)
+also rebuilt in MuJoCo (``godobject_drake.mujoco_peer``, the ``bench`` extra)
 on the same path.
 
 Writes ``report.md`` (tables, recommended configuration per error budget,
@@ -41,71 +41,78 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from godobject_drake import benchmark as bm
-from godobject_drake.runner import load_scene_script
+from godobject_drake.scenario import replace, shipped_scenario
 from godobject_drake.sweep import run_tasks
 
-SCENES = ("lego", "laparoscopy", "deformable")
+SCENES = ("lego", "laparoscopy", "deformable_probe")
 # Error budgets (m of RMS god-object pose error against the reference), spanning what each
 # scene's configurations reach, and the penetration each scene tolerates (m): a brick may sink
 # 1 mm into another, the grasper 5 mm into tissue (its issue), the probe 5 mm.
 BUDGETS_M = {
     "lego": (0.01e-3, 0.05e-3, 0.1e-3, 0.5e-3, 10e-3),
     "laparoscopy": (0.005e-3, 0.01e-3, 0.02e-3, 0.1e-3),
-    "deformable": (0.1e-3, 0.5e-3, 1e-3, 5e-3),
+    "deformable_probe": (0.1e-3, 0.5e-3, 1e-3, 5e-3),
 }
-PENETRATION_BUDGET_M = {"lego": 1e-3, "laparoscopy": 5e-3, "deformable": 5e-3}
+PENETRATION_BUDGET_M = {"lego": 1e-3, "laparoscopy": 5e-3, "deformable_probe": 5e-3}
 # Performance goals of issue 6 (real-time factor at the stated configuration).
-GOALS = {"lego": 3.0, "laparoscopy": 2.0, "deformable": 1.0}
+GOALS = {"lego": 3.0, "laparoscopy": 2.0, "deformable_probe": 1.0}
 COUPLING_GOAL_US = 30.0
 
 
-def sweep_configs(scene: str, quick: bool, repeats: int) -> tuple[bm.Config, list[bm.Config]]:
+def variant(scene: str, duration: float, time_step: float, device_rate: float = 60.0, **changes):
+    """The shipped scene with these fields changed (``changes``: ``"field.sub": value``)."""
+    return replace(
+        shipped_scenario(scene),
+        **{"simulation.duration_s": duration, "plant.time_step": time_step, "device.rate_hz": device_rate},
+        **changes,
+    )
+
+
+def contact(geometry: str, approximation: str) -> dict:
+    """The brick scene's contact settings, as ``--contact`` and ``--contact-approximation`` set them."""
+    model = "point" if geometry == "proxies" else "hydroelastic_with_fallback"
+    return {
+        "contact.geometry": geometry,
+        "plant.contact_model": model,
+        "plant.discrete_contact_approximation": approximation,
+    }
+
+
+def sweep_cases(scene: str, quick: bool, repeats: int) -> tuple[bm.Case, list[bm.Case]]:
     """(reference, configurations) of one scene. Quick: fewer steps, shorter runs."""
-    C = bm.Config
+
+    def case(*args, repeats=repeats, **kw):
+        return bm.make_case(variant(scene, *args, **kw), repeats=repeats)
+
+    hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
     if scene == "lego":
         T = 3.0 if quick else 8.5  # quick: grasp, carry, stop at the wall, start climbing
-        hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
         approx = ("sap", "lagged") if quick else ("sap", "lagged", "similar")
-        ref = C("lego", 0.25e-3, T, contact="hydroelastic", approximation="sap", repeats=1)
-        grid = [
-            C("lego", h, T, contact=c, approximation=a, repeats=repeats)
-            for h in hs
-            for c in ("proxies", "hydroelastic")
-            for a in approx
-        ]
-        grid += [
-            C("lego", 1e-3, T, device_rate=r, contact="proxies", approximation="sap", repeats=repeats)
-            for r in (250.0, 1000.0)
-        ]
+        ref = case(T, 0.25e-3, repeats=1, **contact("hydroelastic", "sap"))
+        grid = [case(T, h, **contact(c, a)) for h in hs for c in ("proxies", "hydroelastic") for a in approx]
+        grid += [case(T, 1e-3, r, **contact("proxies", "sap")) for r in (250.0, 1000.0)]
         return ref, grid
     if scene == "laparoscopy":
         T = 3.0 if quick else 10.0
-        hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
-        ref = C("laparoscopy", 0.25e-3, T, coupling="joint_pd_sap", repeats=1)
-        grid = [
-            C("laparoscopy", h, T, coupling=c, repeats=repeats)
-            for h in hs
-            for c in ("cartesian", "joint_pd", "joint_pd_sap")
-        ]
-        grid += [
-            C("laparoscopy", 1e-3, T, device_rate=r, coupling="cartesian", repeats=repeats)
-            for r in (250.0, 1000.0)
-        ]
+        ref = case(T, 0.25e-3, repeats=1, **{"god_object.coupling": "joint_pd_sap"})
+        couplings = ("cartesian", "joint_pd", "joint_pd_sap")
+        grid = [case(T, h, **{"god_object.coupling": c}) for h in hs for c in couplings]
+        grid += [case(T, 1e-3, r, **{"god_object.coupling": "cartesian"}) for r in (250.0, 1000.0)]
         return ref, grid
-    if scene == "deformable":
+    if scene == "deformable_probe":
         T = 2.0 if quick else 6.5
-        ref = C("deformable", 1e-3, T, shell="fem", repeats=1)
+        ref = case(T, 1e-3, repeats=1, **{"god_object.shell": "fem"})
         hs = (2e-3, 5e-3, 10e-3) if quick else (1e-3, 2e-3, 5e-3, 10e-3)
-        grid = [C("deformable", h, T, shell=s, repeats=repeats) for h in hs for s in ("fem", "mass_spring")]
+        grid = [case(T, h, **{"god_object.shell": s}) for h in hs for s in ("fem", "mass_spring")]
         return ref, grid
     raise ValueError(f"scene={scene!r}; choose from {SCENES}")
 
 
-def mujoco_configs(quick: bool, repeats: int) -> list[bm.Config]:
+def mujoco_cases(quick: bool, repeats: int) -> list[bm.Case]:
     T = 3.0 if quick else 8.5
     hs = (0.5e-3, 1e-3, 2e-3, 5e-3) if quick else (0.25e-3, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3)
     return [
-        bm.Config("lego", h, T, coupling=mode, engine="mujoco", repeats=repeats)
+        bm.make_case(variant("lego", T, h), engine="mujoco", mujoco_mode=mode, repeats=repeats)
         for h in hs
         for mode in ("weld", "perturb")
     ]
@@ -388,15 +395,14 @@ def brick_profile(seconds: float = 2.0) -> dict:
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.runner import run_loop
-    from godobject_drake.scenes import add_scene_from_directives
+    from godobject_drake.building import add_plant, build_station
+    from godobject_drake.simulation import simulate
 
-    lego = load_scene_script("diagrams/lego.py")
-    args = lego.make_parser().parse_args(["--duration", repr(seconds), "--no-progress"])
-    diagram, scene, *_ = lego.build(args)
+    lego = replace(shipped_scenario("lego"), **{"simulation.duration_s": seconds})
+    station = build_station(lego)
     prof = cProfile.Profile()
     prof.enable()
-    loop = run_loop(diagram, scene.plant, seconds, progress=False)
+    result = simulate(station, progress=False)
     prof.disable()
     steps = round(seconds / 1e-3)
     stats = pstats.Stats(prof).stats
@@ -415,7 +421,7 @@ def brick_profile(seconds: float = 2.0) -> dict:
     }
     # The plant alone: the same scene, nothing grasped, 8 bricks resting (32 contacts).
     builder = DiagramBuilder()
-    bare = add_scene_from_directives(builder, lego.DIRECTIVES, 1e-3)
+    bare = add_plant(builder, lego)
     sim = Simulator(builder.Build())
     sim.Initialize()
     sim.AdvanceTo(0.1)
@@ -431,7 +437,7 @@ def brick_profile(seconds: float = 2.0) -> dict:
         query.ComputePointPairPenetration()
     query_us = (time.perf_counter() - t0) * 1e3
     return {
-        "step_us": loop.wall_time_s / steps * 1e6,
+        "step_us": result.metrics["wall_time_s"] / steps * 1e6,
         "drake_cpp_us": advance / steps * 1e6,
         "python_us_by_module": per_step,
         "plant_alone_us": plant_us,
@@ -460,7 +466,7 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     cases, owner = [], []
     for scene in scenes:
-        ref, grid = sweep_configs(scene, args.quick, args.repeats)
+        ref, grid = sweep_cases(scene, args.quick, args.repeats)
         cases += [ref, *grid]
         owner += [(scene, "reference")] + [(scene, "grid")] * len(grid)
     use_mujoco = "lego" in scenes and not args.no_mujoco
@@ -470,11 +476,11 @@ def main(argv=None) -> int:
         )
         use_mujoco = False
     if use_mujoco:
-        peer = mujoco_configs(args.quick, args.repeats)
+        peer = mujoco_cases(args.quick, args.repeats)
         cases += peer
         owner += [("lego", "mujoco")] * len(peer)
     results = run_tasks(
-        bm.run_config,
+        bm.run_case,
         cases,
         workers=args.workers,
         scheduler=args.scheduler,

@@ -1,12 +1,61 @@
 """Generalized god-objects (Meseure et al., CASA 2004) as Drake systems.
 
-One module per role: :mod:`~godobject_drake.devices` (device sources),
-:mod:`~godobject_drake.coupling` (PD coupling, Eq. 2),
-:mod:`~godobject_drake.feedback` (feedback port, Eq. 8),
-:mod:`~godobject_drake.scenes` (models and contact settings),
-:mod:`~godobject_drake.metrics` (true-shape metrics),
-:mod:`~godobject_drake.recording` (Meshcat ghost and recording),
-:mod:`~godobject_drake.runner` (flags, simulation loop, divergence).
+Describe a scene once in a scenario file, build it with one call, run it::
+
+    from godobject_drake import build_station, load_scenario, simulate
+
+    station = build_station(load_scenario("diagrams/lego.yaml"))
+    result = simulate(station)
+    print(result.metrics["max_penetration_m"])
+
+or compose a diagram of one's own from the parts (README "Compose your own
+diagram"). One module per role:
+
+- :mod:`~godobject_drake.devices`, :mod:`~godobject_drake.live`: device sources (scripted,
+  replayed, relative, from the browser) and their sample guard;
+- :mod:`~godobject_drake.coupling`: the PD coupling (paper Eq. 2) and its gains;
+- :mod:`~godobject_drake.feedback`: the feedback port (Eq. 8);
+- :mod:`~godobject_drake.haptic`: simulated haptic devices, the user's hand, the passivity controller;
+- :mod:`~godobject_drake.articulated`, :mod:`~godobject_drake.deformable`: articulated and
+  deformable god-objects;
+- :mod:`~godobject_drake.scenario`: the typed scenario a YAML file loads into;
+- :mod:`~godobject_drake.scenes`: model loading and contact settings;
+- :mod:`~godobject_drake.building`: a scenario into a diagram, and the one-call helpers;
+- :mod:`~godobject_drake.safeguards`: divergence, quaternion drift, Stop, wiring checks;
+- :mod:`~godobject_drake.simulation`: running and measuring (one result type);
+- :mod:`~godobject_drake.metrics`, :mod:`~godobject_drake.recording`: true-shape metrics,
+  Meshcat drawing and recordings;
+- :mod:`~godobject_drake.cli`: ``python -m godobject_drake run SCENARIO.yaml``;
+- :mod:`~godobject_drake.spatial`, :mod:`~godobject_drake.limits`: quaternion math, the
+  explicit stability limits;
+- :mod:`~godobject_drake.stability`, :mod:`~godobject_drake.validation`: python-control
+  analysis and its Drake checks;
+- :mod:`~godobject_drake.benchmark`, :mod:`~godobject_drake.sweep`,
+  :mod:`~godobject_drake.mujoco_peer`: the speed-against-error report's runs.
+
+The names above are imported lazily, so ``import godobject_drake`` stays cheap.
 """
 
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "Scenario": "scenario",
+    "load_scenario": "scenario",
+    "shipped_scenario": "scenario",
+    "build_station": "building",
+    "add_god_object": "building",
+    "simulate": "simulation",
+    "install_safeguards": "safeguards",
+    "add_articulated_god_object": "articulated",
+}
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        import importlib
+
+        return getattr(importlib.import_module(f"godobject_drake.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module 'godobject_drake' has no attribute {name!r}")
+
+
+__all__ = sorted(_EXPORTS)

@@ -38,8 +38,9 @@ and there are no multipliers to solve.
 Joints the device drives can instead be *imposed* (the paper's jaws: "we
 choose not to simulate them but instead impose their overture"): they are
 locked in the plant (SAP removes their velocities, so contact on the jaws
-acts on the tube rigidly) and set to the device's value at every step by
-the runner (:meth:`ArticulatedCoupling.impose`).
+acts on the tube rigidly) and set to the device's value before every plant
+step (:meth:`ArticulatedCoupling.impose`, which the safeguards' monitor calls
+through :meth:`godobject_drake.building.GodObject.before_step`).
 """
 
 from __future__ import annotations
@@ -621,7 +622,7 @@ class ArticulatedCoupling(LeafSystem):
         s = context.get_discrete_state(self._targets).get_value()
         output.SetFromVector(s[self._nt : self._nt + self.tool.nq_device])
 
-    # -- imposing joints (the runner calls these) ---------------------------------
+    # -- imposing joints (the station calls these: building.GodObject) ------------
     def lock_imposed(self, plant_context) -> None:
         """Lock the imposed joints (call once on the simulator's plant context)."""
         for j in self.tool.imposed:

@@ -1,13 +1,14 @@
-"""Speed against error: run one scene configuration, measure its cost and its trajectory.
+"""Speed against error: run one scenario, measure its cost and its trajectory.
 
-:func:`run_config` is the unit of work of ``analysis/speed_vs_error.py``: it
-runs a scene (``diagrams/*.py``) ``repeats`` times with the flags a
-:class:`Config` gives, and returns the wall time of each run's simulation
-loop and, from the first run, the god-object's pose and the scene's
-mechanical energy every ``SAMPLE_DT_S``. :func:`compare` measures a run
-against a reference run of the same scene. The MuJoCo peer of the brick
-scene (``analysis/mujoco_bricks.py``, optional extra) returns the same
-trajectory fields, so both engines are measured the same way.
+:func:`run_case` is the unit of work of ``analysis/speed_vs_error.py``: it
+runs a scenario ``repeats`` times and returns the wall time of each run's
+simulation loop and, from the first run, the god-object's pose and the
+scene's mechanical energy every ``SAMPLE_DT_S``. A :class:`Case` carries its
+scenario as YAML text, so it pickles for local worker processes and Dask.
+:func:`compare` measures a run against a reference run of the same scene.
+The MuJoCo peer of the brick scene (:mod:`godobject_drake.mujoco_peer`,
+optional extra) returns the same trajectory fields, so both engines are
+measured the same way.
 """
 
 from __future__ import annotations
@@ -19,119 +20,152 @@ import time
 import numpy as np
 
 from godobject_drake.coupling import CouplingGainError
-from godobject_drake.runner import load_scene_script
+from godobject_drake.scenario import Scenario, scenario_from_yaml, scenario_to_yaml
 
 SAMPLE_DT_S = 0.01  # trajectories are compared on this grid (s)
-SCRIPTS = {
-    "lego": "diagrams/lego.py",
-    "laparoscopy": "diagrams/laparoscopy.py",
-    "deformable": "diagrams/deformable_probe.py",
-}
-# The body whose pose is "the god-object's pose" in each scene: the brick the path holds, the
-# grasper's tube, the deformable probe's rigid core.
-GOD_OBJECT_BODY = {"lego": "brick_0", "laparoscopy": "tube", "deformable": "probe"}
+ENGINES = ("drake", "mujoco")
 
 
 @dataclasses.dataclass(frozen=True)
-class Config:
-    """One point of the sweep. ``None`` keeps the scene script's default."""
+class Case:
+    """One point of a sweep.
 
-    scene: str
-    time_step: float
-    duration: float
-    device_rate: float = 60.0
-    contact: str | None = None  # lego: proxies | hydroelastic
-    approximation: str | None = None  # lego: sap | lagged | similar
-    coupling: str | None = None  # laparoscopy: cartesian | joint_pd | joint_pd_sap
-    shell: str | None = None  # deformable: fem | mass_spring
-    engine: str = "drake"  # or "mujoco" (lego only; mode in ``coupling``: weld | perturb)
-    repeats: int = 3
-
-    def label(self) -> str:
-        """Short name for tables and figures: what differs from the scene's defaults."""
-        parts = [f"h={self.time_step * 1e3:g}ms"]
-        for value in (self.contact, self.approximation, self.coupling, self.shell):
-            if value:
-                parts.append(value)
-        if self.device_rate != 60.0:
-            parts.append(f"dev={self.device_rate:g}Hz")
-        prefix = "mujoco " if self.engine == "mujoco" else ""
-        return prefix + " ".join(parts)
-
-    def argv(self) -> list[str]:
-        """The scene script's command line for this configuration."""
-        argv = [
-            "--time-step",
-            repr(self.time_step),
-            "--duration",
-            repr(self.duration),
-            "--device-rate",
-            repr(self.device_rate),
-            "--no-progress",
-        ]
-        if self.contact:
-            argv += ["--contact", self.contact]
-        if self.approximation:
-            argv += ["--contact-approximation", self.approximation]
-        if self.coupling:
-            argv += ["--coupling", self.coupling]
-        if self.shell:
-            argv += ["--shell", self.shell]
-        return argv
-
-
-def run_config(config: Config) -> dict:
-    """Run ``config`` ``repeats`` times; its cost, penetration and first-run trajectory.
-
-    Returns a dict with ``config`` (as a dict), ``label``, ``wall_s_per_sim_s`` (one per
-    repeat), ``max_penetration_m``, ``diverged``/``diagnosis``, ``refused`` (the error text
-    when the scene refuses the configuration, e.g. gains past the explicit limit at this h),
-    and the trajectory ``times``, ``p_WG`` (N×3), ``q_WG`` (N×4, wxyz), ``energy_j`` (N).
+    Attributes
+    ----------
+    label : str
+        Short name for tables and figures.
+    scenario_yaml : str
+        The scenario (:func:`~godobject_drake.scenario.scenario_to_yaml`): YAML text pickles,
+        Drake's config objects do not.
+    repeats : int
+        Runs; the cost is their median.
+    engine : str
+        ``drake``, or ``mujoco`` (the brick scene's peer, at the scenario's time step,
+        duration and device rate) with ``mujoco_mode`` ``weld`` or ``perturb``.
     """
-    out = {"config": dataclasses.asdict(config), "label": config.label(), "refused": None}
-    if config.repeats < 1:
-        raise ValueError(f"repeats={config.repeats}; give at least 1 (the report uses ≥ 3)")
-    if config.engine == "mujoco":
-        return {**out, **_run_mujoco(config)}
-    if config.scene not in SCRIPTS:
-        raise ValueError(f"scene={config.scene!r}; choose one of {sorted(SCRIPTS)}")
-    module = load_scene_script(SCRIPTS[config.scene])
+
+    label: str
+    scenario_yaml: str
+    repeats: int = 3
+    engine: str = "drake"
+    mujoco_mode: str = "weld"
+
+    @property
+    def scenario(self) -> Scenario:
+        return scenario_from_yaml(self.scenario_yaml)
+
+
+def make_case(scenario: Scenario, label: str | None = None, repeats: int = 3, engine: str = "drake",
+              mujoco_mode: str = "weld") -> Case:  # fmt: skip
+    """A :class:`Case` of ``scenario`` (label: :func:`describe`)."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine={engine!r}; choose one of {ENGINES}")
+    if label is None:
+        label = (
+            describe(scenario)
+            if engine == "drake"
+            else f"mujoco {describe(scenario, short=True)} {mujoco_mode}"
+        )
+    return Case(label, scenario_to_yaml(scenario), repeats, engine, mujoco_mode)
+
+
+def describe(scenario: Scenario, short: bool = False) -> str:
+    """``h=1ms proxies sap``, ``h=1ms cartesian``, ``h=10ms fem``, with ``dev=250Hz`` off 60 Hz."""
+    parts = [f"h={scenario.time_step * 1e3:g}ms"]
+    if not short:
+        if scenario.kind == "rigid":
+            parts += [scenario.contact.geometry, scenario.plant.discrete_contact_approximation]
+        elif scenario.kind == "articulated":
+            parts.append(scenario.god_object.coupling)
+        else:
+            parts.append(scenario.god_object.shell)
+    if scenario.device.rate_hz != 60.0:
+        parts.append(f"dev={scenario.device.rate_hz:g}Hz")
+    return " ".join(parts)
+
+
+def case_config(scenario: Scenario, case: Case) -> dict:
+    """What a case varies, as a flat dict for reports: scene, time_step, duration, device_rate,
+    and per kind contact and approximation (rigid), coupling (articulated; the MuJoCo mode for a
+    MuJoCo case), shell (deformable), engine, repeats; None where it does not apply."""
+    kind, god = scenario.kind, scenario.god_object
+    rigid = kind == "rigid" and case.engine == "drake"
+    coupling = (
+        god.coupling if kind == "articulated" else (case.mujoco_mode if case.engine == "mujoco" else None)
+    )
+    return {
+        "scene": scenario.name,
+        "time_step": scenario.time_step,
+        "duration": scenario.simulation.duration_s,
+        "device_rate": scenario.device.rate_hz,
+        "contact": scenario.contact.geometry if rigid else None,
+        "approximation": scenario.plant.discrete_contact_approximation if rigid else None,
+        "coupling": coupling,
+        "shell": god.shell if kind == "deformable" else None,
+        "engine": case.engine,
+        "repeats": case.repeats,
+    }
+
+
+def god_object_body(scenario: Scenario) -> str:
+    """The body whose pose is "the god-object's pose": the first body a rigid scene's device
+    grasps, an articulated tool's tip body, a deformable probe's core."""
+    from godobject_drake.building import make_device
+
+    if scenario.kind == "articulated":
+        return scenario.god_object.tip_body
+    if scenario.kind == "deformable":
+        return scenario.god_object.name
+    names = sorted(make_device(scenario.device).grasp_names())
+    if not names:
+        raise ValueError("the scenario's device grasps no body: no god-object pose to compare")
+    return names[0]
+
+
+def run_case(case: Case) -> dict:
+    """Run ``case`` ``repeats`` times; its cost, penetration and first-run trajectory.
+
+    Returns a dict with ``config`` (:func:`case_config`), ``label``, ``wall_s_per_sim_s`` (one
+    per repeat), ``max_penetration_m``, ``diverged``/``diagnosis``, ``refused`` (the error
+    text when the scene refuses the configuration, e.g. gains past the explicit limit at
+    this h), and the trajectory ``times``, ``p_WG`` (N×3), ``q_WG`` (N×4, wxyz),
+    ``energy_j`` (N).
+    """
+    from godobject_drake.building import build_station
+    from godobject_drake.simulation import simulate
+
+    if case.repeats < 1:
+        raise ValueError(f"repeats={case.repeats}; give at least 1 (the report uses ≥ 3)")
+    scenario = case.scenario
+    out = {"config": case_config(scenario, case), "label": case.label, "refused": None}
+    if case.engine == "mujoco":
+        return {**out, **_run_mujoco(scenario, case)}
     walls = []
-    for k in range(config.repeats):
-        args = module.make_parser().parse_args(config.argv())
+    for k in range(case.repeats):
         try:
-            metrics, states = _run_scene(config.scene, module, args)
+            result = simulate(build_station(scenario), progress=False)
         except (CouplingGainError, ValueError) as e:
             return {**out, "refused": str(e), "wall_s_per_sim_s": [], "diverged": False}
+        metrics = result.metrics
         walls.append(metrics["wall_time_s"] / max(metrics["sim_time_s"], 1e-12))
         if k == 0:
-            first, first_states = metrics, states
+            first = result
         if metrics["diverged"]:
             break  # a diverging run's cost means nothing; one is enough
-    plant = module.build(args)[1].plant  # a plant of the same model, to evaluate poses and energy
-    times, p, q, energy = trajectory(plant, first_states, config.time_step, GOD_OBJECT_BODY[config.scene])
+    times, p, q, energy = trajectory(
+        first.station.plant, first.states, scenario.time_step, god_object_body(scenario)
+    )
     return {
         **out,
         "wall_s_per_sim_s": walls,
-        "max_penetration_m": first["max_penetration_m"],
-        "diverged": bool(first["diverged"]),
-        "diagnosis": first["diagnosis"],
+        "max_penetration_m": first.metrics["max_penetration_m"],
+        "diverged": bool(first.metrics["diverged"]),
+        "diagnosis": first.metrics["diagnosis"],
         "times": times,
         "p_WG": p,
         "q_WG": q,
         "energy_j": energy,
     }
-
-
-def _run_scene(scene: str, module, args):
-    """Run a scene script once: (metrics, plant states, one row per step)."""
-    if scene == "lego":
-        result = module.run(args)
-        return result.metrics, result.states
-    if scene == "laparoscopy":
-        metrics, states, _ = module.run(args)
-        return metrics, states
-    return module.run(args, with_states=True)
 
 
 def trajectory(plant, states: np.ndarray, time_step: float, body_name: str):
@@ -223,18 +257,19 @@ def summarize_cost(walls: list[float]) -> dict:
     }
 
 
-def _run_mujoco(config: Config) -> dict:
-    module = load_scene_script("analysis/mujoco_bricks.py")
-    r = module.run_mujoco(
-        duration_s=config.duration,
-        time_step_s=config.time_step,
-        mode=config.coupling or "weld",
-        device_rate_hz=config.device_rate,
+def _run_mujoco(scenario: Scenario, case: Case) -> dict:
+    from godobject_drake import mujoco_peer
+
+    r = mujoco_peer.run_mujoco(
+        duration_s=scenario.simulation.duration_s,
+        time_step_s=scenario.time_step,
+        mode=case.mujoco_mode,
+        device_rate_hz=scenario.device.rate_hz,
         sample_dt_s=SAMPLE_DT_S,
-        repeats=config.repeats,
+        repeats=case.repeats,
     )
-    i = r["body_names"].index(GOD_OBJECT_BODY["lego"])
-    bodies = _lego_bodies()  # the same masses and inertias as the Drake scene's
+    i = r["body_names"].index(god_object_body(scenario))
+    bodies = _rigid_bodies(scenario)  # the same masses and inertias as the Drake scene's
     masses = [bodies[name].mass for name in r["body_names"]]
     inertias = [bodies[name].I_Bcm_B for name in r["body_names"]]
     energy = rigid_energy(r["p_WB"], r["q_WB"], r["v_WB"], r["w_WB"], masses, inertias)
@@ -251,18 +286,18 @@ def _run_mujoco(config: Config) -> dict:
     }
 
 
-def _lego_bodies():
+def _rigid_bodies(scenario: Scenario):
+    """The free bodies of the scenario's plant (the plant alone, no diagram around it)."""
     from pydrake.systems.framework import DiagramBuilder
 
+    from godobject_drake.building import add_plant
     from godobject_drake.coupling import graspable_bodies
-    from godobject_drake.scenes import add_scene_from_directives
 
-    scene = add_scene_from_directives(DiagramBuilder(), load_scene_script(SCRIPTS["lego"]).DIRECTIVES, 1e-3)
-    return graspable_bodies(scene.plant)
+    return graspable_bodies(add_plant(DiagramBuilder(), scenario).plant)
 
 
 def coupling_overhead_us(samples: int = 2000, rounds: int = 5) -> dict:
-    """Per-step cost (µs) of the brick scene's coupling, measured alone.
+    """Per-step cost (µs) of the brick scene's coupling (its plant and gains), measured alone.
 
     The coupling is evaluated the way the simulator does each step: a new plant state
     arrives (invalidating its cache), then the plant pulls ``generalized_force`` and the
@@ -273,13 +308,13 @@ def coupling_overhead_us(samples: int = 2000, rounds: int = 5) -> dict:
     from pydrake.math import RigidTransform
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.coupling import CouplingGains, GodObjectCoupling
-    from godobject_drake.scenes import add_scene_from_directives
+    from godobject_drake.building import add_plant
+    from godobject_drake.coupling import GodObjectCoupling
+    from godobject_drake.scenario import shipped_scenario
 
-    builder = DiagramBuilder()
-    scene = add_scene_from_directives(builder, load_scene_script(SCRIPTS["lego"]).DIRECTIVES, 1e-3)
-    plant = scene.plant
-    coupling = GodObjectCoupling(plant, CouplingGains(40.0, 1.0, 120.0))
+    lego = shipped_scenario("lego")
+    plant = add_plant(DiagramBuilder(), lego).plant
+    coupling = GodObjectCoupling(plant, lego.god_object.gains)
     context = coupling.CreateDefaultContext()
     x0 = plant.GetPositionsAndVelocities(plant.CreateDefaultContext())
     state = coupling.GetInputPort("plant_state")

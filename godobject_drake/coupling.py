@@ -229,7 +229,7 @@ def with_carried_inertia(body: GraspableBody, M_BBo_B: SpatialInertia) -> Graspa
     return dataclasses.replace(body, mass=m, p_BoBcm_B=p, I_Bcm_B=I_cm)
 
 
-# Layout of the coupling's cached result vector (also its ``terms`` output, which the runner logs).
+# Layout of the coupling's cached result vector (also its ``terms`` output, which a station logs).
 _IDX, _XT, _VT, _XG, _VG, _F = 0, slice(1, 8), slice(8, 14), slice(14, 21), slice(21, 27), slice(27, 33)
 _CAPPED = 33
 _TERMS = 34
@@ -281,7 +281,7 @@ class GodObjectCoupling(LeafSystem):
     come from a :class:`~godobject_drake.devices.DeviceSource`.
     ``spatial_forces`` goes to the plant's ``applied_spatial_force``, or
     ``generalized_force`` (the same wrench as generalized forces of the held
-    body's floating joint, cheaper per step: the runner wires this one) to
+    body's floating joint, cheaper per step: add_god_object wires this one) to
     its ``applied_generalized_force``. ``terms`` is every per-step result
     in one vector, ``[held_body, pose_WT, V_WT, pose_WG, V_WG, F_Go_W, capped]``
     (:data:`TERMS_LAYOUT`), for logging with one port.

@@ -5,7 +5,8 @@ test over the 15 candidate axes of two boxes (3 + 3 face normals, 9 edge
 cross products). For overlapping convex polyhedra the smallest overlap over
 those axes *is* the penetration depth (minimum translational distance); for
 separated boxes the largest gap is a lower bound on their distance.
-``tests/test_metrics.py`` checks it against Drake's own signed distance.
+``tests/test_metrics.py`` checks it against Drake's own signed distance, which
+measures every other pair of shapes (:class:`TrueShapeMetrics`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.geometry import Box, Role, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import BodyIndex
 
 from godobject_drake.coupling import GraspableBody, graspable_bodies
 from godobject_drake.scenes import is_proxy
@@ -46,43 +48,51 @@ FREE_SPACE_MARGIN_M = 0.002  # "free space": ≥ 2 mm from every other true shap
 
 
 @dataclasses.dataclass(frozen=True)
-class TrueBox:
-    """A true box shape: on body ``body_index`` (None = anchored), pose X_BG, half sizes."""
+class TrueShape:
+    """A true (non-proxy) collision shape: on body ``body_index`` (None = anchored).
+
+    Boxes keep their pose ``X_BG`` (in the body, or in the world when anchored) and half sizes
+    for the separating-axis test; other shapes are measured by Drake's signed distance.
+    """
 
     name: str
+    geometry_id: object
     body_index: int | None
-    R_BG: np.ndarray
-    p_BG: np.ndarray
-    half: np.ndarray
+    R_BG: np.ndarray | None = None
+    p_BG: np.ndarray | None = None
+    half: np.ndarray | None = None
+
+    @property
+    def is_box(self) -> bool:
+        return self.half is not None
 
 
-def true_boxes(plant: MultibodyPlant, scene_graph: SceneGraph) -> list[TrueBox]:
-    """Every non-proxy proximity geometry of ``plant`` (must be boxes)."""
+def true_shapes(plant: MultibodyPlant, scene_graph: SceneGraph) -> list[TrueShape]:
+    """Every non-proxy proximity geometry of ``plant`` (rigid ones: a deformable body's are skipped)."""
     inspector = scene_graph.model_inspector()
     world = plant.world_body()
     context = plant.CreateDefaultContext()
-    boxes = []
+    shapes = []
     for gid in inspector.GetAllGeometryIds(Role.kProximity):
         name = inspector.GetName(gid)
-        if is_proxy(name):
+        if is_proxy(name) or inspector.IsDeformableGeometry(gid):
             continue
+        body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+        anchored = body.index() == world.index() or not body.is_floating_base_body()
+        index = None if anchored else int(body.index())
         shape = inspector.GetShape(gid)
         if not isinstance(shape, Box):
-            raise NotImplementedError(
-                f"true shape {name} is a {type(shape).__name__}; penetration metrics "
-                "support boxes only (use box collision geometry for true shapes)"
-            )
-        body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+            shapes.append(TrueShape(name, gid, index))
+            continue
         X_BG = inspector.GetPoseInFrame(gid)
-        index = int(body.index())
-        if body.index() == world.index() or not body.is_floating_base_body():
-            # Anchored (welded): store its pose in the world once.
+        if anchored:  # welded: store its pose in the world once
             X_BG = body.EvalPoseInWorld(context).multiply(X_BG)
-            index = None
-        boxes.append(
-            TrueBox(name, index, X_BG.rotation().matrix(), X_BG.translation(), np.array(shape.size()) / 2)
+        shapes.append(
+            TrueShape(
+                name, gid, index, X_BG.rotation().matrix(), X_BG.translation(), np.array(shape.size()) / 2
+            )
         )
-    return boxes
+    return shapes
 
 
 def box_overlap(cA, RA, hA, cB, RB, hB) -> np.ndarray:
@@ -111,13 +121,22 @@ def box_overlap(cA, RA, hA, cB, RB, hB) -> np.ndarray:
 
 
 class TrueShapeMetrics:
-    """Measures penetration and clearance of bodies on their true box shapes."""
+    """Penetration and clearance of free bodies on their true shapes.
 
-    def __init__(self, plant: MultibodyPlant, scene_graph: SceneGraph):
-        self.boxes = true_boxes(plant, scene_graph)
+    Box against box: the separating-axis test on the logged states (vectorised, exact for
+    overlapping boxes). Any pair with another shape (a cylinder, a capsule, a mesh's convex
+    hull...): Drake's signed distance, evaluated on ``diagram``'s SceneGraph at each logged
+    state. ``diagram`` is needed only when the scene has such shapes.
+    """
+
+    def __init__(self, plant: MultibodyPlant, scene_graph: SceneGraph, diagram=None):
+        self.plant = plant
+        self.shapes = true_shapes(plant, scene_graph)
+        self.boxes = [s for s in self.shapes if s.is_box]
         self.bodies: dict[int, GraspableBody] = {b.index: b for b in graspable_bodies(plant).values()}
+        self._diagram = diagram
 
-    def _box_in_world(self, box: TrueBox, states: np.ndarray):
+    def _box_in_world(self, box: TrueShape, states: np.ndarray):
         n = len(states)
         if box.body_index is None:
             return np.broadcast_to(box.p_BG, (n, 3)), np.broadcast_to(box.R_BG, (n, 3, 3))
@@ -127,15 +146,47 @@ class TrueShapeMetrics:
         return p_WB + R_WB @ box.p_BG, R_WB @ box.R_BG
 
     def overlaps(self, body_index: int, states: np.ndarray) -> np.ndarray:
-        """``(N, M)`` overlaps of ``body_index``'s boxes against the M other boxes."""
-        own = [b for b in self.boxes if b.body_index == body_index]
-        others = [b for b in self.boxes if b.body_index != body_index]
+        """``(N, M)`` overlaps of ``body_index``'s true shapes against the M others (m; < 0: apart)."""
+        own = [s for s in self.shapes if s.body_index == body_index]
+        others = [s for s in self.shapes if s.body_index != body_index]
         out = np.full((len(states), len(others)), -np.inf)
+        drake_pairs = []
         for a in own:
-            cA, RA = self._box_in_world(a, states)
             for j, o in enumerate(others):
-                cB, RB = self._box_in_world(o, states)
-                out[:, j] = np.maximum(out[:, j], box_overlap(cA, RA, a.half, cB, RB, o.half))
+                if a.is_box and o.is_box:
+                    cA, RA = self._box_in_world(a, states)
+                    cB, RB = self._box_in_world(o, states)
+                    out[:, j] = np.maximum(out[:, j], box_overlap(cA, RA, a.half, cB, RB, o.half))
+                else:
+                    drake_pairs.append((a, j, o))
+        if drake_pairs and len(states):
+            out = np.maximum(out, self._signed_distance_overlaps(drake_pairs, states, len(others)))
+        return out
+
+    def _signed_distance_overlaps(self, pairs, states: np.ndarray, m: int) -> np.ndarray:
+        if self._diagram is None:
+            a, _, o = pairs[0]
+            raise ValueError(
+                f"{a.name} against {o.name} needs Drake's signed distance: give TrueShapeMetrics the diagram"
+            )
+        context = self._diagram.CreateDefaultContext()
+        plant_context = self.plant.GetMyMutableContextFromRoot(context)
+        port = self.plant.get_geometry_query_input_port()
+        nq = self.plant.num_positions()
+        out = np.full((len(states), m), -np.inf)
+        for k, x in enumerate(states):
+            self.plant.SetPositions(plant_context, x[:nq])
+            query = port.Eval(plant_context)
+            for a, j, o in pairs:
+                try:
+                    d = query.ComputeSignedDistancePairClosestPoints(a.geometry_id, o.geometry_id).distance
+                except RuntimeError as e:
+                    raise ValueError(
+                        f"penetration of {a.name} into {o.name}: Drake cannot measure this pair ({e}); "
+                        "give one of them a primitive collision shape (box, sphere, cylinder, capsule, "
+                        "ellipsoid)"
+                    ) from None
+                out[k, j] = max(out[k, j], -d)
         return out
 
 
@@ -198,6 +249,8 @@ def format_table(rows: list[dict]) -> str:
             return str(v)
         if isinstance(v, int):
             return str(v)
+        if isinstance(v, list | tuple):
+            return ",".join(fmt(x) for x in v) or "[]"
         return f"{v:.4g}"
 
     cells = [["metric"] + [str(r.get("mode", f"run {i}")) for i, r in enumerate(rows)]]
@@ -358,3 +411,45 @@ def shell_metrics(
         "rms_tracking_error_m": math.sqrt(sq_err / n_free) if n_free else None,
         "free_space_samples": n_free,
     }
+
+
+def scene_metrics(station, data: dict) -> dict:
+    """What a run measured, from its logs (``data``: one row per plant step), by god-object kind.
+
+    Every kind gives ``max_penetration_m``, ``rms_tracking_error_m``, ``free_space_samples``
+    and ``max_other_body_speed_mps`` (None where nothing else moves); rigid adds
+    ``coupling_capped_steps``; articulated :func:`tool_metrics`' keys; deformable
+    :func:`shell_metrics`'. Rows with a non-finite value (a run stopped as diverged) are left out.
+    """
+    from godobject_drake.coupling import TERMS_LAYOUT
+    from godobject_drake.deformable import obstacle_geometries
+
+    god, plant, scene_graph, diagram = station.god_object, station.plant, station.scene_graph, station.diagram
+    finite = np.all(np.concatenate([np.isfinite(d) for d in data.values()], axis=1), axis=1)
+    rows = {name: d[finite] for name, d in data.items()}
+    states = rows["state"]
+    if god.kind == "rigid":
+        terms = rows["terms"]
+        held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
+        p_WT = terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:]
+        out = compute_metrics(TrueShapeMetrics(plant, scene_graph, diagram), states, held, p_WT)
+        out["coupling_capped_steps"] = int(np.sum(data["terms"][:, TERMS_LAYOUT["capped"]] > 0.5))
+        return out
+    if god.kind == "articulated":
+        config = station.scenario.god_object
+        tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
+        out = tool_metrics(
+            diagram, plant, scene_graph, god.tool, states, rows["q_device"], tip_body=tip,
+            pivot_body=config.pivot_body or None,
+        )  # fmt: skip
+        return {
+            "max_penetration_m": out["max_penetration_m"],
+            "rms_tracking_error_m": out["tip_tracking_rms_m"],
+            "max_other_body_speed_mps": None,
+            **out,
+        }
+    out = shell_metrics(
+        diagram, plant, god.shell, obstacle_geometries(scene_graph, god.shell, plant), states,
+        rows["vertex_positions"], rows["rest_positions"], rows["pose_WC"], rows["pose_WT"],
+    )  # fmt: skip
+    return {"max_other_body_speed_mps": None, **out}

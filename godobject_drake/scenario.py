@@ -279,6 +279,11 @@ class MeshcatJointSliders(_JointDevice):
 
 POSE_DEVICES = (Scripted, Replay, Relative, MeshcatSliders)
 JOINT_DEVICES = (ScriptedJoints, ReplayJoints, MeshcatJointSliders)
+# The device kinds' names on the command line (--device) and in the metrics.
+DEVICE_NAMES = {
+    Scripted: "scripted", Replay: "replay", Relative: "relative", MeshcatSliders: "meshcat",
+    ScriptedJoints: "scripted", ReplayJoints: "replay", MeshcatJointSliders: "meshcat",
+}  # fmt: skip
 PoseDevice = Scripted | Replay | Relative | MeshcatSliders
 JointDevice = ScriptedJoints | ReplayJoints | MeshcatJointSliders
 HAPTIC_MODES = ("none", "impedance", "admittance")
@@ -455,6 +460,17 @@ class Scenario:
     def time_step(self) -> float:
         """The plant step h (s)."""
         return self.plant.time_step
+
+
+SCENARIOS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
+SHIPPED = ("lego", "laparoscopy", "deformable_probe")  # the shipped scenes: diagrams/NAME.yaml
+
+
+def shipped_scenario(name: str, overrides: str | None = None) -> Scenario:
+    """A shipped scene's scenario, ``diagrams/NAME.yaml`` of the clone (an editable install)."""
+    if name not in SHIPPED:
+        raise ScenarioError(f"no shipped scene {name!r}; the shipped scenes are {SHIPPED}")
+    return load_scenario(SCENARIOS_DIR / f"{name}.yaml", overrides)
 
 
 def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenario:

@@ -1,31 +1,96 @@
-"""Shared fixtures: a one-body plant for unit tests, the brick-scene script."""
+"""Shared fixtures and helpers: the shipped scenes by name, a guarded run, a one-body plant.
+
+The shipped scenes are run as a user runs them: their scenario file, the command line's
+flags applied to it (``godobject_drake.cli.apply_arguments``), built and simulated by the
+library. The scripts under ``diagrams/`` and ``analysis/`` are not installed; a test that
+needs one imports it by path with :func:`load_script` (the package itself never does).
+"""
 
 import argparse
+import base64
+import dataclasses
+import importlib.util
+import re
 from pathlib import Path
 
 import numpy as np
-import pytest
 from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia, UnitInertia
+from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.runner import load_scene_script
+from godobject_drake import cli
+from godobject_drake.building import build_station, make_meshcat
+from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
+from godobject_drake.scenario import Scenario, load_scenario
+from godobject_drake.simulation import RunResult, simulate
 
 REPO = Path(__file__).resolve().parent.parent
+SCENES = ("lego", "laparoscopy", "deformable_probe")
 
 
-load_script = load_scene_script  # a script of the clone, imported by path
+def load_script(relative: str):
+    """Import a script of the clone (``diagrams/lego.py``, ``analysis/...``) by path, as python runs it."""
+    path = REPO / relative
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-@pytest.fixture(scope="session")
-def lego():
-    return load_script("diagrams/lego.py")
+def scenario(name: str, *flags: str) -> Scenario:
+    """A shipped scene's scenario (``diagrams/NAME.yaml``) with command-line ``flags`` applied."""
+    parser = argparse.ArgumentParser()
+    cli.add_arguments(parser)
+    return cli.apply_arguments(
+        load_scenario(REPO / "diagrams" / f"{name}.yaml"), parser.parse_args(list(flags))
+    )
 
 
-def lego_args(*argv: str) -> argparse.Namespace:
-    """The brick scene's flags as its command line parses them."""
-    return load_script("diagrams/lego.py").make_parser().parse_args([*argv, "--no-progress"])
+def build_scene(name: str, *flags: str):
+    """:func:`scenario`, built (with the Meshcat it asks for)."""
+    s = scenario(name, *flags)
+    return build_station(s, make_meshcat(s))
+
+
+def run_scene(name: str, *flags: str) -> RunResult:
+    """A shipped scene run as ``python diagrams/NAME.py FLAGS`` runs it, without the progress bar."""
+    return simulate(build_scene(name, *flags), progress=False)
+
+
+def lego_run(*flags: str) -> RunResult:
+    return run_scene("lego", *flags)
+
+
+@dataclasses.dataclass
+class Guarded:
+    """A plain ``Simulator`` run with the safeguards installed: where it stopped and why."""
+
+    simulator: Simulator
+    safeguards: Safeguards
+    diagnosis: str | None
+
+    @property
+    def context(self):
+        return self.simulator.get_context()
+
+    @property
+    def sim_time_s(self) -> float:
+        return self.context.get_time()
+
+
+def run_guarded(diagram, duration: float, **safeguards) -> Guarded:
+    """``Simulator(diagram)`` with :func:`install_safeguards`, advanced ``duration`` s; a divergence
+    ends the run with its diagnosis instead of raising."""
+    simulator = Simulator(diagram)
+    guard = install_safeguards(simulator, **safeguards)
+    try:
+        simulator.AdvanceTo(duration)
+        guard.check()
+    except DivergenceError:
+        pass
+    return Guarded(simulator, guard, guard.diagnosis)
 
 
 def add_free_boxes(
@@ -50,3 +115,9 @@ def add_free_boxes(
         bodies.append(plant.AddRigidBody(f"body_{i}", M))
     plant.Finalize()
     return plant, bodies
+
+
+def meshcat_commands(html: str) -> list[bytes]:
+    """The msgpack commands a Meshcat static HTML replays (as raw bytes)."""
+    payloads = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)
+    return [base64.b64decode(p) for p in payloads]

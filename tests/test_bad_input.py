@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import add_free_boxes, lego_args, load_script
+from conftest import add_free_boxes, lego_run, load_script, run_guarded
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
@@ -21,7 +21,6 @@ from godobject_drake.devices import (
     Waypoint,
     read_increment_log,
 )
-from godobject_drake.runner import run_loop
 
 T = 0.01  # device period (s)
 Q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -175,8 +174,7 @@ def test_unknown_grasp_name_in_a_scene_is_a_clear_command_line_error(tmp_path, c
 def test_scene_metrics_report_the_guard():
     # A guard set below the path's speed (5 cm/s; the brick is carried at 13 cm/s from t = 0.5 s):
     # every fast sample is held back, the target waits, and the metrics say so.
-    lego = load_script("diagrams/lego.py")
-    m = lego.run(lego_args("--duration", "1.0", "--max-device-speed", "0.05")).metrics
+    m = lego_run("--duration", "1.0", "--max-device-speed", "0.05").metrics
     assert m["device_samples"] == 60 and m["device_invalid_samples"] == 0
     assert m["device_rejected_jumps"] >= 25 and m["device_longest_gap_s"] >= 0.4
     assert not m["diverged"]
@@ -196,7 +194,7 @@ def test_diverging_run_stops_with_a_diagnosis_not_nans():
     for name in ("X_WD", "V_WD", "grasp"):
         builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
     builder.Connect(coupling.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port())
-    loop = run_loop(builder.Build(), plant, 20.0, progress=False)
+    loop = run_guarded(builder.Build(), 20.0)
     assert loop.diagnosis is not None and "velocity" in loop.diagnosis and "> 1000" in loop.diagnosis
     assert loop.sim_time_s < 20.0
     x = plant.GetPositionsAndVelocities(plant.GetMyContextFromRoot(loop.context))

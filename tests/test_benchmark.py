@@ -8,7 +8,14 @@ import pytest
 from conftest import add_free_boxes, load_script
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.benchmark import Config, compare, rigid_energy, run_config, summarize_cost
+from godobject_drake.benchmark import compare, make_case, rigid_energy, run_case, summarize_cost
+from godobject_drake.scenario import replace, shipped_scenario
+
+
+def lego_case(time_step, duration, **kw):
+    """The brick scene at this step (s) for this long (s), one run."""
+    changes = {"plant.time_step": time_step, "simulation.duration_s": duration}
+    return make_case(replace(shipped_scenario("lego"), **changes), repeats=1, **kw)
 
 
 def run_like(p, q, E):
@@ -105,7 +112,7 @@ def test_recommendation_is_the_cheapest_within_both_budgets():
 
 
 def test_explicit_coupling_refuses_h_10_ms_with_the_limit():
-    r = run_config(Config("lego", 10e-3, 0.1, repeats=1))
+    r = run_case(lego_case(10e-3, 0.1))
     assert "omega_n_rot=120 rad/s at time_step=0.01 s" in r["refused"] and "0.8284" in r["refused"]
     assert r["wall_s_per_sim_s"] == []
 
@@ -115,8 +122,8 @@ def test_mujoco_peer_follows_the_same_path():
     device is at z = 2 cm; both bricks are within 3 mm of it (the weld lags by 2ζv/ωn =
     1.5 mm at the path's 3 cm/s: its mocap body has no velocity for the damping)."""
     pytest.importorskip("mujoco")
-    drake = run_config(Config("lego", 1e-3, 0.5, repeats=1))
-    mj = run_config(Config("lego", 1e-3, 0.5, coupling="weld", engine="mujoco", repeats=1))
+    drake = run_case(lego_case(1e-3, 0.5))
+    mj = run_case(lego_case(1e-3, 0.5, engine="mujoco", mujoco_mode="weld"))
     assert not mj["diverged"]
     for r in (drake, mj):
         assert abs(r["p_WG"][-1, 2] - 0.02) < 3e-3

@@ -6,11 +6,10 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import REPO, load_script
+from conftest import REPO, build_scene, meshcat_commands, run_scene
 from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia
-from test_lego import meshcat_commands
 
 from godobject_drake.coupling import GraspableBody, with_carried_inertia
 from godobject_drake.deformable import (
@@ -21,19 +20,16 @@ from godobject_drake.deformable import (
     fibonacci_sphere,
 )
 from godobject_drake.devices import write_device_log
+from godobject_drake.simulation import simulate
 
 G = 9.81
 START = np.array([-0.09, 0.0, 0.10])  # free space above the block's left half
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-@pytest.fixture(scope="module")
-def probe():
-    return load_script("diagrams/deformable_probe.py")
-
-
-def probe_args(probe, *argv):
-    return probe.make_parser().parse_args([*argv, "--no-progress"])
+def probe_run(*flags):
+    """The probe scene's metrics, run with these flags."""
+    return run_scene("deformable_probe", *flags).metrics
 
 
 def jumping(t):
@@ -54,9 +50,9 @@ def device_log(tmp_path, name, position_at, duration_s, rate_hz=60.0):
 
 
 @pytest.fixture(scope="module", params=SHELL_MODELS)
-def default_run(request, probe):
+def default_run(request):
     """The default path (press on the block, slide over and around its edge, rest) at h = 10 ms."""
-    return probe.run(probe_args(probe, "--shell", request.param, "--time-step", "0.01"))
+    return probe_run("--shell", request.param, "--time-step", "0.01")
 
 
 def test_shell_deforms_while_the_core_stays_outside_and_comes_back_to_rest(default_run):
@@ -77,11 +73,11 @@ def test_shell_deformation_is_bounded_by_the_shell(default_run):
 
 @pytest.mark.parametrize("shell", SHELL_MODELS)
 @pytest.mark.parametrize("time_step", [0.001, 0.01])
-def test_fast_device_motion_leaves_the_shell_stable(probe, tmp_path, shell, time_step):
+def test_fast_device_motion_leaves_the_shell_stable(tmp_path, shell, time_step):
     # A 5 Hz square wave of ±30 mm: the device jumps 60 mm between two 60 Hz samples.
     log = device_log(tmp_path, "jumps", jumping, 1.2)
-    m = probe.run(probe_args(probe, "--shell", shell, "--time-step", str(time_step), "--duration", "1.2",
-                             "--device", "replay", "--device-log", str(log)))  # fmt: skip
+    m = probe_run("--shell", shell, "--time-step", str(time_step), "--duration", "1.2",
+                  "--device", "replay", "--device-log", str(log))  # fmt: skip
     assert not m["diverged"], m["diagnosis"]
     # The mass–spring shell's inertial deformation is a/ω_a²: a ≈ 2ζωn·(60 mm / T) + ωn²·60 mm
     # ≈ 270 m/s² on ω_a = 730 rad/s nodes gives 0.5 mm. The FEM ball sways in shear (G = E/2.8,
@@ -92,38 +88,35 @@ def test_fast_device_motion_leaves_the_shell_stable(probe, tmp_path, shell, time
     assert m["final_shell_deformation_m"] < 0.0005  # back at rest 0.6 s after the last jump
 
 
-def test_imposing_the_core_under_fast_motion_tears_the_shell_the_god_object_does_not(probe, tmp_path):
+def test_imposing_the_core_under_fast_motion_tears_the_shell_the_god_object_does_not(tmp_path):
     # Paper: driving the rigid component directly "can lead to instabilities of the mass net in
     # case of fast movements". Imposed, the core jumps 60 mm in one step; the nodes lag by
     # ≈ v/ω_a (3.6 m/s / 730 rad/s ≈ 5 mm).
     log = device_log(tmp_path, "jumps", jumping, 0.6)
     runs = {
-        mode: probe.run(probe_args(probe, "--shell", "mass_spring", "--time-step", "0.01",
-                                   "--duration", "0.6", "--device", "replay", "--device-log", str(log),
-                                   "--mode", mode))
+        mode: probe_run("--shell", "mass_spring", "--time-step", "0.01", "--duration", "0.6",
+                        "--device", "replay", "--device-log", str(log), "--mode", mode)
         for mode in ("god_object", "position")
     }  # fmt: skip
     assert runs["position"]["max_shell_deformation_m"] > 10 * runs["god_object"]["max_shell_deformation_m"]
     assert runs["position"]["max_shell_deformation_m"] > 0.002
 
 
-def test_mass_spring_nodes_hang_on_their_anchor_springs_by_m_g_over_k(probe, tmp_path):
+def test_mass_spring_nodes_hang_on_their_anchor_springs_by_m_g_over_k(tmp_path):
     # Held still in free space: every node's weight rests on its zero-length spring, so it sits
     # m g / k below its rest point (edge springs stay at rest length: all nodes move alike),
     # and the coupling, compensating core + shell weight, keeps the core at the target.
     log = device_log(tmp_path, "still", lambda t: START, 1.5)
-    args = probe_args(probe, "--shell", "mass_spring", "--time-step", "0.01", "--duration", "1.5",
-                      "--device", "replay", "--device-log", str(log))  # fmt: skip
-    diagram, scene, shell, _, logs, _, _ = probe.build(args)
-    from godobject_drake.runner import run_loop
-
-    loop = run_loop(diagram, scene.plant, args.duration, progress=False)
-    v = logs["vertex_positions"].FindLog(loop.context).data()[:, -1].reshape(-1, 3)
-    rest = logs["rest_positions"].FindLog(loop.context).data()[:, -1].reshape(-1, 3)
+    station = build_scene("deformable_probe", "--shell", "mass_spring", "--time-step", "0.01",
+                          "--duration", "1.5", "--device", "replay", "--device-log", str(log))  # fmt: skip
+    data = simulate(station, progress=False).data
+    shell = station.god_object.shell
+    v = data["vertex_positions"][-1].reshape(-1, 3)
+    rest = data["rest_positions"][-1].reshape(-1, 3)
     sag = shell.node_mass_kg * G / shell.anchor_stiffness  # 18 µm at E = 50 kPa
     assert np.allclose(v - rest, [0.0, 0.0, -sag], atol=0.02 * sag)
-    pose_WC = logs["pose_WC"].FindLog(loop.context).data()[:, -1]
-    pose_WT = logs["pose_WT"].FindLog(loop.context).data()[:, -1]
+    pose_WC = data["pose_WC"][-1]
+    pose_WT = data["pose_WT"][-1]
     assert np.linalg.norm(pose_WC[4:] - pose_WT[4:]) < 1e-5  # without the shell's weight: 9.7 mm low
 
 
@@ -204,11 +197,9 @@ def test_cli_refuses_a_bad_modulus_with_the_value(tmp_path):
     assert "youngs_modulus_pa=-5.0 must be a finite number > 0" in out.stderr
 
 
-def test_recording_animates_shell_core_and_device_ghost(probe, tmp_path):
-
+def test_recording_animates_shell_core_and_device_ghost(tmp_path):
     html = tmp_path / "r.html"
-    m = probe.run(probe_args(probe, "--shell", "mass_spring", "--time-step", "0.01", "--duration", "0.3",
-                             "--record", str(html)))  # fmt: skip
+    m = probe_run("--shell", "mass_spring", "--time-step", "0.01", "--duration", "0.3", "--record", str(html))
     commands = meshcat_commands(html.read_text())
     (animation,) = [c for c in commands if b"set_animation" in c]
     for path in (b"/probe/shell/0", b"/probe/shell/41", b"/probe/core", b"/probe/device"):

@@ -10,12 +10,13 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import lego_args, load_script
+from conftest import REPO, build_scene, lego_run, scenario
 
 from godobject_drake import stability as st
 from godobject_drake import validation as va
 from godobject_drake.coupling import graspable_bodies
 from godobject_drake.devices import IncrementLog, ScriptedDevice, load_device_path, write_increment_log
+from godobject_drake.scenario import ScenarioError
 from godobject_drake.spatial import rotation_error
 
 DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)
@@ -29,10 +30,8 @@ def brick_path(result, plant, name="brick_0"):
 
 
 def run_lego(*argv):
-    lego = load_script("diagrams/lego.py")
-    args = lego_args(*argv)
-    result = lego.run(args)
-    return result, lego.build(args)[1].plant
+    result = lego_run(*argv)
+    return result, result.station.plant
 
 
 def increments_of(samples, clutch_every=10):
@@ -51,8 +50,7 @@ def increments_of(samples, clutch_every=10):
 
 
 def test_relative_device_with_clutch_drives_the_brick_as_the_path_does(tmp_path):
-    lego = load_script("diagrams/lego.py")
-    samples = ScriptedDevice(load_device_path(lego.DEFAULT_PATH).waypoints).samples(2.0)
+    samples = ScriptedDevice(load_device_path(REPO / "models/lego/default_path.yaml").waypoints).samples(2.0)
     log = tmp_path / "mouse.csv"
     write_increment_log(log, increments_of(samples))
     scripted, plant = run_lego("--duration", "2.0")
@@ -128,7 +126,19 @@ def test_passivity_controller_refuses_bad_settings():
         PassivityController(1e-3, -1.0)
 
 
-def test_haptic_flags_need_a_haptic_device():
-    lego = load_script("diagrams/lego.py")
-    with pytest.raises(ValueError, match="--kd/--gamma-d/--passivity-damping act on a haptic device"):
-        lego.build(lego_args("--kd", "50"))
+def test_feedback_gains_need_no_haptic_device_the_passivity_controller_does():
+    # The feedback port is wired whatever its gains, for a device or logger of the user's own: with
+    # kd = 50 N/m and no haptic device its F_Do_W is kd (p_G − p_T), the brick's lag behind its
+    # target 0.6 s into the lift (a few mm: a force of some 0.1 N).
+    result = lego_run("--kd", "50", "--duration", "0.6")
+    station = result.station
+    F = station.feedback.GetOutputPort("F_Do_W").Eval(station.feedback.GetMyContextFromRoot(result.context))
+    coupling_context = station.coupling.GetMyContextFromRoot(result.context)
+    p_WT = station.coupling.GetOutputPort("pose_WT").Eval(coupling_context)[4:]
+    p_WG = station.coupling.GetOutputPort("pose_WG").Eval(coupling_context)[4:]
+    assert np.linalg.norm(p_WG - p_WT) > 1e-4
+    np.testing.assert_allclose(F[3:], 50.0 * (p_WG - p_WT), rtol=1e-12, atol=1e-15)
+    # The passivity controller acts on an impedance device's handle: without one it is refused.
+    with pytest.raises(ScenarioError, match=r"haptic\.passivity_damping: 100\.0 N·s/m acts on an impedance"):
+        scenario("lego", "--passivity-damping", "100")
+    assert build_scene("lego", "--haptic", "impedance", "--passivity-damping", "100").god_object.passivity

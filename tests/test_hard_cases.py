@@ -3,7 +3,8 @@
 Every case drives one 2x4 brick (the brick scene's, 2.3 g, proxies on its corners) as the
 god-object with the brick scene's default gains (ωn = 40 rad/s, ωr = 120 rad/s, ζ = 1,
 h = 1 ms) on the brick scene's baseplate, plus what the case needs (a 2 mm wall, a heavy
-block). Runs go through the runner's loop, which stops a blow-up with a diagnosis.
+block). Runs are a plain Simulator with the safeguards installed, which stop a blow-up with a
+diagnosis.
 
 The 10-minute random-motion case is marked ``slow``; CI runs it (the suite stays under
 15 minutes), ``pytest -m "not slow"`` skips it.
@@ -14,7 +15,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import load_script
+from conftest import run_guarded, run_scene
 from pydrake.geometry import Box, ProximityProperties
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
@@ -24,7 +25,6 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from godobject_drake.coupling import TERMS_LAYOUT, CouplingGainError, CouplingGains, GodObjectCoupling
 from godobject_drake.devices import SampleGuard, ScriptedDevice, Waypoint
-from godobject_drake.runner import run_loop
 from godobject_drake.scenes import apply_contact_model, make_parser, set_relaxation_time
 
 H = 1e-3
@@ -93,7 +93,7 @@ def hard_scene(waypoints, *, extra=(), device_rate=1000.0, latency=0.0, guard=No
 
 @dataclasses.dataclass
 class Run:
-    loop: object  # runner.LoopResult
+    loop: object  # conftest.Guarded
     t: np.ndarray  # sample times (s)
     x: np.ndarray  # plant states, one row per step
     terms: np.ndarray  # the coupling's terms (TERMS_LAYOUT), one row per step
@@ -103,7 +103,7 @@ class Run:
 
 def run(waypoints, duration, **kw) -> Run:
     diagram, plant, logs, coupling = hard_scene(waypoints, **kw)
-    loop = run_loop(diagram, plant, duration, progress=False)
+    loop = run_guarded(diagram, duration)
     x = logs["state"].FindLog(loop.context)
     terms = logs["terms"].FindLog(loop.context).data().T
     return Run(loop, x.sample_times(), x.data().T, terms, plant, coupling)
@@ -152,7 +152,7 @@ def test_stiff_coupling_near_the_explicit_limit(factor):
     builder.Connect(
         coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
     )
-    loop = run_loop(builder.Build(), plant, 0.3, progress=False)
+    loop = run_guarded(builder.Build(), 0.3)
     assert loop.diagnosis is None
     x = plant.GetPositions(plant.GetMyContextFromRoot(loop.context))
     assert abs(x[4] - 0.01) < 1e-6  # settled on the step to a micrometre
@@ -161,11 +161,11 @@ def test_stiff_coupling_near_the_explicit_limit(factor):
 def test_stiff_implicit_coupling_stays_stable_where_explicit_is_refused():
     """Pass: the grasper at ωn = 2000 rad/s (2.4 × the explicit limit at h = 1 ms): ``cartesian``
     is refused, ``joint_pd_sap`` (SAP's implicit PD) runs without diverging."""
-    lap = load_script("diagrams/laparoscopy.py")
-    argv = ["--omega-n", "2000", "--duration", "0.5", "--no-progress"]
+    argv = ["--omega-n", "2000", "--duration", "0.5"]
     with pytest.raises(CouplingGainError):
-        lap.run(lap.make_parser().parse_args([*argv, "--coupling", "cartesian"]))
-    metrics, states, _ = lap.run(lap.make_parser().parse_args([*argv, "--coupling", "joint_pd_sap"]))
+        run_scene("laparoscopy", *argv, "--coupling", "cartesian")
+    result = run_scene("laparoscopy", *argv, "--coupling", "joint_pd_sap")
+    metrics, states = result.metrics, result.states
     assert not metrics["diverged"], metrics["diagnosis"]
     assert np.all(np.isfinite(states))
 
@@ -272,7 +272,7 @@ def test_light_god_object_against_a_1000_times_heavier_block():
     diagram, plant, _, _ = hard_scene(path, extra=[heavy])
     block = plant.GetBodyByName("block")
     plant.SetDefaultFloatingBaseBodyPose(block, RigidTransform([block_x, 0, 0.02]))
-    loop = run_loop(diagram, plant, 2.0, progress=False)
+    loop = run_guarded(diagram, 2.0)
     assert loop.diagnosis is None
     context = plant.GetMyContextFromRoot(loop.context)
     p_block = block.EvalPoseInWorld(context).translation()
@@ -299,7 +299,7 @@ def test_heavy_god_object_pushes_a_1000_times_lighter_brick():
     gap = 0.001  # between the pusher's face and the brick's back face at the start
     diagram, plant, logs, _ = hard_scene(path, extra=[heavy], brick_xyz=[-0.13 + HALF[0] + gap, 0.0, REST_Z])
     plant.SetDefaultFloatingBaseBodyPose(plant.GetBodyByName("pusher"), RigidTransform(start))
-    loop = run_loop(diagram, plant, 2.0, progress=False)
+    loop = run_guarded(diagram, 2.0)
     assert loop.diagnosis is None
     p = brick_p(logs["state"].FindLog(loop.context).data().T)
     assert p[-1, 0] - p[0, 0] > 0.04
@@ -334,7 +334,7 @@ def test_ten_minutes_of_random_motion_stay_bounded():
     brick is pushed into the table and dragged over it again and again, up to 0.6 m/s, turned
     by up to 90° each time): no divergence, no NaN, the brick never tunnels below the table
     (centre ≥ 4.3 mm), its kinetic energy stays below that of twice the device's top speed
-    (½ m (2 v_max)²), and its quaternion stays unit (the runner renormalizes it every 50 ms)."""
+    (½ m (2 v_max)²), and its quaternion stays unit (the safeguards renormalize it every 50 ms)."""
     rng = np.random.default_rng(7)
     pts = np.column_stack(
         [

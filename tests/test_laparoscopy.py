@@ -4,8 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import load_script
-from test_lego import meshcat_commands
+from conftest import build_scene, load_script, meshcat_commands, run_scene, scenario
 
 from godobject_drake.articulated import device_targets, joint_space_loop, linear_response
 from godobject_drake.devices import write_joint_log
@@ -14,8 +13,9 @@ laparoscopy = load_script("diagrams/laparoscopy.py")
 
 
 def run(*flags):
-    args = laparoscopy.make_parser().parse_args(["--no-progress", *flags])
-    return args, *laparoscopy.run(args)
+    """(station, metrics, states, q_device) of the scene run with these flags."""
+    result = run_scene("laparoscopy", *flags)
+    return result.station, result.metrics, result.states, result.data["q_device"]
 
 
 @pytest.fixture(scope="module")
@@ -36,18 +36,16 @@ def test_god_object_stays_out_of_the_organ_where_the_baseline_goes_in(default_ru
 
 def test_default_path_pushes_the_device_tip_3_cm_into_the_organ():
     """The scripted interface's tip (kinematic copy) reaches ≥ 30 mm inside the uterus (Fig. 7)."""
-    args = laparoscopy.make_parser().parse_args([])
-    _, scene, coupling, _, _ = laparoscopy.build(args)
-    plant, tool = scene.plant, coupling.tool
-    device = laparoscopy.make_device(args)
+    station = build_scene("laparoscopy")
+    plant, tool, device = station.plant, station.god_object.tool, station.device
     uterus_top = 0.025  # m, models/laparoscopy/organs.sdf
     tip = plant.GetBodyByName("tube", tool.model)
     depths = [uterus_top - plant.EvalBodyPoseInWorld(tool.set_device_state(q), tip).translation()[2]
-              for q in device.samples(args.duration)]  # fmt: skip
+              for q in device.samples(station.scenario.simulation.duration_s)]  # fmt: skip
     assert max(depths) >= 0.030
 
 
-FREE_LOG_CHANNELS = laparoscopy.CHANNELS
+FREE_LOG_CHANNELS = scenario("laparoscopy").device.channels
 
 
 @pytest.fixture(scope="module")
@@ -66,18 +64,15 @@ def free_space_log(tmp_path_factory):
 @pytest.mark.parametrize("coupling", ["cartesian", "joint_pd", "joint_pd_sap"])
 def test_free_space_tip_tracking_matches_its_gains(coupling, free_space_log):
     """Drake's tip error equals the linearized joint-space loop's (same gains, same samples) within 10 %."""
-    args, metrics, states, q_device = run(
+    station, metrics, states, q_device = run(
         "--device", "replay", "--device-log", str(free_space_log), "--duration", "2.0", "--coupling", coupling
     )
     assert metrics["free_space_samples"] == len(states)  # never near the organ
-    _, scene, system, _, _ = laparoscopy.build(args)
-    tool, plant = system.tool, scene.plant
-    device = laparoscopy.make_device(args)
+    system, plant, device = station.coupling, station.plant, station.device
+    tool, h = system.tool, plant.time_step()
     c = [0, 1, 2, 3]  # yaw, pitch, insertion, roll; the jaws are imposed
-    q_T, v_T = device_targets(device, args.time_step, len(states) - 1)
-    loop = joint_space_loop(
-        tool, coupling.replace("_sap", ""), system.gains, device.sample(0.0), args.time_step
-    )
+    q_T, v_T = device_targets(device, h, len(states) - 1)
+    loop = joint_space_loop(tool, coupling.replace("_sap", ""), system.gains, device.sample(0.0), h)
     q_pred = linear_response(
         loop, device.sample(0.0)[c], q_T[:, c], v_T[:, c], implicit=coupling == "joint_pd_sap"
     )
@@ -110,7 +105,8 @@ def test_recording_draws_the_device_tool_as_a_wireframe(tmp_path):
     assert ghosts and all(b"wireframe" in c for c in ghosts)
     m = json.loads(metrics_path.read_text())
     keys = ("scene", "mode", "time_step_s", "real_time_factor", "max_penetration_m", "rms_tracking_error_m",
-            "tip_tracking_rms_m", "max_trocar_offset_m", "coupling", "jaws", "step_cost_us")  # fmt: skip
+            "tip_tracking_rms_m", "max_trocar_offset_m", "coupling", "imposed_joints",
+            "step_cost_us")  # fmt: skip
     for key in keys:
         assert key in m
     assert m["recording_bytes"] == len(html.read_bytes())

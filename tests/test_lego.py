@@ -1,23 +1,21 @@
 """The brick scene as a user runs it: the issue's acceptance numbers, replay, recording, CLI."""
 
-import base64
 import json
-import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from conftest import REPO, lego_args
+from conftest import REPO, build_scene, lego_run, meshcat_commands
 
 from godobject_drake.devices import write_device_log
 from godobject_drake.metrics import METRIC_KEYS
 
 
 @pytest.fixture(scope="module")
-def default_runs(lego):
+def default_runs():
     """The default 8.5 s path in both modes (about 15 s of wall time together)."""
-    return {mode: lego.run(lego_args("--mode", mode)).metrics for mode in ("god_object", "position")}
+    return {mode: lego_run("--mode", mode).metrics for mode in ("god_object", "position")}
 
 
 def test_god_object_respects_the_obstacles(default_runs):
@@ -34,34 +32,26 @@ def test_position_baseline_goes_through_the_wall(default_runs):
     assert m["rms_tracking_error_m"] < m["max_penetration_m"]  # it does follow the device
 
 
-def test_replayed_csv_equals_the_scripted_path(lego, tmp_path):
-    args = lego_args("--duration", "1.0")
-    scripted = lego.run(args)
+def test_replayed_csv_equals_the_scripted_path(tmp_path):
+    scripted = lego_run("--duration", "1.0")
     log = tmp_path / "path.csv"
-    device = lego.make_device(args, lego.DEFAULT_PATH)
-    write_device_log(log, device.samples(1.0))
-    replayed = lego.run(lego_args("--duration", "1.0", "--device", "replay", "--device-log", str(log)))
+    write_device_log(log, build_scene("lego").device.samples(1.0))
+    replayed = lego_run("--duration", "1.0", "--device", "replay", "--device-log", str(log))
     np.testing.assert_array_equal(replayed.states, scripted.states)
     assert scripted.metrics["max_penetration_m"] == replayed.metrics["max_penetration_m"]
 
 
-def test_same_seed_same_run(lego):
-    a = lego.run(lego_args("--duration", "0.3", "--device-noise", "0.001", "--seed", "7"))
-    b = lego.run(lego_args("--duration", "0.3", "--device-noise", "0.001", "--seed", "7"))
-    c = lego.run(lego_args("--duration", "0.3", "--device-noise", "0.001", "--seed", "8"))
+def test_same_seed_same_run():
+    a = lego_run("--duration", "0.3", "--device-noise", "0.001", "--seed", "7")
+    b = lego_run("--duration", "0.3", "--device-noise", "0.001", "--seed", "7")
+    c = lego_run("--duration", "0.3", "--device-noise", "0.001", "--seed", "8")
     np.testing.assert_array_equal(a.states, b.states)
     assert not np.array_equal(a.states, c.states)
 
 
-def meshcat_commands(html: str) -> list[bytes]:
-    """The msgpack commands a Meshcat static HTML replays (as raw bytes)."""
-    payloads = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)
-    return [base64.b64decode(p) for p in payloads]
-
-
-def test_recording_has_the_animation_and_the_ghost(lego, tmp_path):
+def test_recording_has_the_animation_and_the_ghost(tmp_path):
     html_path = tmp_path / "r.html"
-    result = lego.run(lego_args("--duration", "0.6", "--record", str(html_path)))
+    result = lego_run("--duration", "0.6", "--record", str(html_path))
     commands = meshcat_commands(html_path.read_text())
     (animation,) = [c for c in commands if b"set_animation" in c]
     # Both the plant's bodies and our ghost and spring are animated.

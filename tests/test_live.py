@@ -7,14 +7,14 @@ clicks, gamepad state; msgpack as in Drake's own tests) and by setting slider va
 import msgpack
 import numpy as np
 import pytest
-from conftest import lego_args, load_script
+from conftest import build_scene
 from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake.coupling import GRASP_NEAREST, graspable_bodies
 from godobject_drake.live import GRASP_BUTTON, STOP_BUTTON, MeshcatDevice, MeshcatJointDevice
-from godobject_drake.runner import simulate
+from godobject_drake.simulation import simulate
 
 WORKSPACE = ([-0.2, -0.2, 0.0], [0.2, 0.2, 0.2])
 
@@ -79,16 +79,12 @@ def test_gamepad_stick_moves_the_target_at_its_speed(meshcat):
 
 
 def test_live_brick_scene_grasps_the_nearest_brick_and_stops_on_the_button():
-    lego = load_script("diagrams/lego.py")
-    args = lego_args("--device", "meshcat", "--duration", "30")
-    diagram, scene, coupling, loggers, meshcat, chain = lego.build(args)
-    click(meshcat, GRASP_BUTTON)  # the device starts on brick_0 (the scene path's start)
-    click(meshcat, STOP_BUTTON)  # ... and the user stops at once
-    result = simulate(diagram, scene.plant, scene.scene_graph, coupling, loggers, scene="lego",
-                      mode="god_object", duration=args.duration, meshcat=meshcat, realtime=True,
-                      progress=False, chain=chain)  # fmt: skip
-    assert result.metrics["sim_time_s"] == pytest.approx(0.05)  # one 50 ms chunk, then Stop
-    brick = graspable_bodies(scene.plant)["brick_0"]
+    station = build_scene("lego", "--device", "meshcat", "--duration", "30")
+    click(station.meshcat, GRASP_BUTTON)  # the device starts on brick_0 (the scene path's start)
+    click(station.meshcat, STOP_BUTTON)  # ... and the user stops at once
+    result = simulate(station, progress=False)
+    assert result.metrics["sim_time_s"] == pytest.approx(0.05)  # one 50 ms check, then Stop
+    brick = graspable_bodies(station.plant)["brick_0"]
     assert result.held[-1] == brick.index
     assert not result.metrics["diverged"]
 

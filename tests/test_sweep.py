@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from godobject_drake.benchmark import Config, run_config
+from godobject_drake.benchmark import make_case, run_case
 from godobject_drake.coupling import explicit_limit_omega_h
+from godobject_drake.scenario import replace, shipped_scenario
 from godobject_drake.sweep import run_tasks
 
 ZETAS = [0.0, 0.5, 0.7, 1.0, 2.0]
@@ -33,12 +34,16 @@ def test_dask_cluster_runs_the_same_drake_simulations():
     """Two brick-scene runs on a local Dask cluster give the trajectories this process gets:
     the simulation is deterministic, so the scheduler must not change a number."""
     distributed = pytest.importorskip("distributed")
-    cases = [Config("lego", 2e-3, 0.3, repeats=1), Config("lego", 5e-3, 0.3, repeats=1)]
-    here = run_tasks(run_config, cases, workers=0, progress=False)
+    lego = shipped_scenario("lego")
+    cases = [
+        make_case(replace(lego, **{"plant.time_step": h, "simulation.duration_s": 0.3}), repeats=1)
+        for h in (2e-3, 5e-3)
+    ]
+    here = run_tasks(run_case, cases, workers=0, progress=False)
     with distributed.LocalCluster(
         n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster:
-        there = run_tasks(run_config, cases, scheduler=cluster.scheduler_address, progress=False)
+        there = run_tasks(run_case, cases, scheduler=cluster.scheduler_address, progress=False)
     for a, b in zip(here, there, strict=True):
         assert a["label"] == b["label"]
         np.testing.assert_array_equal(a["p_WG"], b["p_WG"])

@@ -1,9 +1,8 @@
-#!/usr/bin/env python3
 """The brick scene rebuilt in MuJoCo, dragged the two ways MuJoCo users drag objects.
 
-    python analysis/mujoco_bricks.py [--mode weld|perturb] [--time-step 0.001] [--duration 8.5]
+    python -m godobject_drake.mujoco_peer [--mode weld|perturb] [--time-step 0.001] [--duration 8.5]
 
-A peer of ``diagrams/lego.py`` for a speed-versus-error benchmark: the same
+A peer of the brick scene (``diagrams/lego.yaml``) for a speed-versus-error benchmark: the same
 8 free 2x4 bricks on the same baseplate and wall (``models/lego/``), the same
 device path (``models/lego/default_path.yaml``) sampled at ``device_rate_hz``
 with a zero-order hold, and the same bandwidth of the grasp as Drake's
@@ -103,8 +102,8 @@ model. MuJoCo resets an unstable state to ``qpos0`` with a warning instead
 of producing NaN, so a ``BADQACC``/``BADQPOS``/``BADQVEL`` warning counts as
 divergence too.
 
-Needs the optional ``mujoco`` package (``pip install -e .[bench]``); the
-godobject_drake package itself never imports it.
+Needs the optional ``mujoco`` package (``pip install -e .[bench]``): only this
+module imports it, and only the speed report's MuJoCo rows import this module.
 """
 
 from __future__ import annotations
@@ -122,7 +121,7 @@ try:
     import mujoco
 except ImportError as e:  # an optional extra, never a runtime dependency of godobject_drake
     raise ImportError(
-        "analysis/mujoco_bricks.py needs MuJoCo, which godobject_drake does not install. "
+        "godobject_drake.mujoco_peer needs MuJoCo, which godobject_drake does not install. "
         "Install the benchmark extra: pip install -e .[bench]  (or: pip install mujoco==3.3.7)"
     ) from e
 
@@ -131,8 +130,7 @@ from godobject_drake.spatial import quat_conjugate, quat_multiply, quat_to_rotat
 
 MODES = ("weld", "perturb")
 
-REPO = Path(__file__).resolve().parent.parent
-DEVICE_PATH = REPO / "models" / "lego" / "default_path.yaml"
+DEVICE_PATH = Path(__file__).resolve().parent.parent / "models" / "lego" / "default_path.yaml"
 BODY_NAMES = [f"brick_{i}" for i in range(8)]
 
 # Rest positions of the brick centres (m), as models/lego/lego.dmd.yaml (all unrotated).
@@ -152,7 +150,7 @@ BRICK_INERTIA = (6.551167e-08, 2.114850e-07, 2.416687e-07)  # kg·m², principal
 FRICTION = 0.5
 OMEGA_N = 40.0  # rad/s, Drake's translational coupling bandwidth (ζ = 1)
 OMEGA_R = 120.0  # rad/s, Drake's rotational coupling bandwidth
-DIVERGED_SPEED = 1000.0  # m/s or rad/s, as godobject_drake.runner
+DIVERGED_SPEED = 1000.0  # m/s or rad/s, as godobject_drake.safeguards
 BAD_STATE_WARNINGS = ("mjWARN_BADQACC", "mjWARN_BADQPOS", "mjWARN_BADQVEL")
 
 

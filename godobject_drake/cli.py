@@ -1,0 +1,380 @@
+"""The command line: ``python -m godobject_drake run SCENARIO.yaml [flags]``, and the scene scripts.
+
+Every flag overrides one scenario field (``--help`` names it); a flag left out
+keeps the scenario's value. The scene scripts (``diagrams/*.py``) take the same
+flags through :func:`main`, with their own wiring as ``build``.
+"""
+
+import argparse
+import copy
+import dataclasses
+import math
+import sys
+import warnings
+from pathlib import Path
+
+from godobject_drake import scenario as sc
+from godobject_drake.building import PenetrationBudgetWarning, build_station, make_meshcat, start_pose
+from godobject_drake.coupling import CouplingGainError
+from godobject_drake.deformable import SHELL_MODELS, ShellSpecError
+from godobject_drake.devices import INTERPOLATIONS
+from godobject_drake.metrics import format_table, write_metrics
+from godobject_drake.safeguards import WiringError
+
+DEVICES = ("scripted", "replay", "relative", "meshcat")
+
+
+# (flag, argparse options, help, the scenario field it sets)
+COMMON_FLAGS = (
+    (
+        "--mode",
+        dict(choices=sc.SIMULATION_MODES),
+        "god_object: the PD coupling; position: impose the device pose (the baseline)",
+        "simulation.mode",
+    ),
+    ("--duration", dict(type=float), "simulated time (s)", "simulation.duration_s"),
+    ("--time-step", dict(type=float), "plant step h (s)", "plant.time_step"),
+    (
+        "--device",
+        dict(choices=DEVICES),
+        "scripted: the scenario's path; replay: a CSV log; relative: a CSV of increments with a clutch "
+        "(the paper's mouse); meshcat: live from the browser",
+        "device",
+    ),
+    (
+        "--device-log",
+        dict(type=Path),
+        "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
+        "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)",
+        "device.log",
+    ),
+    ("--device-rate", dict(type=float), "device rate (Hz)", "device.rate_hz"),
+    ("--device-latency", dict(type=float), "device latency (s)", "device.latency_s"),
+    (
+        "--device-interpolation",
+        dict(choices=INTERPOLATIONS),
+        "between device samples: hold, or linear (smooth, one period late)",
+        "device.interpolation",
+    ),
+    (
+        "--max-device-speed",
+        dict(type=float),
+        "a sample farther than this speed (m/s) could go is held back as a glitch; inf: off",
+        "device.guard.max_speed_m_s",
+    ),
+    (
+        "--device-noise",
+        dict(type=float),
+        "std. dev. of Gaussian noise on each device position sample (m), seeded by --seed",
+        "device.noise_m",
+    ),
+    ("--seed", dict(type=int), "seed of every random draw", "random_seed"),
+    ("--omega-n", dict(type=float), "coupling bandwidth ωn (rad/s)", "god_object.gains.omega_n"),
+    ("--zeta", dict(type=float), "coupling damping ratio ζ", "god_object.gains.zeta"),
+    (
+        "--omega-n-rot",
+        dict(type=float),
+        "rotational bandwidth (rad/s); left out with --omega-n, it keeps the scenario's ratio to ωn",
+        "god_object.gains.omega_n_rot",
+    ),
+    (
+        "--contact",
+        dict(choices=sc.CONTACT_GEOMETRIES),
+        "collision geometry: proxies (point contact) or hydroelastic",
+        "contact.geometry, plant.contact_model",
+    ),
+    (
+        "--contact-approximation",
+        dict(choices=("sap", "lagged", "similar")),
+        "Drake's discrete contact approximation",
+        "plant.discrete_contact_approximation",
+    ),
+    ("--record", dict(type=Path), "write a self-contained Meshcat HTML recording", "recording.file"),
+    (
+        "--meshcat",
+        dict(action="store_true"),
+        "serve the run live in Meshcat, at real-time rate",
+        "visualization.serve",
+    ),
+    ("--metrics", dict(type=Path), "write the metrics JSON here", "metrics.file"),
+    ("--no-progress", dict(action="store_true"), "no progress bar", None),
+)
+HAPTIC_FLAGS = (
+    (
+        "--haptic",
+        dict(choices=sc.HAPTIC_MODES),
+        "none: the device's pose is the target; impedance: a simulated 3-axis haptic device held by a "
+        "simulated hand; admittance: a simulated admittance device",
+        "haptic.mode",
+    ),
+    ("--haptic-rate", dict(type=float), "haptic servo rate (Hz)", "haptic.rate_hz"),
+    ("--kd", dict(type=float), "feedback stiffness kd (N/m)", "feedback.kd"),
+    ("--gamma-d", dict(type=float), "feedback damping γd (N·s/m)", "feedback.gamma_d"),
+    (
+        "--passivity-damping",
+        dict(type=float),
+        "a passivity observer/controller on the impedance device's feedback, its damping capped at this "
+        "(N·s/m); 0: off",
+        "haptic.passivity_damping",
+    ),
+)
+KIND_FLAGS = {
+    "rigid": HAPTIC_FLAGS,
+    "articulated": (
+        ("--coupling", dict(choices=sc.ARTICULATED_COUPLINGS), "coupling of the tool", "god_object.coupling"),
+        ("--jaws", dict(choices=("imposed", "simulated")),
+         "imposed: the scenario's imposed joints (the paper's jaws); simulated: couple them like the rest",
+         "god_object.imposed_joints"),
+    ),
+    "deformable": (
+        *HAPTIC_FLAGS,
+        ("--shell", dict(choices=SHELL_MODELS), "shell model", "god_object.shell"),
+        ("--youngs-modulus", dict(type=float), "shell's Young's modulus E (Pa)",
+         "god_object.spec.youngs_modulus_pa"),
+        ("--nodes", dict(type=int), "mass_spring: surface nodes", "god_object.spec.nodes"),
+        ("--fem-resolution", dict(type=float),
+         "fem: Drake's meshing hint (m); 0.03 / 0.02 / 0.01 give 25 / 129 / 833 vertices",
+         "god_object.spec.fem_resolution_m"),
+    ),
+}  # fmt: skip
+
+
+# The kind-specific flags, and the god-object kinds each applies to.
+FLAG_KINDS = {
+    flag: [kind for kind, flags in KIND_FLAGS.items() if any(f[0] == flag for f in flags)]
+    for flags in KIND_FLAGS.values()
+    for flag, *_ in flags
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser, kinds=("rigid", "articulated", "deformable")) -> None:
+    """The flags: the common ones, and those of the god-object ``kinds``; each help names its field."""
+    seen = set()
+    for flags in (COMMON_FLAGS, *(KIND_FLAGS[k] for k in kinds)):
+        for flag, options, text, field in flags:
+            if flag not in seen:
+                seen.add(flag)
+                parser.add_argument(flag, help=f"{text} [{field}]" if field else text, **options)
+
+
+def _given(args, name):
+    return getattr(args, name, None) is not None
+
+
+def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scenario:
+    """A copy of ``scenario`` with every given flag applied (raises ``ScenarioError`` naming the flag)."""
+    s = copy.deepcopy(scenario)
+    kind = s.kind
+
+    def refuse(flag, why):
+        raise sc.ScenarioError(f"{flag}: {why}")
+
+    if _given(args, "mode"):
+        s.simulation.mode = args.mode
+    if _given(args, "duration"):
+        s.simulation.duration_s = args.duration
+    if _given(args, "time_step"):
+        s.plant.time_step = args.time_step
+    if _given(args, "seed"):
+        s.random_seed = args.seed
+    if _given(args, "device"):
+        s.device = switch_device(s, args.device, args.device_log)
+    elif _given(args, "device_log"):
+        refuse("--device-log", "give --device replay or --device relative with it")
+    device = s.device
+    pose = isinstance(device, sc.POSE_DEVICES)
+    if _given(args, "device_rate"):
+        if not (math.isfinite(args.device_rate) and args.device_rate > 0):
+            refuse("--device-rate", f"{args.device_rate!r} Hz must be > 0")
+        device.rate_hz = args.device_rate
+    if _given(args, "device_latency"):
+        device.latency_s = args.device_latency
+    for flag, name, field in (
+        ("--device-interpolation", "device_interpolation", "interpolation"),
+        ("--device-noise", "device_noise", "noise_m"),
+    ):
+        if _given(args, name):
+            if not pose:
+                refuse(flag, f"the scenario's joint-space device has no {field}; it is for pose devices")
+            setattr(device, field, getattr(args, name))
+    if _given(args, "max_device_speed"):
+        if not pose:
+            refuse("--max-device-speed", "the scenario's joint-space device has no sample guard")
+        device.guard = dataclasses.replace(device.guard, max_speed_m_s=args.max_device_speed)
+    gains = s.god_object.gains
+    if _given(args, "omega_n"):
+        ratio = gains.omega_r / gains.omega_n
+        gains.omega_n = args.omega_n
+        if gains.omega_n_rot is not None and not _given(args, "omega_n_rot"):
+            gains.omega_n_rot = ratio * args.omega_n
+    if _given(args, "zeta"):
+        gains.zeta = args.zeta
+    if _given(args, "omega_n_rot"):
+        gains.omega_n_rot = args.omega_n_rot
+    if _given(args, "record"):
+        s.recording.file = str(args.record)
+    if _given(args, "metrics"):
+        s.metrics.file = str(args.metrics)
+    if getattr(args, "meshcat", False):
+        s.visualization.serve = True
+    for name, path in (
+        ("haptic", "mode"),
+        ("haptic_rate", "rate_hz"),
+        ("passivity_damping", "passivity_damping"),
+    ):
+        if _given(args, name):
+            setattr(s.haptic, path, getattr(args, name))
+    for name, field in (("kd", "kd"), ("gamma_d", "gamma_d")):
+        if _given(args, name):
+            setattr(s.feedback, field, getattr(args, name))
+    for flag, owners in FLAG_KINDS.items():
+        if _given(args, flag[2:].replace("-", "_")) and kind not in owners:
+            refuse(flag, f"applies to {' and '.join(owners)} god-objects; this scenario's is {kind}")
+    if _given(args, "contact"):
+        s.contact.geometry = args.contact
+        s.plant.contact_model = "point" if args.contact == "proxies" else "hydroelastic_with_fallback"
+    if _given(args, "contact_approximation"):
+        s.plant.discrete_contact_approximation = args.contact_approximation
+    if _given(args, "coupling"):
+        s.god_object.coupling = args.coupling
+    if _given(args, "jaws") and args.jaws == "simulated":
+        s.god_object.imposed_joints = []
+    if _given(args, "shell"):
+        s.god_object.shell = args.shell
+    for name, field in (("youngs_modulus", "youngs_modulus_pa"), ("nodes", "nodes"),
+                        ("fem_resolution", "fem_resolution_m")):  # fmt: skip
+        if _given(args, name):
+            setattr(s.god_object.spec, field, getattr(args, name))
+    sc.check_scenario(s, where="flags")
+    return s
+
+
+def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
+    """The scenario's device as the ``--device`` kind ``name``: a new kind keeps the old one's sampling
+    settings, and relative and live devices start where the old one starts."""
+    old = s.device
+    kinds = (
+        {"scripted": sc.ScriptedJoints, "replay": sc.ReplayJoints, "meshcat": sc.MeshcatJointSliders}
+        if isinstance(old, sc.JOINT_DEVICES)
+        else {
+            "scripted": sc.Scripted,
+            "replay": sc.Replay,
+            "relative": sc.Relative,
+            "meshcat": sc.MeshcatSliders,
+        }
+    )
+    if name not in kinds:
+        raise sc.ScenarioError(
+            f"--device {name}: the scenario's joint-space device is absolute; use one of {sorted(kinds)}"
+        )
+    cls = kinds[name]
+    if isinstance(old, cls):
+        if log is not None:
+            old.log = str(log.resolve())
+        return old
+    if cls in (sc.Replay, sc.Relative, sc.ReplayJoints) and log is None:
+        raise sc.ScenarioError(
+            f"--device {name} needs --device-log FILE.csv (README 'Device log format' and 'Relative device')"
+        )
+    common = {f.name: getattr(old, f.name) for f in dataclasses.fields(cls) if hasattr(old, f.name)}
+    for field in ("path", "waypoints", "log"):
+        common.pop(field, None)
+    new = cls(**common)
+    if hasattr(new, "log"):
+        new.log = str(log.resolve())
+    if cls in (sc.Relative, sc.MeshcatSliders):
+        X0 = start_pose(old)
+        new.start_xyz = X0.translation().tolist()
+        new.start_rpy_deg = [math.degrees(a) for a in _rpy(X0)]
+        if cls is sc.MeshcatSliders:
+            new.noise_m = 0.0
+            new.grasp = s.god_object.name if s.kind == "deformable" else ""
+    if cls is sc.MeshcatJointSliders:
+        new.start = [float(v) for v in _joint_start(old)]
+        if len(new.limits) != len(new.channels):
+            raise sc.ScenarioError(
+                f"--device meshcat needs device.limits, one [lower, upper] per channel {new.channels}"
+            )
+    return new
+
+
+def _rpy(X):
+    from pydrake.math import RollPitchYaw
+
+    return RollPitchYaw(X.rotation()).vector()
+
+
+def _joint_start(config):
+    from godobject_drake.building import make_device
+
+    return make_device(config).channel_values(0.0)
+
+
+def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
+    """Build (with ``build(scenario, meshcat)``, default :func:`build_station`) and simulate."""
+    from godobject_drake.simulation import simulate
+
+    meshcat = make_meshcat(scenario)
+    station = (build or build_station)(scenario, meshcat)
+    return simulate(station, progress=progress)
+
+
+def report(results: list[dict], metrics_path: str | Path | None) -> None:
+    """Print the metrics table; write the JSON (one run: an object; several: a list)."""
+    print(format_table(results))
+    if metrics_path:
+        write_metrics(metrics_path, results[0] if len(results) == 1 else results)
+        print(f"metrics written to {metrics_path}")
+
+
+USER_ERRORS = (
+    sc.ScenarioError,
+    CouplingGainError,
+    ShellSpecError,
+    WiringError,
+    ValueError,
+    FileNotFoundError,
+)
+
+
+def main(argv=None, *, scenario: str | Path | None = None, build=None, description: str | None = None) -> int:
+    """Run a scenario with the command line's overrides; the exit status is 1 for a diverged run
+    or a failed metric, 2 for bad input.
+
+    ``scenario`` None: ``argv`` starts with ``run SCENARIO.yaml`` (``python -m godobject_drake``).
+    A scene script passes its own ``scenario`` file and ``build`` wiring.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if scenario is None:
+        parser = argparse.ArgumentParser(prog="python -m godobject_drake", description=__doc__,
+                                         formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+        commands = parser.add_subparsers(dest="command", required=True)
+        run = commands.add_parser(
+            "run", help="run a scenario: the metrics table, and a recording with --record"
+        )
+        run.add_argument("scenario", type=Path, help="the scenario YAML file")
+        add_arguments(run)
+        args = parser.parse_args(argv)
+        path, parser = args.scenario, run
+    else:
+        path = Path(scenario)
+        kinds = (sc.load_scenario(path).kind,)
+        parser = argparse.ArgumentParser(
+            description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+        )
+        add_arguments(parser, kinds)
+        args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", PenetrationBudgetWarning)
+            s = apply_arguments(sc.load_scenario(path), args)
+            result = run_scenario(s, build, progress=not args.no_progress)
+    except USER_ERRORS as e:
+        parser.error(str(e))
+    metrics = result.metrics
+    report([metrics], s.metrics.file or None)
+    if s.recording.file:
+        print(f"recording written to {s.recording.file}")
+    if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
+        input("Meshcat is still serving the scene; press Enter to exit.")
+    return 1 if metrics["diverged"] or "metrics_error" in metrics else 0
