@@ -623,11 +623,14 @@ def finish(
     budget = scenario.metrics.penetration_budget_m
     if predicted is not None and predicted[0] > budget:
         depth, body, obstacle, force, k = predicted
+        w_max = god.coupling.gains.omega_n * math.sqrt(budget / depth)
+        stretch_max = god.coupling.max_stretch_m * budget / depth
         warnings.warn(
             f"{body}'s capped pull ({force:.3g} N) can push it {depth * 1e3:.3g} mm into {obstacle} "
-            f"(contact stiffness {k:.3g} N/m), past the scene's penetration budget "
-            f"{budget * 1e3:.3g} mm: lower omega_n or max_stretch_m, or stiffen that contact to "
-            f"{force / budget:.3g} N/m (point_contact_stiffness)",
+            f"(their point contacts combine to {k:.3g} N/m), past the scene's penetration budget "
+            f"{budget * 1e3:.3g} mm. Fix: omega_n ≤ {w_max:.3g} rad/s, or max_stretch_m ≤ "
+            f"{stretch_max:.3g} m, or point_contact_stiffness values that combine "
+            f"(k_A k_B / (k_A + k_B)) to ≥ {force / budget:.3g} N/m",
             PenetrationBudgetWarning,
             stacklevel=2,
         )

@@ -17,7 +17,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from pydrake.geometry import Box, Role, SceneGraph
+from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 
@@ -52,12 +52,14 @@ class TrueShape:
     """A true (non-proxy) collision shape: on body ``body_index`` (None = anchored).
 
     Boxes keep their pose ``X_BG`` (in the body, or in the world when anchored) and half sizes
-    for the separating-axis test; other shapes are measured by Drake's signed distance.
+    for the separating-axis test; other shapes are measured by Drake's signed distance, or
+    against a half space by their support function (:func:`half_space_overlap`).
     """
 
     name: str
     geometry_id: object
     body_index: int | None
+    shape: object = None
     R_BG: np.ndarray | None = None
     p_BG: np.ndarray | None = None
     half: np.ndarray | None = None
@@ -82,16 +84,13 @@ def true_shapes(plant: MultibodyPlant, scene_graph: SceneGraph) -> list[TrueShap
         index = None if anchored else int(body.index())
         shape = inspector.GetShape(gid)
         if not isinstance(shape, Box):
-            shapes.append(TrueShape(name, gid, index))
+            shapes.append(TrueShape(name, gid, index, shape))
             continue
         X_BG = inspector.GetPoseInFrame(gid)
         if anchored:  # welded: store its pose in the world once
             X_BG = body.EvalPoseInWorld(context).multiply(X_BG)
-        shapes.append(
-            TrueShape(
-                name, gid, index, X_BG.rotation().matrix(), X_BG.translation(), np.array(shape.size()) / 2
-            )
-        )
+        R, p, half = X_BG.rotation().matrix(), X_BG.translation(), np.array(shape.size()) / 2
+        shapes.append(TrueShape(name, gid, index, shape, R_BG=R, p_BG=p, half=half))
     return shapes
 
 
@@ -178,6 +177,22 @@ class TrueShapeMetrics:
             self.plant.SetPositions(plant_context, x[:nq])
             query = port.Eval(plant_context)
             for a, j, o in pairs:
+                if isinstance(o.shape, HalfSpace) or isinstance(a.shape, HalfSpace):
+                    plane, solid = (o, a) if isinstance(o.shape, HalfSpace) else (a, o)
+                    overlap = half_space_overlap(
+                        solid.shape,
+                        query.GetPoseInWorld(solid.geometry_id),
+                        query.GetPoseInWorld(plane.geometry_id),
+                    )
+                    if overlap is None:
+                        raise ValueError(
+                            f"penetration of {solid.name} into the half space {plane.name}: no support "
+                            f"function for a {type(solid.shape).__name__} (and Drake's signed distance "
+                            "takes only spheres against half spaces); use a box, sphere, cylinder, capsule "
+                            "or ellipsoid, or a thick box for the floor"
+                        )
+                    out[k, j] = max(out[k, j], overlap)
+                    continue
                 try:
                     d = query.ComputeSignedDistancePairClosestPoints(a.geometry_id, o.geometry_id).distance
                 except RuntimeError as e:
@@ -188,6 +203,35 @@ class TrueShapeMetrics:
                     ) from None
                 out[k, j] = max(out[k, j], -d)
         return out
+
+
+def half_space_overlap(shape, X_WG, X_WH) -> float | None:
+    """How deep a convex primitive at ``X_WG`` goes into the half space ``z ≤ 0`` of frame H (m).
+
+    Positive: penetration; negative: minus the clearance. With ``n`` the half space's outward
+    normal (H's z axis) and ``c`` the shape's centre, the deepest point of the shape lies
+    ``h(n)`` below ``c`` along ``n``, where ``h`` is its support radius: a box's
+    ``Σ |n·Rᵢ| halfᵢ``, a sphere's ``r``, an ellipsoid's ``√Σ (aᵢ n·Rᵢ)²``, a cylinder's
+    ``r √(1 − (n·a)²) + (L/2)|n·a|`` and a capsule's ``r + (L/2)|n·a|`` (``a`` its axis).
+    None for another shape.
+    """
+    n = X_WH.rotation().col(2)
+    R = X_WG.rotation().matrix()
+    along = n @ R  # n in the shape's axes
+    if isinstance(shape, Box):
+        h = float(np.abs(along) @ (np.array(shape.size()) / 2))
+    elif isinstance(shape, Sphere):
+        h = shape.radius()
+    elif isinstance(shape, Ellipsoid):
+        h = float(np.linalg.norm(np.array([shape.a(), shape.b(), shape.c()]) * along))
+    elif isinstance(shape, Cylinder):
+        c = abs(along[2])
+        h = shape.radius() * math.sqrt(max(0.0, 1.0 - c * c)) + 0.5 * shape.length() * c
+    elif isinstance(shape, Capsule):
+        h = shape.radius() + 0.5 * shape.length() * abs(along[2])
+    else:
+        return None
+    return h - float(n @ (X_WG.translation() - X_WH.translation()))
 
 
 def compute_metrics(

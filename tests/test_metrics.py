@@ -74,3 +74,84 @@ def test_table_lists_every_run():
     text = format_table([{"mode": "god_object", "max_penetration_m": 1e-4}, {"mode": "position"}])
     assert text.splitlines()[0].split() == ["metric", "god_object", "position"]
     assert "0.0001" in text and "None" in text
+
+
+# -- shapes other than boxes: Drake's signed distance, half spaces by support function ------------------
+
+
+def box_against(obstacle, X_WO, box_center, rpy=(0.0, 0.0, 0.0)):
+    """A free 5 cm box at ``box_center`` (roll-pitch-yaw ``rpy``) and a welded ``obstacle``: the
+    box's true-shape overlap with it, measured as the run's metrics measure it."""
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
+    from pydrake.multibody.tree import SpatialInertia
+    from pydrake.systems.framework import DiagramBuilder
+
+    from godobject_drake.metrics import TrueShapeMetrics
+
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlantSceneGraph(builder, 1e-3)
+    body = plant.AddRigidBody("cube", SpatialInertia.SolidBoxWithMass(0.2, 0.05, 0.05, 0.05))
+    plant.RegisterCollisionGeometry(body, RigidTransform(), Box(0.05, 0.05, 0.05), "cube", CoulombFriction())
+    plant.RegisterCollisionGeometry(plant.world_body(), X_WO, obstacle, "obstacle", CoulombFriction())
+    plant.Finalize()
+    diagram = builder.Build()
+    context = plant.CreateDefaultContext()
+    plant.SetFreeBodyPose(context, body, RigidTransform(RollPitchYaw(*rpy), box_center))
+    x = plant.GetPositionsAndVelocities(context)[None]
+    shapes = TrueShapeMetrics(plant, diagram.GetSubsystemByName("scene_graph"), diagram)
+    return float(shapes.overlaps(int(body.index()), x)[0, 0])
+
+
+def test_a_box_into_a_cylinder_by_drakes_signed_distance():
+    # A 3 cm post at the origin; the cube's face 5 mm inside it (face at x = −0.025, surface at −0.03),
+    # then 5 mm clear of it. Drake's box-cylinder distance is iterative (EPA): 0.1 µm of tolerance.
+    from pydrake.geometry import Cylinder
+
+    post = Cylinder(0.03, 0.2)
+    assert box_against(post, RigidTransform(), [-0.05, 0.0, 0.0]) == pytest.approx(0.005, abs=1e-7)
+    assert box_against(post, RigidTransform(), [-0.06, 0.0, 0.0]) == pytest.approx(-0.005, abs=1e-7)
+
+
+def test_a_box_into_a_half_space_by_its_lowest_corner():
+    # Drake's signed distance takes only spheres against a half space; the metric uses the box's
+    # support function: tilted 45° about x, the cube's lowest edge is 2.5 √2 cm below its centre.
+    from pydrake.geometry import HalfSpace
+
+    assert box_against(HalfSpace(), RigidTransform(), [0, 0, 0.02]) == pytest.approx(0.005, abs=1e-12)
+    tilted = box_against(HalfSpace(), RigidTransform(), [0, 0, 0.03], rpy=(np.pi / 4, 0, 0))
+    assert tilted == pytest.approx(0.025 * np.sqrt(2) - 0.03, abs=1e-12)
+    raised = RigidTransform([0, 0, 0.01])  # the half space's surface at z = 1 cm
+    assert box_against(HalfSpace(), raised, [0, 0, 0.03]) == pytest.approx(0.005, abs=1e-12)
+
+
+@pytest.mark.parametrize("shape", ["sphere", "cylinder", "capsule", "ellipsoid"])
+def test_half_space_support_matches_drake_where_drake_can_tell(shape):
+    """For a sphere Drake's signed distance to a half space exists; for the other shapes the support
+    function is checked against Drake's signed distance to a large thin box standing in for it."""
+    from pydrake.geometry import Capsule, Cylinder, Ellipsoid, HalfSpace, Sphere
+
+    from godobject_drake.metrics import half_space_overlap
+
+    shapes = {"sphere": Sphere(0.03), "cylinder": Cylinder(0.02, 0.08), "capsule": Capsule(0.02, 0.06),
+              "ellipsoid": Ellipsoid(0.02, 0.03, 0.04)}  # fmt: skip
+    X_WG = RigidTransform(RollPitchYaw(0.3, -0.5, 0.8), [0.01, -0.02, 0.025])
+    ours = half_space_overlap(shapes[shape], X_WG, RigidTransform())
+    # Drake: the same shape against a 10 m x 10 m x 1 m box whose top face is z = 0.
+    scene_graph = SceneGraph()
+    source = scene_graph.RegisterSource("test")
+    poses = FramePoseVector()
+    for name, geometry, X in (
+        ("g", shapes[shape], X_WG),
+        ("floor", Box(10, 10, 1), RigidTransform([0, 0, -0.5])),
+    ):
+        frame = scene_graph.RegisterFrame(source, GeometryFrame(name))
+        gid = scene_graph.RegisterGeometry(source, frame, GeometryInstance(RigidTransform(), geometry, name))
+        scene_graph.AssignRole(source, gid, ProximityProperties())
+        poses.set_value(frame, X)
+    context = scene_graph.CreateDefaultContext()
+    scene_graph.get_source_pose_port(source).FixValue(context, poses)
+    (pair,) = scene_graph.get_query_output_port().Eval(context).ComputeSignedDistancePairwiseClosestPoints()
+    assert ours == pytest.approx(-pair.distance, abs=1e-6)
+    assert ours > 0.0  # it does dip in: the check compares a penetration, not two clearances
+    assert half_space_overlap(Box(0.1, 0.1, 0.1), RigidTransform(), RigidTransform()) == pytest.approx(0.05)
+    assert half_space_overlap(HalfSpace(), RigidTransform(), RigidTransform()) is None

@@ -1,0 +1,245 @@
+"""Contract tests over every shipped scenario (in the style of dm_control's suite tests), and the
+scenario file itself: loading, errors that name the file and key, paths, round trips.
+
+Each shipped scene (``diagrams/NAME.yaml``) is run for a short time: the same scenario gives the
+same trajectory, every vector output of every system is finite, every common metric key is
+there, the YAML round-trips, and the scene's script (``diagrams/NAME.py``, its wiring in one
+screen) builds the very diagram ``build_station`` builds.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import REPO, SCENES, load_script, scenario
+
+from godobject_drake.building import build_station, make_meshcat
+from godobject_drake.metrics import METRIC_KEYS
+from godobject_drake.scenario import (
+    ScenarioError,
+    load_scenario,
+    scenario_from_yaml,
+    scenario_to_yaml,
+    shipped_scenario,
+)
+from godobject_drake.simulation import simulate
+
+# Keys every run's metrics have, whatever the scene (README "Metrics JSON").
+COMMON_KEYS = (
+    *METRIC_KEYS, "diagnosis", "step_cost_us", "free_space_samples", "predicted_static_penetration_m",
+    "contact", "contact_approximation", "device", "device_rate_hz", "omega_n_rad_s", "omega_n_rot_rad_s",
+    "zeta", "seed",
+)  # fmt: skip
+SHORT = ("--duration", "0.3")
+
+
+def short_run(name, *flags, build=None):
+    s = scenario(name, *SHORT, *flags)
+    return simulate((build or build_station)(s, make_meshcat(s)), progress=False)
+
+
+@pytest.fixture(scope="module", params=SCENES)
+def runs(request):
+    """Two runs of each shipped scene with the same scenario, and one built by its script."""
+    name = request.param
+    script = load_script(f"diagrams/{name}.py")
+    return name, short_run(name), short_run(name), short_run(name, build=script.build)
+
+
+def test_same_scenario_same_trajectory(runs):
+    name, a, b, _ = runs
+    assert len(a.states) == 301 or name == "deformable_probe"  # 0.3 s at h = 1 ms, t = 0 included
+    np.testing.assert_array_equal(a.states, b.states)
+    for key in a.data:
+        np.testing.assert_array_equal(a.data[key], b.data[key])
+
+
+def test_every_output_is_finite(runs):
+    _, result, _, _ = runs
+    context = result.context
+    checked = 0
+    for system in result.station.diagram.GetSystems():
+        sub = system.GetMyContextFromRoot(context)
+        for i in range(system.num_output_ports()):
+            port = system.get_output_port(i)
+            if port.get_data_type() != port.get_data_type().kVectorValued:
+                continue
+            value = port.Eval(sub)
+            assert np.all(np.isfinite(value)), f"{system.get_name()}.{port.get_name()} = {value}"
+            checked += 1
+    assert checked >= 5  # plant state, device, coupling, feedback, ... : the check saw them
+
+
+def test_every_common_metric_key_is_there(runs):
+    name, result, _, _ = runs
+    m = result.metrics
+    assert "metrics_error" not in m, m.get("metrics_error")
+    missing = [k for k in COMMON_KEYS if k not in m]
+    assert not missing, missing
+    assert m["scene"] == name and not m["diverged"] and m["sim_time_s"] == pytest.approx(0.3)
+    json.dumps(m)  # JSON-ready
+
+
+def test_the_script_builds_what_the_scenario_builds(runs):
+    _, result, _, by_script = runs
+    np.testing.assert_array_equal(by_script.states, result.states)
+    names = sorted(s.get_name() for s in result.station.diagram.GetSystems())
+    assert sorted(s.get_name() for s in by_script.station.diagram.GetSystems()) == names
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_yaml_round_trips(name):
+    s = shipped_scenario(name)
+    text = scenario_to_yaml(s)
+    again = scenario_from_yaml(text)
+    assert scenario_to_yaml(again) == text
+    assert type(again.device) is type(s.device) and type(again.god_object) is type(s.god_object)
+
+
+def test_the_command_and_the_script_agree(tmp_path):
+    """``python -m godobject_drake run diagrams/lego.yaml`` and ``python diagrams/lego.py``: same run."""
+    out = {}
+    for key, command in (
+        ("module", [sys.executable, "-m", "godobject_drake", "run", "diagrams/lego.yaml"]),
+        ("script", [sys.executable, "diagrams/lego.py"]),
+    ):
+        path = tmp_path / f"{key}.json"
+        proc = subprocess.run(
+            [*command, "--duration", "0.4", "--no-progress", "--metrics", str(path)],
+            capture_output=True, text=True, cwd=REPO, timeout=300,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        out[key] = json.loads(path.read_text())
+    timing = {"wall_time_s", "real_time_factor", "step_cost_us"}
+    assert {k: v for k, v in out["module"].items() if k not in timing} == {
+        k: v for k, v in out["script"].items() if k not in timing
+    }
+
+
+# -- the scenario file ----------------------------------------------------------------------------
+
+
+def write(tmp_path, text, name="s.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_unknown_key_names_the_key_and_the_file(tmp_path):
+    path = write(tmp_path, "name: x\nsimulation: {duration_s: 1.0, duraton: 2.0}\n")
+    with pytest.raises(ScenarioError, match=r"s\.yaml: .*\['duraton'\] were unknown") as e:
+        load_scenario(path)
+    assert "check its spelling" in str(e.value)
+
+
+def test_a_device_tag_that_does_not_exist_lists_the_kinds(tmp_path):
+    path = write(tmp_path, "device: !Mouse {rate_hz: 60}\n")
+    with pytest.raises(ScenarioError, match=r"s\.yaml: .*'Mouse'.*give the YAML tag"):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("simulation: {duration_s: -1.0}", r"simulation\.duration_s: -1\.0 s must be > 0"),
+        ("plant: {time_step: 0.0}", r"plant\.time_step: 0\.0 s; SAP is discrete"),
+        ("contact: {geometry: hydroelastic}", r"contact\.geometry: hydroelastic needs plant\.contact_model"),
+        ("haptic: {mode: impedence}", r"haptic\.mode: 'impedence'; choose one of"),
+        ("device: !Scripted {rate_hz: 0.0}", r"device\.rate_hz: 0\.0 Hz must be > 0"),
+        (
+            "god_object: !Articulated {model: arm, device_joints: [elbow]}",
+            r"device: an articulated .* joint-space",
+        ),
+        ("haptic: {passivity_damping: 50.0}", r"haptic\.passivity_damping: 50\.0 N·s/m acts on an impedance"),
+    ],
+)
+def test_bad_values_name_the_field_the_value_and_the_fix(tmp_path, text, message):
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario(write(tmp_path, text + "\n"))
+
+
+def test_input_paths_are_relative_to_the_scenario_file(tmp_path):
+    (tmp_path / "paths").mkdir()
+    (tmp_path / "paths" / "here.yaml").write_text(
+        "waypoints:\n- {t: 0.0, xyz: [0, 0, 0]}\n- {t: 1.0, xyz: [0, 0, 0.1]}\n"
+    )
+    s = load_scenario(write(tmp_path, "device: !Scripted {path: paths/here.yaml}\n"
+                              "directives:\n- add_model: {name: m, file: models/m.sdf}\n"))  # fmt: skip
+    assert s.device.path == str(tmp_path / "paths" / "here.yaml")
+    assert s.directives[0].add_model.file == "file://" + str(tmp_path / "models" / "m.sdf")
+    lego = shipped_scenario("lego")  # package:// URLs: model files stay URLs, device paths become files
+    assert lego.directives[0].add_directives.file.startswith("package://godobject_models/")
+    assert lego.device.path == str(REPO / "models" / "lego" / "default_path.yaml")
+
+
+def test_a_scenario_from_text_runs_like_the_file(tmp_path):
+    text = (REPO / "diagrams" / "lego.yaml").read_text()
+    a = scenario_from_yaml(text, base_dir=REPO / "diagrams")
+    assert scenario_to_yaml(a) == scenario_to_yaml(shipped_scenario("lego"))
+
+
+def test_flags_override_fields_and_keep_the_rotation_ratio():
+    s = scenario("lego", "--omega-n", "20", "--time-step", "0.002", "--device", "relative",
+                 "--device-log", str(REPO / "diagrams" / "lego.yaml"))  # fmt: skip
+    assert (s.god_object.gains.omega_n, s.god_object.gains.omega_n_rot) == (20.0, 60.0)  # 3x, as 40/120
+    assert s.plant.time_step == 0.002 and type(s.device).__name__ == "Relative"
+    np.testing.assert_allclose(s.device.start_xyz, [-0.10, 0.0, 0.0048])  # where the path starts
+    assert s.device.rate_hz == 60.0 and s.device.log.endswith("lego.yaml")
+    with pytest.raises(ScenarioError, match=r"--coupling: applies to articulated god-objects; .* rigid"):
+        scenario("lego", "--coupling", "joint_pd")
+    with pytest.raises(ScenarioError, match=r"--device-noise: the scenario's joint-space device"):
+        scenario("laparoscopy", "--device-noise", "0.001")
+
+
+ROCK_SDF = """<?xml version="1.0"?>
+<sdf version="1.9">
+  <model name="quarry">
+    <joint name="weld" type="fixed"><parent>world</parent><child>ground</child></joint>
+    <link name="ground">
+      <collision name="ground">
+        <geometry><plane><normal>0 0 1</normal><size>1 1</size></plane></geometry>
+      </collision>
+    </link>
+    <link name="rock">
+      <pose>0 0 0.05 0 0 0</pose>
+      <inertial><mass>0.1</mass>
+        <inertia><ixx>1e-5</ixx><iyy>1e-5</iyy><izz>1e-5</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia>
+      </inertial>
+      <collision name="rock"><geometry><mesh><uri>rock.obj</uri></mesh></geometry></collision>
+      <visual name="rock"><geometry><mesh><uri>rock.obj</uri></mesh></geometry></visual>
+    </link>
+  </model>
+</sdf>
+"""
+ROCK_OBJ = "v 0.02 0 0\nv -0.02 0.02 0\nv -0.02 -0.02 0\nv 0 0 0.03\nf 1 2 3\nf 1 2 4\nf 2 3 4\nf 3 1 4\n"
+ROCK_YAML = """name: quarry
+directives:
+- add_model: {name: quarry, file: rock.sdf}
+device: !Scripted
+  waypoints:
+  - {t: 0.0, xyz: [0.0, 0.0, 0.05], grasp: rock}
+  - {t: 0.3, xyz: [0.0, 0.0, 0.10], grasp: rock}
+simulation: {duration_s: 0.3}
+"""
+
+
+def test_a_metric_that_fails_leaves_the_recording_and_the_other_metrics(tmp_path):
+    """A mesh rock over a half-space ground: no penetration measure exists for that pair (Drake's
+    signed distance takes only spheres against a half space; a mesh has no support function here).
+    The run still writes its recording, reports the common metrics, names what failed, and the
+    command exits 1."""
+    for name, text in (("rock.sdf", ROCK_SDF), ("rock.obj", ROCK_OBJ), ("quarry.yaml", ROCK_YAML)):
+        (tmp_path / name).write_text(text)
+    html, metrics = tmp_path / "quarry.html", tmp_path / "quarry.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "godobject_drake", "run", str(tmp_path / "quarry.yaml"), "--no-progress",
+         "--record", str(html), "--metrics", str(metrics)],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stderr
+    m = json.loads(metrics.read_text())
+    assert "penetration of quarry::rock into the half space quarry::ground" in m["metrics_error"]
+    assert m["recording_bytes"] == html.stat().st_size > 100_000
+    assert m["sim_time_s"] == pytest.approx(0.3) and not m["diverged"]
