@@ -57,6 +57,7 @@ from godobject_drake.recording import (
     ShellVisualizer,
     ToolGhostVisualizer,
     add_meshcat_visualization,
+    start_meshcat,
 )
 from godobject_drake.scenes import SceneParts, exclude_self_collisions
 from godobject_drake.scenes import add_plant as add_scene_plant
@@ -548,12 +549,14 @@ class Station:
 
 
 def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
-    """The scenario's Meshcat: served on a port when it is live (``visualization.serve`` or a
-    browser device), on any free port for a recording only, None otherwise."""
+    """The scenario's Meshcat, on ``visualization.host`` (this machine only, by default): at
+    ``visualization.port`` when it is live (``visualization.serve`` or a browser device), on
+    any free port for a recording only, None otherwise (:func:`~godobject_drake.recording.start_meshcat`)."""
+    vis = scenario.visualization
     live = isinstance(scenario.device, sc.MeshcatSliders | sc.MeshcatJointSliders)
-    if scenario.visualization.serve or live:
-        return Meshcat()
-    return Meshcat(port=0) if scenario.recording.file else None
+    if vis.serve or live:
+        return start_meshcat(vis.host, vis.port)
+    return start_meshcat(vis.host, 0) if scenario.recording.file else None
 
 
 def add_loggers(builder: DiagramBuilder, plant: MultibodyPlant, god: GodObject) -> dict[str, VectorLogSink]:

@@ -96,6 +96,13 @@ COMMON_FLAGS = (
         "serve the run live in Meshcat, at real-time rate",
         "visualization.serve",
     ),
+    (
+        "--meshcat-host",
+        dict(),
+        "the interface Meshcat listens on; default localhost (this machine only). Another host lets "
+        "anyone who reaches it drive the device: it is announced loudly; prefer an SSH tunnel",
+        "visualization.host",
+    ),
     ("--metrics", dict(type=Path), "write the metrics JSON here", "metrics.file"),
     ("--no-progress", dict(action="store_true"), "no progress bar", None),
 )
@@ -217,6 +224,8 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         s.metrics.file = str(args.metrics)
     if getattr(args, "meshcat", False):
         s.visualization.serve = True
+    if _given(args, "meshcat_host"):
+        s.visualization.host = args.meshcat_host
     for name, path in (
         ("haptic", "mode"),
         ("haptic_rate", "rate_hz"),

@@ -17,6 +17,7 @@ tool (its kinematic copy) as a wireframe under ``/godobject/device_tool``.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from pydrake.geometry import (
     Cylinder,
     Ellipsoid,
     Meshcat,
+    MeshcatParams,
     MeshcatVisualizer,
     MeshcatVisualizerParams,
     Rgba,
@@ -275,6 +277,32 @@ class ShellVisualizer(LeafSystem):
             mc.SetTransform(f"{pre}/shell/{i}", RigidTransform(p), t)
         mc.SetTransform(f"{pre}/core", pose_from_array(self._pose_WC.Eval(context)), t)
         mc.SetTransform(f"{pre}/device", pose_from_array(self._pose_WT.Eval(context)), t)
+
+
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
+
+
+def start_meshcat(host: str = "localhost", port: int | None = None) -> Meshcat:
+    """A Meshcat server listening on ``host`` (this machine only, by default) at ``port``.
+
+    ``port`` None takes Drake's default (7000, or the next free one up to 7099); 0 any free
+    port (a recording that nobody watches live). Drake's own default host is ``"*"``: every
+    network interface, so anyone on the network could open the page, which drives a live
+    device (its sliders, grasp and Stop) and, with a haptic device, the forces on a hand.
+    Any host but a loopback one is therefore announced loudly on stderr.
+    """
+    meshcat = Meshcat(MeshcatParams(host=host, port=port))
+    if host not in LOOPBACK_HOSTS:
+        print(
+            f"WARNING: Meshcat is listening on {host} port {meshcat.port()}, reachable from other machines: "
+            "anyone who can reach that address can open the page and drive the scene (its device "
+            "sliders, Grasp and Stop; with a haptic device, the forces on the user's hand). To watch "
+            f"from another machine, keep the default host and tunnel: ssh -N -L {meshcat.port()}:localhost:"
+            f"{meshcat.port()} USER@THIS_MACHINE, then open http://localhost:{meshcat.port()} there.",
+            file=sys.stderr,
+            flush=True,
+        )
+    return meshcat
 
 
 def add_meshcat_visualization(

@@ -371,6 +371,13 @@ class Visualization:
     ----------
     serve : bool
         Serve the run live (real-time rate) at a Meshcat URL.
+    host : str
+        The interface Meshcat listens on: ``localhost`` (this machine only; the default), or
+        an address or ``*`` (every interface) to let other machines open the page, which
+        drives a live device: it is announced loudly. An SSH tunnel is the safe way to watch
+        from elsewhere (README "Driving a scene live").
+    port : int | None
+        The live page's port; None: Drake's default (7000, or the next free one).
     publish_period_s : float
         Drawing period (s), live and in recordings.
     camera : Camera | None
@@ -378,6 +385,8 @@ class Visualization:
     """
 
     serve: bool = False
+    host: str = "localhost"
+    port: int | None = None
     publish_period_s: float = 1.0 / 64.0
     camera: Camera | None = None
 
@@ -634,6 +643,11 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
         )
     if kind == "deformable" and s.god_object.shell not in SHELL_MODELS:
         _fail(where, "god_object.shell", f"{s.god_object.shell!r}; choose one of {SHELL_MODELS}")
+    vis = s.visualization
+    if not vis.host.strip():
+        _fail(where, "visualization.host", f"{vis.host!r}: give localhost (this machine only) or an address")
+    if vis.port is not None and not (isinstance(vis.port, int) and 0 <= vis.port <= 65535):
+        _fail(where, "visualization.port", f"{vis.port!r} must be a TCP port, 0 to 65535 (None: Drake's)")
     for attribute in ("lower_m", "upper_m"):
         if len(getattr(s.workspace, attribute)) != 3:
             _fail(where, f"workspace.{attribute}", "needs 3 values (x, y, z in m)")

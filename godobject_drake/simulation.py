@@ -114,7 +114,7 @@ def simulate(
     if record and meshcat is None:
         raise ValueError(
             f"record={str(record)!r}: the station has no Meshcat; build it with recording.file set "
-            "or pass build_station(..., meshcat=Meshcat(port=0))"
+            "or pass build_station(..., meshcat=start_meshcat(port=0))"
         )
     live = station.live or scenario.visualization.serve
     rate = 1.0 if live else (sim.realtime_rate if realtime_rate is None else realtime_rate)

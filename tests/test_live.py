@@ -8,12 +8,12 @@ import msgpack
 import numpy as np
 import pytest
 from conftest import build_scene
-from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake.coupling import GRASP_NEAREST, graspable_bodies
 from godobject_drake.live import GRASP_BUTTON, STOP_BUTTON, MeshcatDevice, MeshcatJointDevice
+from godobject_drake.recording import start_meshcat
 from godobject_drake.simulation import simulate
 
 WORKSPACE = ([-0.2, -0.2, 0.0], [0.2, 0.2, 0.2])
@@ -21,7 +21,7 @@ WORKSPACE = ([-0.2, -0.2, 0.0], [0.2, 0.2, 0.2])
 
 @pytest.fixture(scope="module")
 def meshcat():
-    return Meshcat(port=0)
+    return start_meshcat(port=0)
 
 
 def click(meshcat, name):
