@@ -556,7 +556,7 @@ def device_boundary(quick: bool, summary: dict) -> list[str]:
         ("stiff obstacle, γd = 0, d = 0", {}, STIFF, 0.0, 0.4),
         ("stiff obstacle, γd = 0.5, d = 0", {}, STIFF, 0.5, 0.4),
         ("stiff obstacle, γd = 0, d = 1", {"delay": 1}, STIFF, 0.0, 0.4),
-        ("stiff obstacle, γd = 0, T = 2h (500 Hz device)", {"period": 2e-3}, STIFF, 0.0, 0.8),
+        ("stiff obstacle, γd = 0, T = 2h (500 Hz device)", {"period_s": 2e-3}, STIFF, 0.0, 0.8),
         ("soft tissue, γd = 0, d = 0", {}, SOFT, 0.0, 3.0),
     ]
     if quick:
