@@ -10,10 +10,12 @@ import argparse
 import base64
 import dataclasses
 import importlib.util
+import logging
 import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia, UnitInertia
@@ -121,3 +123,30 @@ def meshcat_commands(html: str) -> list[bytes]:
     """The msgpack commands a Meshcat static HTML replays (as raw bytes)."""
     payloads = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)
     return [base64.b64decode(p) for p in payloads]
+
+
+class _DrakeDeprecations(logging.Handler):
+    """Collects what Drake's C++ side logs about deprecations (pydrake forwards it to ``drake``)."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.messages: list[str] = []
+
+    def emit(self, record):
+        message = record.getMessage()
+        if "deprecat" in message.lower():
+            self.messages.append(message)
+
+
+DRAKE_DEPRECATIONS = _DrakeDeprecations()
+logging.getLogger("drake").addHandler(DRAKE_DEPRECATIONS)
+
+
+@pytest.fixture(autouse=True)
+def no_drake_deprecation_logged():
+    """Fail a test during which Drake logged a deprecation (the Python ones are errors already:
+    pyproject.toml's filterwarnings)."""
+    seen = len(DRAKE_DEPRECATIONS.messages)
+    yield
+    new = DRAKE_DEPRECATIONS.messages[seen:]
+    assert not new, f"Drake logged a deprecation: {new}"
