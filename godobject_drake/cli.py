@@ -20,6 +20,7 @@ from godobject_drake.deformable import SHELL_MODELS, ShellSpecError
 from godobject_drake.devices import INTERPOLATIONS
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.safeguards import WiringError
+from godobject_drake.simulation import RunInterrupted
 
 DEVICES = ("scripted", "replay", "relative", "meshcat")
 
@@ -320,12 +321,23 @@ def _joint_start(config):
 
 
 def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
-    """Build (with ``build(scenario, meshcat)``, default :func:`build_station`) and simulate."""
+    """Build (with ``build(scenario, meshcat)``, default :func:`build_station`) and simulate in
+    bounded memory (no logs kept); with a metrics file, the metrics so far are written to it
+    every ``metrics.checkpoint_period_s`` of wall time, marked ``partial``, so a killed run leaves
+    its last ones."""
     from godobject_drake.simulation import simulate
 
     meshcat = make_meshcat(scenario)
     station = (build or build_station)(scenario, meshcat)
-    return simulate(station, progress=progress)
+    path = scenario.metrics.file
+
+    def checkpoint(metrics):
+        write_metrics(path, metrics)
+
+    return simulate(
+        station, progress=progress, keep_logs=False, checkpoint=checkpoint if path else None,
+        checkpoint_period_s=scenario.metrics.checkpoint_period_s,
+    )  # fmt: skip
 
 
 def report(results: list[dict], metrics_path: str | Path | None) -> None:
@@ -373,6 +385,7 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
         )
         add_arguments(parser, kinds)
         args = parser.parse_args(argv)
+    interrupted = False
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
@@ -380,10 +393,18 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
             result = run_scenario(s, build, progress=not args.no_progress)
     except USER_ERRORS as e:
         parser.error(str(e))
+    except RunInterrupted as e:  # Ctrl-C: what the run produced is written, marked partial
+        result, interrupted = e.result, True
     metrics = result.metrics
     report([metrics], s.metrics.file or None)
     if s.recording.file:
         print(f"recording written to {s.recording.file}")
+    if interrupted:
+        print(
+            f"interrupted at t = {metrics['sim_time_s']:.3f} s: the metrics above are partial",
+            file=sys.stderr,
+        )
+        return 130
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
         input("Meshcat is still serving the scene; press Enter to exit.")
     return 1 if metrics["diverged"] or "metrics_error" in metrics else 0

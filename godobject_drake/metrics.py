@@ -234,42 +234,50 @@ def half_space_overlap(shape, X_WG, X_WH) -> float | None:
     return h - float(n @ (X_WG.translation() - X_WH.translation()))
 
 
-def compute_metrics(
-    shapes: TrueShapeMetrics,
-    states: np.ndarray,
-    held: np.ndarray,
-    p_WT: np.ndarray,
-) -> dict:
-    """Penetration, free-space tracking error and other bodies' speed from logs.
+class RigidMetrics:
+    """Penetration, free-space tracking error and other bodies' speed, folded in chunk by chunk.
 
-    Parameters
-    ----------
-    states : (N, nq+nv)
-        Plant states at each logged step.
-    held : (N,)
-        Held BodyIndex at each step, −1 for none.
-    p_WT : (N, 3)
-        Target position of the held body's centre of mass (m).
+    :meth:`update` takes a run's logs a chunk at a time (any split gives the same maxima and
+    counts, and sums equal to the last bits), so a long run keeps no more than a chunk;
+    :meth:`result` reads the running values (it may be called at any time).
     """
-    max_pen, sq_err, n_free = 0.0, 0.0, 0
-    speed = np.zeros(len(states))
-    for index, body in shapes.bodies.items():
-        when = held == index
-        cm = _cm_positions(body, states[when]) if when.any() else None
-        if cm is not None:
-            ov = shapes.overlaps(index, states[when])
-            max_pen = max(max_pen, float(np.max(ov, initial=0.0)))
-            free = np.all(ov < -FREE_SPACE_MARGIN_M, axis=1)
-            sq_err += float(np.sum(np.sum((p_WT[when][free] - cm[free]) ** 2, axis=1)))
-            n_free += int(free.sum())
-        v = np.linalg.norm(_cm_velocities(body, states), axis=1)
-        speed = np.maximum(speed, np.where(held == index, 0.0, v))
-    return {
-        "max_penetration_m": max_pen,
-        "rms_tracking_error_m": math.sqrt(sq_err / n_free) if n_free else None,
-        "free_space_samples": n_free,
-        "max_other_body_speed_mps": float(speed.max(initial=0.0)),
-    }
+
+    def __init__(self, shapes: TrueShapeMetrics):
+        self.shapes = shapes
+        self.max_pen, self.sq_err, self.n_free, self.max_speed = 0.0, 0.0, 0, 0.0
+
+    def update(self, states: np.ndarray, held: np.ndarray, p_WT: np.ndarray) -> None:
+        """``states`` (N, nq+nv) plant states; ``held`` (N,) held BodyIndex (−1: none); ``p_WT``
+        (N, 3) target of the held body's centre of mass (m)."""
+        shapes = self.shapes
+        speed = np.zeros(len(states))
+        for index, body in shapes.bodies.items():
+            when = held == index
+            cm = _cm_positions(body, states[when]) if when.any() else None
+            if cm is not None:
+                ov = shapes.overlaps(index, states[when])
+                self.max_pen = max(self.max_pen, float(np.max(ov, initial=0.0)))
+                free = np.all(ov < -FREE_SPACE_MARGIN_M, axis=1)
+                self.sq_err += float(np.sum(np.sum((p_WT[when][free] - cm[free]) ** 2, axis=1)))
+                self.n_free += int(free.sum())
+            v = np.linalg.norm(_cm_velocities(body, states), axis=1)
+            speed = np.maximum(speed, np.where(held == index, 0.0, v))
+        self.max_speed = max(self.max_speed, float(speed.max(initial=0.0)))
+
+    def result(self) -> dict:
+        return {
+            "max_penetration_m": self.max_pen,
+            "rms_tracking_error_m": math.sqrt(self.sq_err / self.n_free) if self.n_free else None,
+            "free_space_samples": self.n_free,
+            "max_other_body_speed_mps": self.max_speed,
+        }
+
+
+def compute_metrics(shapes: TrueShapeMetrics, states: np.ndarray, held: np.ndarray, p_WT: np.ndarray) -> dict:
+    """:class:`RigidMetrics` of whole logs at once."""
+    acc = RigidMetrics(shapes)
+    acc.update(states, held, p_WT)
+    return acc.result()
 
 
 def _cm_positions(body: GraspableBody, states: np.ndarray) -> np.ndarray:
@@ -310,17 +318,8 @@ def write_metrics(path: str | Path, metrics: dict) -> None:
     Path(path).write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
 
 
-def tool_metrics(
-    diagram,
-    plant: MultibodyPlant,
-    scene_graph: SceneGraph,
-    tool,
-    states: np.ndarray,
-    q_device: np.ndarray,
-    tip_body: str,
-    pivot_body: str | None = None,
-) -> dict:
-    """Penetration, tip tracking and trocar offset of an articulated tool, from logs.
+class ToolMetrics:
+    """Penetration, tip tracking and trocar offset of an articulated tool, folded in chunk by chunk.
 
     Penetration is Drake's signed distance between the tool's collision
     shapes and every other collision shape (capsules, ellipsoids and
@@ -330,73 +329,83 @@ def tool_metrics(
     compared with the device's tip (the same point on the kinematic copy at
     ``q_device``). With ``pivot_body`` (welded at the insertion point P),
     ``max_trocar_offset_m`` is the largest distance of P from the tip
-    body's z axis (the tube's axis).
-
-    Parameters
-    ----------
-    states : (N, nq+nv)
-        Plant states at each logged step.
-    q_device : (N, nq_device)
-        The device's joint values at the same steps.
+    body's z axis (the tube's axis). Rows are measured one by one in order,
+    so any split into chunks gives the very same numbers.
     """
-    context = diagram.CreateDefaultContext()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    query_port = plant.get_geometry_query_input_port()
-    inspector = scene_graph.model_inspector()
-    tool_frames = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(tool.model)}
-    tip = plant.GetBodyByName(tip_body, tool.model)
-    p_WP = None
-    if pivot_body is not None:
-        pivot = plant.GetBodyByName(pivot_body, tool.model)
-        p_WP = plant.EvalBodyPoseInWorld(plant_context, pivot).translation()
-    nq = plant.num_positions()
-    max_pen, sq_err, n_free, max_offset, k_max = 0.0, 0.0, 0, 0.0, 0
-    device_tip, last_q = None, None
-    for k, (x, qd) in enumerate(zip(states, q_device, strict=True)):
-        plant.SetPositions(plant_context, x[:nq])
-        query = query_port.Eval(plant_context)
-        closest = FREE_SPACE_MARGIN_M
-        for pair in query.ComputeSignedDistancePairwiseClosestPoints(FREE_SPACE_MARGIN_M):
-            a = inspector.GetFrameId(pair.id_A) in tool_frames
-            b = inspector.GetFrameId(pair.id_B) in tool_frames
-            if a != b:
-                closest = min(closest, pair.distance)
-        if -closest > max_pen:
-            max_pen, k_max = -closest, k
-        X_WTip = plant.EvalBodyPoseInWorld(plant_context, tip)
-        if p_WP is not None:
-            axis = X_WTip.rotation().col(2)
-            max_offset = max(max_offset, float(np.linalg.norm(np.cross(p_WP - X_WTip.translation(), axis))))
-        if closest >= FREE_SPACE_MARGIN_M:
-            if last_q is None or not np.array_equal(qd, last_q):
-                ctx = tool.set_device_state(qd, None, x)
-                device_tip = plant.EvalBodyPoseInWorld(ctx, tip).translation()
-                last_q = qd
-            sq_err += float(np.sum((X_WTip.translation() - device_tip) ** 2))
-            n_free += 1
-    out = {
-        "max_penetration_m": max_pen,
-        "max_penetration_step": k_max,
-        "tip_tracking_rms_m": math.sqrt(sq_err / n_free) if n_free else None,
-        "free_space_samples": n_free,
-    }
-    if p_WP is not None:
-        out["max_trocar_offset_m"] = max_offset
-    return out
+
+    def __init__(self, diagram, plant: MultibodyPlant, scene_graph: SceneGraph, tool, tip_body: str,
+                 pivot_body: str | None = None):  # fmt: skip
+        self.plant, self.tool = plant, tool
+        self._context = diagram.CreateDefaultContext()
+        self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        self._query_port = plant.get_geometry_query_input_port()
+        self._inspector = scene_graph.model_inspector()
+        self._tool_frames = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(tool.model)}
+        self._tip = plant.GetBodyByName(tip_body, tool.model)
+        self._p_WP = None
+        if pivot_body is not None:
+            pivot = plant.GetBodyByName(pivot_body, tool.model)
+            self._p_WP = plant.EvalBodyPoseInWorld(self._plant_context, pivot).translation()
+        self.max_pen, self.sq_err, self.n_free, self.max_offset, self.k_max, self.rows = (
+            0.0,
+            0.0,
+            0,
+            0.0,
+            0,
+            0,
+        )
+        self._device_tip, self._last_q = None, None
+
+    def update(self, states: np.ndarray, q_device: np.ndarray) -> None:
+        """``states`` (N, nq+nv) plant states; ``q_device`` (N, nq_device) the device's joint values."""
+        plant, ctx, inspector = self.plant, self._plant_context, self._inspector
+        nq = plant.num_positions()
+        for x, qd in zip(states, q_device, strict=True):
+            plant.SetPositions(ctx, x[:nq])
+            query = self._query_port.Eval(ctx)
+            closest = FREE_SPACE_MARGIN_M
+            for pair in query.ComputeSignedDistancePairwiseClosestPoints(FREE_SPACE_MARGIN_M):
+                a = inspector.GetFrameId(pair.id_A) in self._tool_frames
+                b = inspector.GetFrameId(pair.id_B) in self._tool_frames
+                if a != b:
+                    closest = min(closest, pair.distance)
+            if -closest > self.max_pen:
+                self.max_pen, self.k_max = -closest, self.rows
+            X_WTip = plant.EvalBodyPoseInWorld(ctx, self._tip)
+            if self._p_WP is not None:
+                axis = X_WTip.rotation().col(2)
+                offset = float(np.linalg.norm(np.cross(self._p_WP - X_WTip.translation(), axis)))
+                self.max_offset = max(self.max_offset, offset)
+            if closest >= FREE_SPACE_MARGIN_M:
+                if self._last_q is None or not np.array_equal(qd, self._last_q):
+                    device = self.tool.set_device_state(qd, None, x)
+                    self._device_tip = plant.EvalBodyPoseInWorld(device, self._tip).translation()
+                    self._last_q = qd
+                self.sq_err += float(np.sum((X_WTip.translation() - self._device_tip) ** 2))
+                self.n_free += 1
+            self.rows += 1
+
+    def result(self) -> dict:
+        out = {
+            "max_penetration_m": self.max_pen,
+            "max_penetration_step": self.k_max,
+            "tip_tracking_rms_m": math.sqrt(self.sq_err / self.n_free) if self.n_free else None,
+            "free_space_samples": self.n_free,
+        }
+        if self._p_WP is not None:
+            out["max_trocar_offset_m"] = self.max_offset
+        return out
 
 
-def shell_metrics(
-    diagram,
-    plant: MultibodyPlant,
-    shell,
-    obstacles: set,
-    states: np.ndarray,
-    vertices: np.ndarray,
-    rest: np.ndarray,
-    pose_WC: np.ndarray,
-    pose_WT: np.ndarray,
-) -> dict:
-    """Deformation and penetration of a deformable god-object, from per-step logs.
+def tool_metrics(diagram, plant, scene_graph, tool, states, q_device, tip_body: str, pivot_body=None) -> dict:
+    """:class:`ToolMetrics` of whole logs at once."""
+    acc = ToolMetrics(diagram, plant, scene_graph, tool, tip_body, pivot_body)
+    acc.update(states, q_device)
+    return acc.result()
+
+
+class ShellMetrics:
+    """Deformation and penetration of a deformable god-object, folded in chunk by chunk.
 
     ``max_shell_deformation_m``: the largest distance of a tracked shell
     point from its rest position on the core. ``final_shell_deformation_m``:
@@ -406,94 +415,140 @@ def shell_metrics(
     true obstacle shape. ``max_core_penetration_m``: the same for the core
     sphere (radius rc). ``rms_tracking_error_m``: core centre against the
     target, over the steps where the whole shell is at least
-    ``FREE_SPACE_MARGIN_M`` from every obstacle.
-
-    Parameters
-    ----------
-    obstacles : set of GeometryId
-        Rigid geometries that count as obstacles.
-    states, vertices, rest, pose_WC, pose_WT : (N, ·)
-        Plant states, shell points and their rest positions (W, flattened),
-        core and target poses ``[qw qx qy qz x y z]``, at the same steps.
+    ``FREE_SPACE_MARGIN_M`` from every obstacle. ``obstacles``: the rigid
+    geometries (GeometryIds) that count as obstacles. Rows are measured one
+    by one in order, so any split into chunks gives the very same numbers.
     """
-    context = diagram.CreateDefaultContext()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    query_port = plant.get_geometry_query_input_port()
-    nq = plant.num_positions()
-    rn, rc = shell.contact_radius_m, shell.spec.core_radius_m
-    surface = shell.surface
-    reach = max(rn, rc) + FREE_SPACE_MARGIN_M
 
-    def depth(query, p, radius):  # deepest of a sphere at p into an obstacle (< 0: clearance)
+    def __init__(self, diagram, plant: MultibodyPlant, shell, obstacles: set):
+        self.plant, self.shell, self.obstacles = plant, shell, obstacles
+        self._context = diagram.CreateDefaultContext()
+        self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
+        self._query_port = plant.get_geometry_query_input_port()
+        self._rn, self._rc = shell.contact_radius_m, shell.spec.core_radius_m
+        self._reach = max(self._rn, self._rc) + FREE_SPACE_MARGIN_M
+        self.max_pen = self.max_core = 0.0
+        self.sq_err, self.n_free, self.k_max, self.rows = 0.0, 0, 0, 0
+        self.max_deformation = self.final_deformation = None
+
+    def _depth(self, query, p, radius):  # deepest of a sphere at p into an obstacle (< 0: clearance)
         deepest = -FREE_SPACE_MARGIN_M
-        for d in query.ComputeSignedDistanceToPoint(p, reach):
-            if d.id_G in obstacles:
+        for d in query.ComputeSignedDistanceToPoint(p, self._reach):
+            if d.id_G in self.obstacles:
                 deepest = max(deepest, radius - d.distance)
         return deepest
 
-    n = len(states)
-    deformation = np.linalg.norm((vertices - rest).reshape(n, -1, 3), axis=2).max(axis=1)
-    max_pen = max_core = 0.0
-    sq_err, n_free, k_max = 0.0, 0, 0
-    for k in range(n):
-        plant.SetPositions(plant_context, states[k, :nq])
-        query = query_port.Eval(plant_context)
-        points = vertices[k].reshape(-1, 3)[surface]
-        shell_depth = max(depth(query, p, rn) for p in points)
-        if shell_depth > max_pen:
-            max_pen, k_max = shell_depth, k
-        max_core = max(max_core, depth(query, pose_WC[k, 4:], rc))
-        if shell_depth <= -FREE_SPACE_MARGIN_M:
-            sq_err += float(np.sum((pose_WC[k, 4:] - pose_WT[k, 4:]) ** 2))
-            n_free += 1
-    return {
-        "max_penetration_m": max_pen,
-        "max_penetration_step": k_max,
-        "max_core_penetration_m": max_core,
-        "max_shell_deformation_m": float(deformation.max()) if n else None,
-        "final_shell_deformation_m": float(deformation[-1]) if n else None,
-        "rms_tracking_error_m": math.sqrt(sq_err / n_free) if n_free else None,
-        "free_space_samples": n_free,
-    }
+    def update(self, states, vertices, rest, pose_WC, pose_WT) -> None:
+        """Plant states, shell points and their rest positions (W, flattened), core and target
+        poses ``[qw qx qy qz x y z]``, at the same steps: (N, ·) each."""
+        n = len(states)
+        if n == 0:
+            return
+        deformation = np.linalg.norm((vertices - rest).reshape(n, -1, 3), axis=2).max(axis=1)
+        top = float(deformation.max())
+        self.max_deformation = top if self.max_deformation is None else max(self.max_deformation, top)
+        self.final_deformation = float(deformation[-1])
+        plant, ctx, nq = self.plant, self._plant_context, self.plant.num_positions()
+        for k in range(n):
+            plant.SetPositions(ctx, states[k, :nq])
+            query = self._query_port.Eval(ctx)
+            points = vertices[k].reshape(-1, 3)[self.shell.surface]
+            shell_depth = max(self._depth(query, p, self._rn) for p in points)
+            if shell_depth > self.max_pen:
+                self.max_pen, self.k_max = shell_depth, self.rows
+            self.max_core = max(self.max_core, self._depth(query, pose_WC[k, 4:], self._rc))
+            if shell_depth <= -FREE_SPACE_MARGIN_M:
+                self.sq_err += float(np.sum((pose_WC[k, 4:] - pose_WT[k, 4:]) ** 2))
+                self.n_free += 1
+            self.rows += 1
+
+    def result(self) -> dict:
+        return {
+            "max_penetration_m": self.max_pen,
+            "max_penetration_step": self.k_max,
+            "max_core_penetration_m": self.max_core,
+            "max_shell_deformation_m": self.max_deformation,
+            "final_shell_deformation_m": self.final_deformation,
+            "rms_tracking_error_m": math.sqrt(self.sq_err / self.n_free) if self.n_free else None,
+            "free_space_samples": self.n_free,
+        }
 
 
-def scene_metrics(station, data: dict) -> dict:
-    """What a run measured, from its logs (``data``: one row per plant step), by god-object kind.
+def shell_metrics(diagram, plant, shell, obstacles, states, vertices, rest, pose_WC, pose_WT) -> dict:
+    """:class:`ShellMetrics` of whole logs at once."""
+    acc = ShellMetrics(diagram, plant, shell, obstacles)
+    acc.update(states, vertices, rest, pose_WC, pose_WT)
+    return acc.result()
+
+
+class SceneMetrics:
+    """A station's metrics (by god-object kind), folded in from its logs chunk by chunk.
 
     Every kind gives ``max_penetration_m``, ``rms_tracking_error_m``, ``free_space_samples``
     and ``max_other_body_speed_mps`` (None where nothing else moves); rigid adds
-    ``coupling_capped_steps``; articulated :func:`tool_metrics`' keys; deformable
-    :func:`shell_metrics`'. Rows with a non-finite value (a run stopped as diverged) are left out.
+    ``coupling_capped_steps``; articulated :class:`ToolMetrics`' keys; deformable
+    :class:`ShellMetrics`'. Rows with a non-finite value (a run stopped as diverged) are left
+    out. ``update(data)`` takes a dict of logs (one row per plant step, the station's
+    logger names); ``result()`` reads the values so far.
     """
-    from godobject_drake.coupling import TERMS_LAYOUT
-    from godobject_drake.deformable import obstacle_geometries
 
-    god, plant, scene_graph, diagram = station.god_object, station.plant, station.scene_graph, station.diagram
-    finite = np.all(np.concatenate([np.isfinite(d) for d in data.values()], axis=1), axis=1)
-    rows = {name: d[finite] for name, d in data.items()}
-    states = rows["state"]
-    if god.kind == "rigid":
-        terms = rows["terms"]
-        held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
-        p_WT = terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:]
-        out = compute_metrics(TrueShapeMetrics(plant, scene_graph, diagram), states, held, p_WT)
-        out["coupling_capped_steps"] = int(np.sum(data["terms"][:, TERMS_LAYOUT["capped"]] > 0.5))
-        return out
-    if god.kind == "articulated":
-        config = station.scenario.god_object
-        tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
-        out = tool_metrics(
-            diagram, plant, scene_graph, god.tool, states, rows["q_device"], tip_body=tip,
-            pivot_body=config.pivot_body or None,
-        )  # fmt: skip
-        return {
-            "max_penetration_m": out["max_penetration_m"],
-            "rms_tracking_error_m": out["tip_tracking_rms_m"],
-            "max_other_body_speed_mps": None,
-            **out,
-        }
-    out = shell_metrics(
-        diagram, plant, god.shell, obstacle_geometries(scene_graph, god.shell, plant), states,
-        rows["vertex_positions"], rows["rest_positions"], rows["pose_WC"], rows["pose_WT"],
-    )  # fmt: skip
-    return {"max_other_body_speed_mps": None, **out}
+    def __init__(self, station):
+        from godobject_drake.deformable import obstacle_geometries
+
+        god, plant, scene_graph, diagram = (
+            station.god_object,
+            station.plant,
+            station.scene_graph,
+            station.diagram,
+        )
+        self.kind = god.kind
+        self.capped = 0
+        if god.kind == "rigid":
+            self._acc = RigidMetrics(TrueShapeMetrics(plant, scene_graph, diagram))
+        elif god.kind == "articulated":
+            config = station.scenario.god_object
+            tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
+            self._acc = ToolMetrics(diagram, plant, scene_graph, god.tool, tip, config.pivot_body or None)
+        else:
+            self._acc = ShellMetrics(
+                diagram, plant, god.shell, obstacle_geometries(scene_graph, god.shell, plant)
+            )
+
+    def update(self, data: dict) -> None:
+        from godobject_drake.coupling import TERMS_LAYOUT
+
+        if not data or len(data["state"]) == 0:
+            return
+        finite = np.all(np.concatenate([np.isfinite(d) for d in data.values()], axis=1), axis=1)
+        rows = {name: d[finite] for name, d in data.items()}
+        states = rows["state"]
+        if self.kind == "rigid":
+            terms = rows["terms"]
+            held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
+            self._acc.update(states, held, terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:])
+            self.capped += int(np.sum(data["terms"][:, TERMS_LAYOUT["capped"]] > 0.5))
+        elif self.kind == "articulated":
+            self._acc.update(states, rows["q_device"])
+        else:
+            self._acc.update(states, rows["vertex_positions"], rows["rest_positions"], rows["pose_WC"],
+                             rows["pose_WT"])  # fmt: skip
+
+    def result(self) -> dict:
+        out = self._acc.result()
+        if self.kind == "rigid":
+            return {**out, "coupling_capped_steps": self.capped}
+        if self.kind == "articulated":
+            return {
+                "max_penetration_m": out["max_penetration_m"],
+                "rms_tracking_error_m": out["tip_tracking_rms_m"],
+                "max_other_body_speed_mps": None,
+                **out,
+            }
+        return {"max_other_body_speed_mps": None, **out}
+
+
+def scene_metrics(station, data: dict) -> dict:
+    """:class:`SceneMetrics` of whole logs at once."""
+    acc = SceneMetrics(station)
+    acc.update(data)
+    return acc.result()

@@ -393,10 +393,16 @@ class Visualization:
 
 @dataclasses.dataclass
 class Recording:
-    """A self-contained Meshcat HTML recording of the run (``file`` empty: none)."""
+    """A self-contained Meshcat HTML recording of the run (``file`` empty: none).
+
+    ``max_duration_s``: the recording covers the run's first this many seconds (the rest runs
+    unrecorded), so its size is known in advance: about 2.2 MB of viewer plus the frames, some
+    0.1 MB per second for the brick scene at 64 frames per second (README "Recordings").
+    """
 
     file: str = ""
     frames_per_second: float = 64.0
+    max_duration_s: float = 300.0
 
 
 @dataclasses.dataclass
@@ -406,10 +412,14 @@ class Metrics:
     ``penetration_budget_m``: how deep a god-object may go into an obstacle (m). At build,
     a god-object whose capped pull could push it deeper (capped force / contact stiffness)
     gets a :class:`~godobject_drake.building.PenetrationBudgetWarning`.
+    ``checkpoint_period_s``: while a run goes, the command line rewrites ``file`` with the
+    metrics so far (marked ``partial``) every this many seconds of wall time, so even a killed
+    run leaves them.
     """
 
     file: str = ""
     penetration_budget_m: float = 1e-3
+    checkpoint_period_s: float = 10.0
 
 
 @dataclasses.dataclass
@@ -651,6 +661,12 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     for attribute in ("lower_m", "upper_m"):
         if len(getattr(s.workspace, attribute)) != 3:
             _fail(where, f"workspace.{attribute}", "needs 3 values (x, y, z in m)")
+    every = s.metrics.checkpoint_period_s
+    if not (every > 0):
+        _fail(where, "metrics.checkpoint_period_s", f"{every!r} s must be > 0")
+    cap = s.recording.max_duration_s
+    if not (cap > 0):
+        _fail(where, "recording.max_duration_s", f"{cap!r} s must be > 0 (it caps the recording's size)")
     budget = s.metrics.penetration_budget_m
     if not (budget > 0):
         _fail(where, "metrics.penetration_budget_m", f"{budget!r} m must be > 0")

@@ -9,7 +9,9 @@ of one's own added to the diagram can be read after the run. Nothing a run
 produced is lost to a late failure: a divergence or a Drake error stops the
 run with a diagnosis, the recording is written before the metrics are
 computed, and a metric that fails is reported in ``metrics_error`` beside
-the metrics that did not.
+the metrics that did not. Memory stays flat however long a run goes: the logs are folded
+into running metrics every simulated second (unless kept on request), and a recording
+covers at most ``recording.max_duration_s``.
 """
 
 import dataclasses
@@ -22,7 +24,7 @@ from pydrake.systems.analysis import Simulator
 
 from godobject_drake.building import Station
 from godobject_drake.coupling import TERMS_LAYOUT
-from godobject_drake.metrics import scene_metrics
+from godobject_drake.metrics import SceneMetrics
 from godobject_drake.recording import save_recording
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
 from godobject_drake.scenario import DEVICE_NAMES, Scenario
@@ -44,7 +46,7 @@ class RunResult:
         What the monitor saw (``checks``, ``projections``, ``stopped``).
     data : dict[str, numpy.ndarray]
         Every logger of ``station.loggers``, one row per plant step from t = 0, cut to their
-        common length.
+        common length (``simulate(keep_logs=True)``, the default; empty otherwise).
     """
 
     metrics: dict
@@ -61,6 +63,8 @@ class RunResult:
     @property
     def states(self) -> np.ndarray:
         """The plant's ``[q; v]`` at each plant step, ``(N, nq + nv)``."""
+        if "state" not in self.data:
+            raise ValueError("this run kept no logs: simulate(..., keep_logs=True) keeps them")
         return self.data["state"]
 
     @property
@@ -81,6 +85,18 @@ class RunResult:
         return self.coupling_terms("held_body").round().astype(int)
 
 
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`simulate`: the run stopped, and ``result`` holds what it produced
+    (its recording written, its metrics so far, marked ``partial``)."""
+
+    def __init__(self, result: "RunResult"):
+        super().__init__(f"interrupted at t = {result.metrics['sim_time_s']:.3f} s (metrics are partial)")
+        self.result = result
+
+
+FOLD_PERIOD_S = 1.0  # simulated seconds of logs kept before they are folded into the metrics
+
+
 def simulate(
     station: Station,
     *,
@@ -88,8 +104,17 @@ def simulate(
     record: str | Path | None = None,
     realtime_rate: float | None = None,
     progress: bool = True,
+    keep_logs: bool = True,
+    checkpoint=None,
+    checkpoint_period_s: float = 10.0,
 ) -> RunResult:
-    """Run ``station`` and measure it.
+    """Run ``station`` and measure it, in memory that does not grow with the run's length.
+
+    The loggers are emptied every :data:`FOLD_PERIOD_S` of simulated time into running
+    metrics (:class:`~godobject_drake.metrics.SceneMetrics`: the same values as measuring the
+    whole logs at the end, to the last bits of a sum), so only ``keep_logs`` makes memory
+    grow with the run. ``wall_time_s`` and the real-time factor count the simulation alone;
+    folding the logs is ``metrics_time_s``.
 
     Parameters
     ----------
@@ -97,12 +122,23 @@ def simulate(
         Simulated time (s); None: the scenario's ``simulation.duration_s``.
     record : str | Path | None
         Write the Meshcat HTML recording here; None: the scenario's ``recording.file``
-        (empty: no recording). The station needs a Meshcat (built with a recording file, or
-        given one).
+        (empty: no recording). It covers at most ``recording.max_duration_s`` of the run (its
+        size is stated in advance: README "Recordings"). The station needs a Meshcat (built
+        with a recording file, or given one).
     realtime_rate : float | None
         None: the scenario's, and 1 for a live device or a served page.
     progress : bool
         A progress bar on stderr.
+    keep_logs : bool
+        Keep every logged row for :attr:`RunResult.data` (memory grows ~2 MB per simulated
+        second for the brick scene); False keeps only the metrics.
+    checkpoint : callable | None
+        ``checkpoint(metrics)`` every ``checkpoint_period_s`` of wall time with the metrics so far
+        (marked ``partial``): the command line writes them, so a killed run leaves its last ones.
+
+    A run that stops early (a divergence, a Drake error, the Stop button) still measures what
+    it ran, its metrics marked ``partial``; Ctrl-C does too, then raises :class:`RunInterrupted`
+    carrying the result.
     """
     scenario = station.scenario
     sim = scenario.simulation
@@ -130,65 +166,141 @@ def simulate(
         meshcat=meshcat if live else None, before_step=god.before_step(plant), mode=god.mode,
     )  # fmt: skip
     simulator.Initialize()
+    recording_steps = None
     if record:
         meshcat.StartRecording(
             frames_per_second=scenario.recording.frames_per_second, set_visualizations_while_recording=live
         )
+        recording_steps = round(scenario.recording.max_duration_s / h)
 
-    diagnosis = None
+    logs = _Logs(station, root, keep_logs)
+    try:
+        measured, metrics_error = SceneMetrics(station), None
+    except Exception as e:  # a scene the metrics cannot measure still runs, and says why
+        measured, metrics_error = None, f"{type(e).__name__}: {e}"
+
+    def fold():
+        nonlocal metrics_error
+        chunk = logs.drain()
+        if measured is not None and metrics_error is None:
+            try:
+                measured.update(chunk)
+            except Exception as e:  # reported, never lost: the common metrics and the logs stand
+                metrics_error = f"{type(e).__name__}: {e}"
+
+    def common(wall: float, folding: float, diagnosis: str | None, partial: bool) -> dict:
+        sim_time = root.get_time()
+        return {
+            "scene": scenario.name,
+            "mode": god.mode,
+            "time_step_s": h,
+            "sim_time_s": sim_time,
+            "wall_time_s": wall,
+            "real_time_factor": sim_time / wall if wall > 0 else None,
+            "step_cost_us": 1e6 * wall / max(round(sim_time / h), 1),
+            "metrics_time_s": folding,
+            "diverged": diagnosis is not None,
+            "diagnosis": diagnosis,
+            "partial": partial,
+            "predicted_static_penetration_m": station.predicted_penetration_m,
+            **configuration(scenario, station),
+        }
+
+    diagnosis, interrupted = None, False
     n_steps = round(duration / h)
+    fold_every = max(guard.every, round(FOLD_PERIOD_S / h))
     bar = _progress(n_steps, progress)
-    wall0 = time.perf_counter()
-    k = 0
+    wall, folding = 0.0, 0.0
+    k, next_fold = 0, fold_every
+    last_checkpoint = time.perf_counter()
     try:
         while k < n_steps and not guard.stopped:
             k_next = min(k + guard.every, n_steps)
+            t0 = time.perf_counter()
             simulator.AdvanceTo(k_next * h)
+            wall += time.perf_counter() - t0
             bar.update(k_next - k)
             k = k_next
+            if recording_steps is not None and k >= recording_steps:
+                meshcat.StopRecording()  # the cap: the rest of the run is not recorded
+                recording_steps = None
+            if k >= next_fold:
+                t0 = time.perf_counter()
+                fold()
+                folding += time.perf_counter() - t0
+                next_fold = k + fold_every
+            if checkpoint is not None and time.perf_counter() - last_checkpoint >= checkpoint_period_s:
+                checkpoint({**common(wall, folding, None, True), **_measured(measured, metrics_error)})
+                last_checkpoint = time.perf_counter()
         guard.check()
     except DivergenceError:
         diagnosis = guard.diagnosis
     except RuntimeError as e:
         diagnosis = f"Drake stopped at t={root.get_time():.4f} s: {e}"
+    except KeyboardInterrupt:
+        interrupted = True
     finally:
-        wall = time.perf_counter() - wall0
         bar.close()
 
-    sim_time = root.get_time()
-    metrics = {
-        "scene": scenario.name,
-        "mode": god.mode,
-        "time_step_s": h,
-        "sim_time_s": sim_time,
-        "wall_time_s": wall,
-        "real_time_factor": sim_time / wall if wall > 0 else None,
-        "step_cost_us": 1e6 * wall / max(round(sim_time / h), 1),
-        "diverged": diagnosis is not None,
-        "diagnosis": diagnosis,
-        "predicted_static_penetration_m": station.predicted_penetration_m,
-        **configuration(scenario, station),
-    }
+    partial = interrupted or root.get_time() < n_steps * h - 0.5 * h
+    metrics = common(wall, folding, diagnosis, partial)
     if guard.stopped:
         metrics["stopped_by_user"] = True
-    if record:  # before the metrics: a metric that fails must not lose the recording
+    if interrupted:
+        metrics["interrupted"] = True
+    if record:  # before the last metrics: a metric that fails must not lose the recording
         try:
             metrics["recording_bytes"] = save_recording(meshcat, record)
+            metrics["recording_s"] = min(root.get_time(), scenario.recording.max_duration_s)
         except OSError as e:
             metrics["recording_error"] = f"{record}: {e}"
-    data = _logged(station, root)
+    t0 = time.perf_counter()
+    fold()
+    metrics["metrics_time_s"] = folding + time.perf_counter() - t0
+    metrics.update(_measured(measured, metrics_error))
     try:
-        metrics.update(scene_metrics(station, data))
         metrics.update(god.device_metrics(root))
-    except Exception as e:  # reported, never lost: the common metrics and the logs stand
-        metrics["metrics_error"] = f"{type(e).__name__}: {e}"
-    return RunResult(metrics, station, simulator, guard, data)
+    except Exception as e:
+        metrics.setdefault("metrics_error", f"{type(e).__name__}: {e}")
+    result = RunResult(metrics, station, simulator, guard, logs.kept())
+    if interrupted:
+        raise RunInterrupted(result)
+    return result
 
 
-def _logged(station: Station, root_context) -> dict:
-    logs = {name: logger.FindLog(root_context) for name, logger in station.loggers.items()}
-    n = min(log.num_samples() for log in logs.values())
-    return {name: log.data()[:, :n].T for name, log in logs.items()}
+def _measured(measured, metrics_error) -> dict:
+    if metrics_error is not None:
+        return {"metrics_error": metrics_error}
+    return measured.result()
+
+
+class _Logs:
+    """The station's loggers, emptied into chunks (one row per plant step); optionally all kept."""
+
+    def __init__(self, station: Station, root_context, keep: bool):
+        self._logs = {name: logger.FindMutableLog(root_context) for name, logger in station.loggers.items()}
+        self._pending = {name: None for name in self._logs}
+        self._keep = [] if keep else None
+
+    def drain(self) -> dict:
+        """The rows logged since the last drain, the same number from every logger."""
+        rows = {}
+        for name, log in self._logs.items():
+            new = log.data().T.copy()
+            log.Clear()
+            pending = self._pending[name]
+            rows[name] = new if pending is None else np.concatenate([pending, new])
+        n = min(len(r) for r in rows.values())
+        self._pending = {name: (r[n:] if len(r) > n else None) for name, r in rows.items()}
+        chunk = {name: r[:n] for name, r in rows.items()}
+        if self._keep is not None:
+            self._keep.append(chunk)
+        return chunk
+
+    def kept(self) -> dict:
+        if not self._keep:
+            return {}
+        return {name: np.concatenate([c[name] for c in self._keep]) for name in self._keep[0]}
 
 
 def configuration(scenario: Scenario, station: Station) -> dict:
