@@ -34,7 +34,6 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.spatial import (
-    cross3,
     pose_arrays,
     quat_conjugate,
     quat_multiply,
@@ -494,7 +493,7 @@ class GodObjectCoupling(LeafSystem):
         new = np.array([-1.0, 1, 0, 0, 0, 0, 0, 0])
         if body is not None:
             q_WD, p_WD, R_WD = pose_arrays(self._X_WD_port.Eval(context))
-            q_WG, p_WG, _, _, _ = self._body_state(body, self._state_port.Eval(context))
+            q_WG, p_WG = self._body_state(body, self._state_port.Eval(context))
             new[0] = body.index
             new[1:5] = quat_multiply(quat_conjugate(q_WD), q_WG)
             new[5:8] = R_WD.T @ (p_WG - p_WD)
@@ -506,14 +505,11 @@ class GodObjectCoupling(LeafSystem):
     # 20 µs (analysis/speed_vs_error.py measures it).
     @staticmethod
     def _body_state(body: GraspableBody, x: np.ndarray):
+        """``(q_WB, p_WG)``: the body's unit quaternion and its centre of mass in W."""
         q = x[body.q_start : body.q_start + 4]
         q = q / np.linalg.norm(q)  # the plant's quaternion drifts off unit norm (see _calc_terms)
-        R_WB = quat_to_rotation(q)
-        p_BoBcm_W = R_WB @ body.p_BoBcm_B
-        w = x[body.v_start : body.v_start + 3]
-        p_WG = x[body.q_start + 4 : body.q_start + 7] + p_BoBcm_W
-        v_WG = x[body.v_start + 3 : body.v_start + 6] + cross3(w, p_BoBcm_W)
-        return q, p_WG, w, v_WG, R_WB
+        p_WG = x[body.q_start + 4 : body.q_start + 7] + quat_to_rotation(q) @ body.p_BoBcm_B
+        return q, p_WG
 
     def _calc_terms(self, context, value):
         out = value.get_mutable_value()
