@@ -150,3 +150,14 @@ def no_drake_deprecation_logged():
     yield
     new = DRAKE_DEPRECATIONS.messages[seen:]
     assert not new, f"Drake logged a deprecation: {new}"
+
+
+def assert_refused(call, error, *, value: str, limit: str, fix: str) -> str:
+    """``call()`` raises ``error`` whose message names the bad value, the limit it breaks and the
+    fix (each a regular expression); returns the message. One check for every refusal test."""
+    with pytest.raises(error) as raised:
+        call()
+    message = str(raised.value)
+    for what, pattern in (("value", value), ("limit", limit), ("fix", fix)):
+        assert re.search(pattern, message), f"the refusal does not name the {what} ({pattern!r}): {message}"
+    return message

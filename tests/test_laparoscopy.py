@@ -1,15 +1,15 @@
 """The laparoscopy scene as a user runs it: penetration, trocar, tracking against its prediction."""
 
 import json
+import re
 
 import numpy as np
 import pytest
-from conftest import build_scene, load_script, meshcat_commands, run_scene, scenario
+from conftest import assert_refused, build_scene, load_script, meshcat_commands, run_scene, scenario
 
 from godobject_drake.articulated import device_targets, joint_space_loop, linear_response
+from godobject_drake.coupling import CouplingGainError
 from godobject_drake.devices import write_joint_log
-
-laparoscopy = load_script("diagrams/laparoscopy.py")
 
 
 def run(*flags):
@@ -94,8 +94,9 @@ def test_free_space_tip_tracking_matches_its_gains(coupling, free_space_log):
 def test_recording_draws_the_device_tool_as_a_wireframe(tmp_path):
     html = tmp_path / "lap.html"
     metrics_path = tmp_path / "m.json"
-    assert laparoscopy.main(["--no-progress", "--duration", "0.2", "--record", str(html),
-                             "--metrics", str(metrics_path)]) == 0  # fmt: skip
+    script = load_script("diagrams/laparoscopy.py")
+    assert script.main(["--no-progress", "--duration", "0.2", "--record", str(html),
+                        "--metrics", str(metrics_path)]) == 0  # fmt: skip
     commands = meshcat_commands(html.read_text())
     (animation,) = [c for c in commands if b"set_animation" in c]
     # The god-object tool is the plant's solid drawing; the device's tool is a wireframe ghost.
@@ -125,11 +126,22 @@ def test_bad_device_logs_name_file_and_line(tmp_path):
         run("--device", "replay", "--device-log", str(bad), "--duration", "0.1")
 
 
-def test_explicit_gains_past_the_limit_are_refused_with_the_fix():
-    with pytest.raises(SystemExit):
-        laparoscopy.main(
-            ["--no-progress", "--duration", "0.1", "--coupling", "joint_pd", "--omega-n", "2000"]
-        )
+def test_explicit_gains_past_the_limit_are_refused_with_the_fix(capsys):
+    flags = ("--duration", "0.1", "--coupling", "joint_pd", "--omega-n", "2000")
+    refusal = dict(
+        value=r"coupling='joint_pd' with omega_n=2000",
+        limit=r"spectral radius \d+\.\d+ ≥ 1",
+        fix=r"Lower the bandwidths or time_step, or use coupling='joint_pd_sap'",
+    )
+    assert_refused(lambda: build_scene("laparoscopy", *flags), CouplingGainError, **refusal)
+    # On the command line: the same message, and the exit status of bad input (2).
+    script = load_script("diagrams/laparoscopy.py")
+    with pytest.raises(SystemExit) as exit_:
+        script.main(["--no-progress", *flags])
+    assert exit_.value.code == 2
+    stderr = capsys.readouterr().err
+    for pattern in refusal.values():
+        assert re.search(pattern, stderr), (pattern, stderr)
     _, metrics, _, _ = run("--duration", "0.2", "--coupling", "joint_pd_sap", "--omega-n", "2000")
     assert not metrics["diverged"]
 
