@@ -56,3 +56,17 @@ def test_zero_gains_is_a_non_haptic_device():
 def test_negative_gain_is_refused():
     with pytest.raises(ValueError, match="kd=-1"):
         FeedbackGains(kd=-1.0)
+
+
+def test_the_moment_is_taken_about_the_device_point_wherever_it_is():
+    """Do at (1, 2, 0), T at (1, 2.1, 0): the arm p_DoT is 0.1 ŷ (not p_WT + p_WD), so with
+    f = 1 N x̂ the moment is −0.1 ẑ N·m as in the first test, moved by (1, 2, 0)."""
+    F = wrench(
+        FeedbackGains(kd=100.0),
+        p_WD=[1.0, 2.0, 0.0],
+        pose_WT=[*IDENTITY_Q, 1.0, 2.1, 0],
+        V_WT=np.zeros(6),
+        pose_WG=[*IDENTITY_Q, 1.01, 2.1, 0],
+        V_WG=np.zeros(6),
+    )
+    np.testing.assert_allclose(F, [0, 0, -0.1, 1.0, 0, 0], atol=1e-12)

@@ -7,6 +7,8 @@ from pydrake.math import RotationMatrix
 
 from godobject_drake.spatial import (
     cross3,
+    normalized_quaternion,
+    pose_from_array,
     quat_multiply,
     quat_of_rotation_entries,
     quat_product,
@@ -79,3 +81,58 @@ def test_float_and_array_forms_are_the_same_formulas():
         np.testing.assert_allclose(
             rotation_vector_between(a, b), rotation_error(q[i], q[i - 1]), rtol=0, atol=4e-15
         )
+
+
+@pytest.mark.parametrize("axis", [[1, 0.2, -0.1], [0.1, -1, 0.3], [-0.2, 0.1, 1], [1, 1, 1]])
+@pytest.mark.parametrize("degrees", [30, 120, 170, 180])
+def test_rotation_to_quat_in_every_branch_of_shepperds_method(axis, degrees):
+    """Past 90° or so the trace is ≤ 0 and the largest diagonal entry (x, y or z) picks the
+    formula: each branch is checked against Drake's own conversion, with w ≥ 0."""
+    R = RotationMatrix(AngleAxis(np.radians(degrees), np.array(axis) / np.linalg.norm(axis)))
+    expected = R.ToQuaternion().wxyz()  # ± q: one rotation
+    q = rotation_to_quat(R.matrix())
+    assert q[0] >= 0.0
+    np.testing.assert_allclose(q if np.dot(q, expected) >= 0 else -q, expected, atol=2e-15)
+    np.testing.assert_allclose(quat_to_rotation(q), R.matrix(), atol=4e-15)
+
+
+def test_a_half_turn_error_is_pi_about_the_vector_part():
+    """q_target ⊗ q_current⁻¹ = (0, 0, 0, 1) exactly: s = 1, α = 2 atan2(1, 0) = π, about +z as
+    given (a scalar part of exactly 0 is not flipped: only a negative one is)."""
+    half_turn = np.array([0.0, 0.0, 0.0, 1.0])
+    np.testing.assert_allclose(rotation_error(half_turn, [1, 0, 0, 0]), [0, 0, np.pi], atol=1e-15)
+    np.testing.assert_allclose(rotation_vector_between(half_turn, (1, 0, 0, 0)), [0, 0, np.pi], atol=1e-15)
+
+
+def test_an_error_below_the_tiny_threshold_is_twice_the_vector_part():
+    """Below s = 1e-12 the error is 2 v (α ≈ 2 s): a 1e-13 rad turn gives 1e-13 rad, not 0 or 1.5e-13."""
+    for f in (rotation_error, rotation_vector_between):
+        np.testing.assert_allclose(
+            f(q_about_z(np.degrees(1e-13)), (1.0, 0.0, 0.0, 0.0)), [0, 0, 1e-13], rtol=1e-9
+        )
+
+
+def test_normalized_quaternion_divides_by_the_norm_and_refuses_past_the_tolerance():
+    np.testing.assert_allclose(
+        normalized_quaternion([0, 0, 0, 1.0008], what="x"), [0, 0, 0, 1], rtol=0, atol=0
+    )
+    assert normalized_quaternion([[1.5, 0, 0, 0]], what="x", tolerance=0.5).shape == (
+        4,
+    )  # |q| − 1 = tolerance: ok
+    with pytest.raises(
+        ValueError,
+        match=r"^waypoint 3: quaternion \[1\.002, 0\.0, 0\.0, 0\.0\] has norm 1\.002; "
+        r"expected 1 within 0\.001\. Give a unit quaternion \[qw, qx, qy, qz\] \(normalise it\)\.$",
+    ):
+        normalized_quaternion([1.002, 0, 0, 0], what="waypoint 3")
+    with pytest.raises(ValueError, match="norm nan"):
+        normalized_quaternion([np.nan, 0, 0, 1], what="x")
+    with pytest.raises(ValueError, match=r"has norm inf"):
+        normalized_quaternion([np.inf, 0, 0, 0], what="x", tolerance=np.inf)
+
+
+def test_pose_from_array_is_the_logged_pose():
+    a = np.radians(40)
+    X = pose_from_array(np.array([2 * np.cos(a / 2), 0, 2 * np.sin(a / 2), 0, 0.1, -0.2, 0.3]))
+    np.testing.assert_allclose(X.rotation().matrix(), RotationMatrix.MakeYRotation(a).matrix(), atol=1e-15)
+    np.testing.assert_array_equal(X.translation(), [0.1, -0.2, 0.3])
