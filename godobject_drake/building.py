@@ -433,6 +433,7 @@ def add_articulated(
     *,
     duration_s: float,
     connect_forces: bool = True,
+    check_gains: bool = True,
 ) -> GodObject:
     """An articulated god-object from its scenario config: the tool starts where the device is.
 
@@ -449,6 +450,7 @@ def add_articulated(
         builder, plant, config.model, config.device_joints, coupling=config.coupling, gains=config.gains,
         device_period_s=device.period_s, q_reference=q_home, imposed_joints=tuple(config.imposed_joints),
         q_check=device.samples(duration_s)[:: config.check_every], connect_forces=connect_forces,
+        check_gains=check_gains,
     )  # fmt: skip
     tool = coupling.tool
     q = plant.GetDefaultPositions()
@@ -477,6 +479,7 @@ def add_deformable(
     *,
     haptic: "sc.Haptic | None" = None,
     connect_forces: bool = True,
+    check_gains: bool = True,
 ) -> GodObject:
     """A deformable god-object: its shell's observer, and :func:`add_god_object` on its core,
     with gains and gravity compensation scaled by core + shell (``carried``).
@@ -487,7 +490,7 @@ def add_deformable(
     observer = shell.connect(builder, plant)
     god = add_god_object(
         builder, plant, device, gains, feedback_gains, haptic=haptic, connect_forces=connect_forces,
-        carried={shell.grasp_name: shell.shell_inertia()},
+        carried={shell.grasp_name: shell.shell_inertia()}, check_gains=check_gains,
     )  # fmt: skip
     god.kind, god.shell, god.observer = "deformable", shell, observer
     return god
@@ -643,9 +646,13 @@ def finish(
     )  # fmt: skip
 
 
-def build_station(scenario: sc.Scenario, meshcat: Meshcat | None = None) -> Station:
+def build_station(
+    scenario: sc.Scenario, meshcat: Meshcat | None = None, *, check_gains: bool = True
+) -> Station:
     """Build any scenario into a diagram (module docstring); ``meshcat`` None makes the one
-    the scenario asks for (:func:`make_meshcat`)."""
+    the scenario asks for (:func:`make_meshcat`). ``check_gains=False`` builds gains past
+    the explicit limit instead of refusing them: for stability analysis only
+    (:mod:`godobject_drake.analyze` simulates them to find the limit)."""
     sc.check_scenario(scenario)
     meshcat = meshcat or make_meshcat(scenario)
     builder = DiagramBuilder()
@@ -660,9 +667,13 @@ def build_station(scenario: sc.Scenario, meshcat: Meshcat | None = None) -> Stat
     if scenario.kind == "articulated":
         scene = add_plant(builder, scenario)
         duration = scenario.simulation.duration_s
-        god = add_articulated(builder, scene, god_config, device, duration_s=duration, connect_forces=connect)
+        god = add_articulated(
+            builder, scene, god_config, device, duration_s=duration, connect_forces=connect,
+            check_gains=check_gains,
+        )  # fmt: skip
     elif scenario.kind == "deformable":
-        god_config.gains.check(scenario.time_step)  # before meshing anything
+        if check_gains:
+            god_config.gains.check(scenario.time_step)  # before meshing anything
         X_WC = first_pose(device)  # the probe starts at the device
         shells = {}
 
@@ -674,13 +685,13 @@ def build_station(scenario: sc.Scenario, meshcat: Meshcat | None = None) -> Stat
         scene = add_plant(builder, scenario, before_finalize=add_shell)
         god = add_deformable(
             builder, scene.plant, shells["shell"], device, god_config.gains, scenario.feedback,
-            haptic=haptic, connect_forces=connect,
+            haptic=haptic, connect_forces=connect, check_gains=check_gains,
         )  # fmt: skip
     else:
         scene = add_plant(builder, scenario)
         god = add_god_object(
             builder, scene.plant, device, god_config.gains, scenario.feedback, haptic=haptic,
-            connect_forces=connect, **coupling_options(god_config),
+            connect_forces=connect, check_gains=check_gains, **coupling_options(god_config),
         )  # fmt: skip
     return finish(builder, scenario, scene, god, meshcat)
 
@@ -705,9 +716,37 @@ def predict_penetration(scene: SceneParts, god: GodObject, penetration_allowance
     """
     if god.kind != "rigid":
         return None
-    plant, scene_graph = scene.plant, scene.scene_graph
-    if plant.get_contact_model() != ContactModel.kPoint:
+    pairs = penetration_pairs(scene.plant, scene.scene_graph, god.coupling, penetration_allowance)
+    if not pairs:
         return None
+    best = max(pairs, key=lambda pair: pair.depth_m)
+    return best.depth_m, best.body, best.obstacle, best.force_n, best.stiffness_n_m
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactPair:
+    """A held body's geometry against an obstacle geometry it can touch (point contact)."""
+
+    body: str
+    body_index: int
+    geometry: str
+    obstacle: str
+    obstacle_anchored: bool  # welded to the world (a fixed obstacle), not another free body
+    force_n: float  # the coupling's force cap on the body (N)
+    stiffness_n_m: float  # the pair's combined point-contact stiffness (N/m)
+
+    @property
+    def depth_m(self) -> float:
+        """Static penetration under the capped pull, one contact point (m)."""
+        return self.force_n / self.stiffness_n_m
+
+
+def penetration_pairs(plant, scene_graph, coupling, penetration_allowance: float = 1e-3) -> list[ContactPair]:
+    """Every (held body geometry, obstacle geometry) pair that can touch, with the coupling's
+    force cap on the body and the pair's combined stiffness (:func:`predict_penetration`);
+    empty without point contact."""
+    if plant.get_contact_model() != ContactModel.kPoint:
+        return []
     inspector = scene_graph.model_inspector()
     masses = [plant.get_body(BodyIndex(i)).default_mass() for i in range(plant.num_bodies())]
     m_max = max([m for m in masses if math.isfinite(m)] or [0.0])
@@ -718,9 +757,12 @@ def predict_penetration(scene: SceneParts, god: GodObject, penetration_allowance
         for g_id in inspector.GetAllGeometryIds(Role.kProximity)
         if not inspector.IsDeformableGeometry(g_id)
     ]
-    best = None
-    for body in {b.index: b for b in god.coupling.bodies.values()}.values():
-        force, _ = god.coupling.force_caps(body)
+    world = inspector.world_frame_id()
+    welded = plant.GetBodiesWeldedTo(plant.world_body())  # the world body included
+    anchored = {plant.GetBodyFrameIdOrThrow(b.index()) for b in welded} | {world}
+    pairs = []
+    for body in {b.index: b for b in coupling.bodies.values()}.values():
+        force, _ = coupling.force_caps(body)
         frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
         for a in inspector.GetGeometries(frame, Role.kProximity):
             for b in ids:
@@ -728,9 +770,12 @@ def predict_penetration(scene: SceneParts, god: GodObject, penetration_allowance
                     continue
                 ka, kb = _stiffness(inspector, a, default_k), _stiffness(inspector, b, default_k)
                 k = ka * kb / (ka + kb)
-                if k > 0 and (best is None or force / k > best[0]):
-                    best = (force / k, body.name, inspector.GetName(b), force, k)
-    return best
+                if k > 0:
+                    pairs.append(ContactPair(
+                        body.name, body.index, inspector.GetName(a), inspector.GetName(b),
+                        inspector.GetFrameId(b) in anchored, force, k,
+                    ))  # fmt: skip
+    return pairs
 
 
 def _stiffness(inspector, geometry_id, default: float) -> float:

@@ -578,8 +578,8 @@ def passivity_check(sys: ct.StateSpace) -> PassivityCheck:
 def _index_or_nan(fn, sys) -> float:
     try:
         return fn(sys)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-        return float("nan")
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError):
+        return float("nan")  # RuntimeError: python-control's "LMI passivity problem is infeasible"
 
 
 # -- continuous two-port (Llewellyn) -----------------------------------------------------------------------
