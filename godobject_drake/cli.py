@@ -1,4 +1,5 @@
-"""The command line: ``python -m godobject_drake run SCENARIO.yaml [flags]``, and the scene scripts.
+"""The command line: ``python -m godobject_drake run SCENARIO.yaml [flags]``, ``python -m
+godobject_drake analyze SCENARIO.yaml --out DIR [flags]``, and the scene scripts.
 
 Every flag overrides one scenario field (``--help`` names it); a flag left out
 keeps the scenario's value. The scene scripts (``diagrams/*.py``) take the same
@@ -375,7 +376,20 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
         )
         run.add_argument("scenario", type=Path, help="the scenario YAML file")
         add_arguments(run)
+        analyze = commands.add_parser(
+            "analyze", help="the scenario's stability and passivity report, each verdict checked in Drake"
+        )
+        analyze.add_argument("scenario", type=Path, help="the scenario YAML file")
+        analyze.add_argument("--out", type=Path, required=True, help="directory for report.md, summary.json")
+        analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
+        analyze.add_argument(
+            "--verify", action=argparse.BooleanOptionalAction, default=None,
+            help="simulate each prediction in Drake on this scene (default: on, off with --quick)",
+        )  # fmt: skip
+        add_arguments(analyze)
         args = parser.parse_args(argv)
+        if args.command == "analyze":
+            return _analyze(args, analyze)
         path, parser = args.scenario, run
     else:
         path = Path(scenario)
@@ -408,3 +422,18 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
         input("Meshcat is still serving the scene; press Enter to exit.")
     return 1 if metrics["diverged"] or "metrics_error" in metrics else 0
+
+
+def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``analyze``: write the report; exit 1 if a check fails, 2 for bad input."""
+    from godobject_drake.analyze import analyze, verdict_table, write_report
+
+    try:
+        s = apply_arguments(sc.load_scenario(args.scenario), args)
+        summary = analyze(s, quick=args.quick, verify=args.verify)
+    except USER_ERRORS as e:
+        parser.error(str(e))
+    path = write_report(summary, args.out)
+    print(verdict_table(summary))
+    print(f"verdict: {summary['verdict']}; report written to {path}")
+    return 1 if summary["verdict"] == "fail" else 0

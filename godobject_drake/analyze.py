@@ -1,0 +1,738 @@
+"""The stability and passivity report of any scenario: ``python -m godobject_drake analyze``.
+
+:func:`analyze` reads the models of :mod:`godobject_drake.stability` off a built scene (each
+god-object body's mass and inertia, the plant's step, the coupling's gains and caps, the
+contact stiffness of every pair the held body can touch, the haptic device's rate, mass and
+damping and the feedback gains) and returns one :class:`Check` per question, each with a
+verdict (``ok``, ``warn``, ``fail`` or ``info``), its number, its limit and the change that fixes
+it. With ``verify`` it simulates each prediction in Drake on the user's own scene:
+
+- the static penetration, by holding the target 5 cm inside the nearest fixed obstacle;
+- the explicit limit, by bisecting a scale on the coupling's gains until the held body's motion
+  grows instead of decaying.
+
+:func:`write_report` writes ``report.md``, ``summary.json`` and ``margins.png``. The JSON
+keys are documented in README "Analysing your own scene". The theory is docs/theory.md.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import math
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import Role
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.tree import BodyIndex
+
+from godobject_drake import scenario as sc
+from godobject_drake.articulated import joint_space_loop
+from godobject_drake.building import PenetrationBudgetWarning, build_station, penetration_pairs
+from godobject_drake.coupling import CouplingGains, CouplingGainWarning, graspable_bodies
+from godobject_drake.devices import JointWaypoint, Waypoint
+from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.simulation import simulate
+from godobject_drake.stability import (
+    BodyLoop,
+    DeviceParams,
+    Pipeline,
+    TwoPort,
+    bisect,
+    body_spectral_radius,
+    closed_loop_radius,
+    colgate_required_damping,
+    device_stiffness_limit,
+    explicit_h_max,
+    human_port_admittance,
+    llewellyn_eta,
+    passivity_check,
+    pipeline_impedance,
+)
+from godobject_drake.validation import is_growing
+
+WARN_FRACTION = 0.8  # a number past 80 % of its limit (less than 25 % margin) warns
+PUSH_IN_M = 0.05  # the verification holds the target this far inside the nearest obstacle
+VERDICTS = ("ok", "warn", "fail", "info")
+
+
+@dataclasses.dataclass
+class Check:
+    """One row of the verdict table.
+
+    ``value`` and ``limit`` are in ``unit``; ``verdict`` is ``ok``, ``warn`` (within 25 % of
+    the limit), ``fail`` (past it) or ``info`` (nothing to judge: a reason in ``fix``).
+    ``predicted`` and ``simulated`` are the verification's pair, when it ran.
+    """
+
+    section: str
+    name: str
+    subject: str
+    verdict: str
+    value: float | None
+    limit: float | None
+    unit: str
+    fix: str
+    predicted: float | None = None
+    simulated: float | None = None
+    bound: str = "upper"  # "upper": passes with value below limit; "lower": at or above it
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def _le(x: float) -> str:
+    """An upper bound for a fix, rounded to 4 digits on the safe side (down)."""
+    return f"{x * (1 - 1e-3):.4g}"
+
+
+def _ge(x: float) -> str:
+    """A lower bound for a fix, rounded to 4 digits on the safe side (up)."""
+    return f"{x * (1 + 1e-3):.4g}"
+
+
+def _verdict_below(value: float, limit: float) -> str:
+    """``value`` must stay below ``limit``."""
+    if not value < limit:
+        return "fail"
+    return "warn" if value > WARN_FRACTION * limit else "ok"
+
+
+def _quiet_build(scenario: sc.Scenario):
+    """The scenario's station, built for analysis: no Meshcat, gains past the limit allowed."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PenetrationBudgetWarning)
+        warnings.simplefilter("ignore", CouplingGainWarning)
+        return build_station(scenario, meshcat=None, check_gains=False)
+
+
+def analysis_scenario(scenario: sc.Scenario) -> sc.Scenario:
+    """``scenario`` made headless: no recording, no page served, a live device replaced by a
+    scripted one standing at its start (the analysis needs no browser)."""
+    s = sc.replace(scenario, **{"recording.file": "", "visualization.serve": False, "metrics.file": ""})
+    d = s.device
+    if isinstance(d, sc.MeshcatSliders):
+        s.device = sc.Scripted(
+            rate_hz=d.rate_hz,
+            waypoints=[Waypoint(t=0.0, xyz=list(d.start_xyz), rpy_deg=list(d.start_rpy_deg), grasp=d.grasp)],
+        )
+    elif isinstance(d, sc.MeshcatJointSliders):
+        start = dict(zip(d.channels, d.start or [0.0] * len(d.channels), strict=True))
+        s.device = sc.ScriptedJoints(
+            channels=list(d.channels), mix=d.mix, limits=d.limits, rate_hz=d.rate_hz,
+            waypoints=[JointWaypoint(0.0, start)],
+        )  # fmt: skip
+    return s
+
+
+# -- simulation side --------------------------------------------------------------------------------------
+
+
+def _pose_tool_checks(station, out: dict) -> list[Check]:
+    """Explicit limit per body and axis (translation, each principal rotation) of a rigid or
+    deformable god-object: symplectic Euler with the coupling explicit, docs/theory.md §1."""
+    coupling, plant, h = station.coupling, station.plant, station.plant.time_step()
+    g = coupling.gains
+    rows, per_body = [], []
+    own = {b.index: b for b in graspable_bodies(plant).values()}
+    for body in {b.index: b for b in coupling.bodies.values()}.values():
+        # The coupling sizes its gains on what it carries (a deformable core's shell) and the
+        # model takes the carried part as moving with the body. Its explicit force acts on the
+        # body alone, though: with the shell left out the limit would be lower (the
+        # ``*_alone`` keys); Drake's bisection (verify) shows where the scene really is.
+        alone = own[body.index]
+        I_c, V = np.linalg.eigh(body.I_Bcm_B)  # principal axes of the inertia the gains use
+        I_own = np.einsum("ji,jk,ki->i", V, alone.I_Bcm_B, V)
+        axes = [("translation", body.mass, alone.mass, g.omega_n, g.zeta)]
+        axes += [(f"rotation {i + 1}", float(I_c[i]), float(I_own[i]), g.omega_r, g.zeta_r) for i in range(3)]
+        for axis, m, m_alone, w, z in axes:
+            K, B = m * w**2, 2.0 * z * m * w
+            loop = BodyLoop(m, K, B, h)
+            limit = explicit_limit_omega_h(z)
+            w_alone, z_alone = math.sqrt(K / m_alone), B / (2.0 * math.sqrt(K * m_alone))
+            per_body.append({
+                "body": body.name, "axis": axis, "inertia": m, "omega_rad_s": w, "zeta": z, "k": K,
+                "gamma": B, "omega_h": w * h, "omega_h_limit": limit, "margin": limit / (w * h),
+                "spectral_radius": body_spectral_radius(loop), "h_max_s": explicit_h_max(m, K, B),
+                "omega_max_rad_s": limit / h, "inertia_alone": m_alone,
+                "margin_alone": explicit_limit_omega_h(z_alone) / (w_alone * h),
+            })  # fmt: skip
+    out["explicit"] = per_body
+    for axis in ("translation", "rotation"):
+        of_axis = [r for r in per_body if r["axis"].startswith(axis)]
+        worst = min(of_axis, key=lambda r: r["margin"])
+        name = "omega_n" if axis == "translation" else "omega_n_rot"
+        rows.append(Check(
+            "simulation", f"explicit limit, {axis} (ω·h)",
+            f"{worst['body']} ({len({r['body'] for r in of_axis})} bodies)",
+            _verdict_below(worst["omega_h"], worst["omega_h_limit"]), worst["omega_h"],
+            worst["omega_h_limit"],
+            "", f"{name} ≤ {_le(WARN_FRACTION * worst['omega_max_rad_s'])} rad/s, or time_step ≤ "
+            f"{_le(WARN_FRACTION * worst['omega_h_limit'] / worst['omega_rad_s'])} s "
+            f"(limits {worst['omega_max_rad_s']:.4g} rad/s, "
+            f"{worst['omega_h_limit'] / worst['omega_rad_s']:.4g} s)",
+        ))  # fmt: skip
+    h_max = min(r["h_max_s"] for r in per_body)
+    out["h_max_s"] = h_max
+    rows.append(Check(
+        "simulation", "time step (largest stable h for these gains)", "all bodies",
+        _verdict_below(h, h_max), h, h_max, "s",
+        f"time_step ≤ {_le(WARN_FRACTION * h_max)} s (limit {h_max:.4g} s), or lower the gains",
+    ))  # fmt: skip
+    return rows
+
+
+def _articulated_checks(station, out: dict, duration_s: float, check_every: int) -> list[Check]:
+    """The joint-space check the builder runs (every ``check_every``-th device sample), with its
+    margin: the largest bandwidth scale and step that keep the worst configuration stable."""
+    coupling, h = station.coupling, station.plant.time_step()
+    if coupling.coupling == "joint_pd_sap":
+        out["explicit"] = []
+        return [Check("simulation", "explicit limit (joint space)", "tool", "ok", None, None, "",
+                      "implicit (SAP's PD actuators): unconditionally stable")]  # fmt: skip
+    device = station.device
+    qs = device.samples(duration_s)[::check_every]
+    tool, gains, mode = coupling.tool, coupling.gains, coupling.coupling
+    loops = [joint_space_loop(tool, mode, gains, np.asarray(q, float), h) for q in qs]
+    i = int(np.argmax([lp.radius for lp in loops]))
+    q_worst, worst = np.asarray(qs[i], float), loops[i]
+
+    def stable_at(scale: float, step: float) -> bool:
+        g = dataclasses.replace(gains, omega_n=gains.omega_n * scale, omega_n_rot=gains.omega_r * scale)
+        return joint_space_loop(tool, mode, g, q_worst, step).radius < 1.0
+
+    scale = bisect(lambda c: stable_at(c, h), 1e-3, 1e3, 1e-4) if stable_at(1e-3, h) else float("nan")
+    h_max = (
+        bisect(lambda step: stable_at(1.0, step), 1e-7, 1.0, 1e-4) if stable_at(1.0, 1e-7) else float("nan")
+    )
+    out["explicit"] = [{
+        "configurations": len(loops), "worst_q": q_worst.tolist(), "spectral_radius": worst.radius,
+        "fastest_mode_rad_s": worst.omega_max, "bandwidth_scale_max": scale, "h_max_s": h_max,
+    }]  # fmt: skip
+    out["h_max_s"] = h_max
+    return [
+        Check("simulation", f"explicit limit, joint space ({len(loops)} configurations; "
+              f"spectral radius {worst.radius:.4f})", "tool",
+              _verdict_below(1.0, scale), 1.0, scale, "× gains (bandwidth scale)",
+              f"omega_n ≤ {_le(WARN_FRACTION * gains.omega_n * scale)} and omega_n_rot ≤ "
+              f"{_le(WARN_FRACTION * gains.omega_r * scale)} rad/s (limit ×{scale:.4g}), "
+              "or coupling joint_pd_sap (implicit)"),
+        Check("simulation", "time step (largest stable h for these gains)", "tool",
+              _verdict_below(h, h_max), h, h_max, "s",
+              f"time_step ≤ {_le(WARN_FRACTION * h_max)} s (limit {h_max:.4g} s), or lower the gains"),
+    ]  # fmt: skip
+
+
+# -- contact ----------------------------------------------------------------------------------------------
+
+
+def _contact_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
+    budget = scenario.metrics.penetration_budget_m
+    out["penetration_budget_m"] = budget
+    kind = station.god_object.kind
+    reason = None
+    if kind == "articulated":
+        reason = "articulated tool: its coupling has no force cap, so no worst-case pull to predict from"
+    elif kind == "deformable":
+        reason = "deformable tool: the core has no collision geometry; its shell deforms instead"
+    pairs = (
+        []
+        if reason
+        else penetration_pairs(
+            station.plant, station.scene_graph, station.coupling, scenario.plant.penetration_allowance
+        )
+    )
+    if not reason and not pairs:
+        reason = "no point contact to predict (hydroelastic pressure depends on the contact area)"
+    out["contact_pairs"] = [dict(dataclasses.asdict(p), depth_m=p.depth_m) for p in pairs]
+    if reason:
+        return [Check("contact", "static penetration", kind, "info", None, budget, "m", reason)]
+    gains = station.coupling.gains
+    max_stretch = station.coupling.max_stretch_m
+    deepest = max(pairs, key=lambda p: p.depth_m)
+    depth, n_bodies = deepest.depth_m, len({p.body for p in pairs})
+    w_max = gains.omega_n * math.sqrt(budget / depth)
+    return [Check(
+        "contact", f"static penetration under the capped pull ({deepest.force_n:.3g} N), into "
+        f"{deepest.obstacle} ({deepest.stiffness_n_m:.3g} N/m)", f"{deepest.body} ({n_bodies} bodies)",
+        _verdict_below(depth, budget), depth, budget, "m",
+        f"combined contact stiffness k_A k_B/(k_A + k_B) ≥ {_ge(deepest.force_n / (WARN_FRACTION * budget))} "
+        f"N/m, or omega_n ≤ {_le(w_max * math.sqrt(WARN_FRACTION))} rad/s, or max_stretch_m ≤ "
+        f"{_le(WARN_FRACTION * max_stretch * budget / depth)} m",
+    )]  # fmt: skip
+
+
+# -- device side ------------------------------------------------------------------------------------------
+
+
+def _device_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
+    """Colgate, passivity, Llewellyn and the device's stiffness limit along one axis of the held
+    body on its stiffest obstacle (docs/theory.md §2–3), for an impedance-type haptic device."""
+    haptic, fb = scenario.haptic, scenario.feedback
+    out["device"] = None
+    if haptic.mode != "impedance" or (fb.kd == 0 and fb.gamma_d == 0):
+        why = (
+            "no haptic device (haptic.mode none): the feedback reaches no one"
+            if haptic.mode == "none"
+            else f"haptic.mode {haptic.mode}: the device follows the sensed force, not analysed here"
+            if haptic.mode == "admittance"
+            else "feedback gains are zero: the device feels nothing"
+        )
+        return [Check("device", "haptic loop", "device", "info", None, None, "", why)]
+    h, T = station.plant.time_step(), 1.0 / haptic.rate_hz
+    coupling = station.coupling
+    body = _held_body(station)
+    pairs = [p for p in out.get("contact_pairs", []) if p["body"] == body.name]
+    k_w = max((p["stiffness_n_m"] for p in pairs), default=0.0)
+    tau = scenario.contact.relaxation_time_s or h
+    g = coupling.gains
+    loop = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, k_w=k_w, b_w=k_w * tau)
+    dev = DeviceParams(haptic.device_mass_kg, haptic.device_damping, T, 0)
+    pipe = Pipeline(loop, fb.kd, fb.gamma_d, T)
+    H = pipeline_impedance(pipe)
+    colgate = colgate_required_damping(H, T)
+    limit = device_stiffness_limit(dev, lambda kd: pipeline_impedance(dataclasses.replace(pipe, kd=kd)))
+    radius = closed_loop_radius(dev, H)
+    # An unstable device loop is not passive; python-control's LMIs need a stable one, and may
+    # call a loop near its stability limit ill-conditioned: Colgate's criterion decides then.
+    passivity_method = "ispassive"
+    if radius >= 1.0:
+        passive, passivity_method = False, "unstable"
+    else:
+        try:
+            passive = passivity_check(human_port_admittance(dev, H)).passive
+        except (ValueError, RuntimeError):
+            passive, passivity_method = colgate.required_b <= dev.damping, "colgate"
+    lle = llewellyn_eta(TwoPort(body.mass, loop.k, loop.gamma, fb.kd, fb.gamma_d))
+    proportional = (
+        fb.gamma_d > 0 and abs(fb.kd * loop.gamma - fb.gamma_d * loop.k) <= 1e-9 * loop.k * fb.gamma_d
+    )
+
+    def colgate_ok(kd: float) -> bool:
+        H_kd = pipeline_impedance(dataclasses.replace(pipe, kd=kd))
+        return colgate_required_damping(H_kd, T, n=800, refine=False).required_b <= dev.damping
+
+    kd_safe = bisect(colgate_ok, 1e-9, limit, 1e-3) if colgate_ok(1e-9) else 0.0
+    kd_safe = min(kd_safe, limit)
+    out["device"] = {
+        "body": body.name, "mass_kg": body.mass, "k_w": k_w, "tau_w": tau, "period_s": T,
+        "device_mass_kg": dev.mass, "device_damping": dev.damping, "kd": fb.kd, "gamma_d": fb.gamma_d,
+        "colgate_required_b": colgate.required_b, "passivity_margin": colgate.margin(dev.damping),
+        "closed_loop_radius": radius, "kd_limit": limit, "kd_max_passive": kd_safe,
+        "ispassive": passive, "passivity_method": passivity_method, "eta_min": lle.eta_min,
+        "proportional": proportional,
+    }  # fmt: skip
+    ratio = f"kd/gamma_d = k/gamma = {loop.k / loop.gamma:.4g} s⁻¹"
+    return [
+        Check("device", "Colgate: required device damping", body.name,
+              "ok" if colgate.required_b <= dev.damping else "fail", colgate.required_b, dev.damping, "N·s/m",
+              f"kd ≤ {_le(kd_safe)} N/m for device_damping {dev.damping:g}, or device_damping ≥ "
+              f"{_ge(colgate.required_b)} N·s/m, or haptic.passivity_damping > 0"),
+        Check("device", "device stiffness limit (closed-loop poles)", body.name,
+              _verdict_below(fb.kd, limit), fb.kd, limit, "N/m", f"kd ≤ {_le(WARN_FRACTION * limit)} N/m"),
+        Check("device", "passive against the user (python-control ispassive)", body.name,
+              "ok" if passive else "fail", float(passive), 1.0, "",
+              f"proportional gains ({ratio}) with kd ≤ {_le(kd_safe)} N/m", bound="lower"),
+        Check("device", "Llewellyn η_min (1: absolutely stable two-port)", body.name,
+              "ok" if lle.eta_min >= 1 - 1e-9 else "warn", lle.eta_min, 1.0, "",
+              "proportional gains: " + ratio, bound="lower"),
+    ]  # fmt: skip
+
+
+def _held_body(station):
+    """The body the scenario's device grasps first, else the lightest it may hold."""
+    coupling = station.coupling
+    names = sorted(station.device.grasp_names(station.scenario.simulation.duration_s) - {"*"})
+    if names:
+        return coupling.body_for_grasp(names[0])
+    return min({b.index: b for b in coupling.bodies.values()}.values(), key=lambda b: b.mass)
+
+
+# -- checked in Drake -------------------------------------------------------------------------------------
+
+
+def _hold_scenario(scenario, body, X_WD0: RigidTransform, X_WD1: RigidTransform, duration: float):
+    """``scenario`` driven by a device that grasps ``body`` at ``X_WD0`` and moves to ``X_WD1``
+    over 0.05 s, then holds; ``random_seed`` and everything else as the user wrote them."""
+
+    def waypoint(t, X):
+        rpy = np.degrees(RollPitchYaw(X.rotation()).vector()).tolist()
+        return Waypoint(t=t, xyz=X.translation().tolist(), rpy_deg=rpy, grasp=body)
+
+    path = [waypoint(0.0, X_WD0), waypoint(0.05, X_WD1), waypoint(duration, X_WD1)]
+    device = sc.Scripted(rate_hz=scenario.device.rate_hz, waypoints=path)
+    s = sc.replace(scenario, **{"simulation.duration_s": duration})
+    s.device = device
+    return s
+
+
+def _start_pose(station, body) -> RigidTransform:
+    """The body's centre-of-mass frame at the scene's start (its default pose)."""
+    plant = station.plant
+    ctx = plant.CreateDefaultContext()
+    X_WB = plant.EvalBodyPoseInWorld(ctx, plant.get_body(BodyIndex(body.index)))
+    return X_WB.multiply(RigidTransform(body.p_BoBcm_B))
+
+
+def _nearest_fixed_obstacle(station, body):
+    """``(distance, unit direction from the body toward the obstacle, obstacle, contacts)``
+    for the fixed obstacle geometry nearest ``body`` at the start; ``contacts``: how many of the
+    body's geometries are within 0.1 mm of that distance (the points that share a push)."""
+    diagram, plant, sg = station.diagram, station.plant, station.scene_graph
+    ctx = diagram.CreateDefaultContext()
+    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(ctx))
+    inspector = query.inspector()
+    frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
+    welded = {plant.GetBodyFrameIdOrThrow(b.index()) for b in plant.GetBodiesWeldedTo(plant.world_body())}
+    own = inspector.GetGeometries(frame, Role.kProximity)
+    found = {}
+    for b in inspector.GetAllGeometryIds(Role.kProximity):
+        if inspector.GetFrameId(b) not in welded or inspector.IsDeformableGeometry(b):
+            continue
+        for a in own:
+            if inspector.CollisionFiltered(a, b):
+                continue
+            try:
+                r = query.ComputeSignedDistancePairClosestPoints(a, b)
+            except RuntimeError:  # a pair Drake's signed distance does not support (docs/design.md)
+                continue
+            # nhat_BA_W points from the pair's B toward its A; Drake may order the pair by id.
+            toward = -np.asarray(r.nhat_BA_W) if r.id_A == a else np.asarray(r.nhat_BA_W)
+            found.setdefault(b, []).append((r.distance, toward))
+    if not found:
+        return None
+    b = min(found, key=lambda g: min(d for d, _ in found[g]))
+    dists = found[b]
+    d0, direction = min(dists, key=lambda x: x[0])
+    contacts = sum(1 for d, _ in dists if d <= d0 + 1e-4)
+    return d0, direction, inspector.GetName(b), contacts
+
+
+def _verify_penetration(station, scenario, out: dict) -> Check | None:
+    """Hold the target 5 cm inside the nearest fixed obstacle; the body settles where the
+    spring's pull equals the contacts' push, ``δ = F/(n k)`` with ``F = K (5 cm − δ)``."""
+    if station.god_object.kind != "rigid" or not out.get("contact_pairs"):
+        return None
+    body = _held_body(station)
+    near = _nearest_fixed_obstacle(station, body)
+    if near is None:
+        return None
+    d0, direction, obstacle, n = near
+    k = min(p["stiffness_n_m"] for p in out["contact_pairs"]
+            if p["body"] == body.name and p["obstacle"] == obstacle)  # fmt: skip
+    X0 = _start_pose(station, body)
+    X1 = RigidTransform(X0.rotation(), X0.translation() + (max(d0, 0.0) + PUSH_IN_M) * direction)
+    coupling = station.coupling
+    K = body.mass * coupling.gains.omega_n**2
+    f_cap, _ = coupling.force_caps(body)
+    gravity = 0.0
+    if not scenario.god_object.gravity_compensation:
+        gravity = body.mass * float(np.dot(station.plant.gravity_field().gravity_vector(), direction))
+    depth = (K * PUSH_IN_M + gravity) / (n * k + K)
+    if K * (PUSH_IN_M - depth) > f_cap:
+        depth = (f_cap + gravity) / (n * k)
+    settle = 1.0 + 20.0 / coupling.gains.omega_n
+    s = _hold_scenario(analysis_scenario(scenario), body.name, X0, X1, settle)
+    from godobject_drake.metrics import TrueShapeMetrics
+
+    run_station = _quiet_build(s)
+    result = simulate(run_station, progress=False)
+    states = result.data["state"][-1:]
+    shapes = TrueShapeMetrics(run_station.plant, run_station.scene_graph, run_station.diagram)
+    simulated = float(np.max(shapes.overlaps(body.index, states)))
+    out["verify_penetration"] = {
+        "body": body.name, "obstacle": obstacle, "contacts": n, "pair_stiffness_n_m": k,
+        "push_in_m": PUSH_IN_M, "predicted_m": depth, "simulated_m": simulated,
+        "relative_error": simulated / depth - 1.0, "diverged": bool(result.metrics["diverged"]),
+    }  # fmt: skip
+    err = abs(simulated / depth - 1.0)
+    name = f"static penetration, target {PUSH_IN_M * 100:g} cm inside {obstacle} ({n} contacts)"
+    return Check("verify", name, body.name, "ok" if err <= 0.1 else "warn", err, 0.1, "relative error",
+                 "model and Drake agree" if err <= 0.1 else
+                 "the contact differs from SAP's linear point law (near-rigid regime?): trust Drake's depth",
+                 predicted=depth, simulated=simulated)  # fmt: skip
+
+
+def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Check | None:
+    """Bisect a scale ``c`` on both bandwidths (``omega_n``, ``omega_n_rot``) in the user's
+    scene: the held body is grasped at its start, pulled 3 cm away from the nearest obstacle
+    and turned by 10°; stable if its error decays. Predicted: the smallest ``limit/(ω h)``."""
+    if station.god_object.kind == "articulated" or not out.get("explicit"):
+        return None
+    body = _held_body(station)
+    rows = [r for r in out["explicit"] if r["body"] == body.name]
+    predicted = min(r["margin"] for r in rows)
+    binding = min(rows, key=lambda r: r["margin"])["axis"]
+    near = _nearest_fixed_obstacle(station, body) if station.god_object.kind == "rigid" else None
+    away = -near[1] if near else np.array([0.0, 0.0, 1.0])
+    X0 = _start_pose(station, body)
+    X1 = RigidTransform(X0.rotation().multiply(RotationMatrix.MakeXRotation(np.radians(10.0))),
+                        X0.translation() + 0.03 * away)  # fmt: skip
+    h = station.plant.time_step()
+    duration = 0.05 + 600 * h
+    base = analysis_scenario(scenario)
+    gains = base.god_object.gains
+    runs: dict[float, bool] = {}
+
+    def stable(c: float) -> bool:
+        if c not in runs:
+            runs[c] = _stable_at(c)
+        return runs[c]
+
+    def _stable_at(c: float) -> bool:
+        s = _hold_scenario(base, body.name, X0, X1, duration)
+        s.god_object.gains = _scaled(gains, c)
+        try:
+            result = simulate(_quiet_build(s), progress=False)
+        except RuntimeError:  # Drake gave up on a blown-up state: unstable
+            return False
+        if result.metrics["diverged"]:
+            return False
+        start = round(0.05 / h) + 1  # from the end of the move
+        if "terms" in result.data:  # rigid: the coupling's body pose G
+            pose_G = result.data["terms"][start:, 14:21]
+        else:  # deformable: the core
+            pose_G = result.data["pose_WC"][start:]
+        # Motion per step, not the error: a steady offset (a carried shell's sag) never grows,
+        # a decaying transient shrinks, and a growing mode or a capped limit cycle does not.
+        dp = np.linalg.norm(np.diff(pose_G[:, 4:], axis=0), axis=1)
+        dq = np.linalg.norm(np.diff(pose_G[:, :4], axis=0), axis=1)
+        return not (is_growing(dp) or is_growing(dq))
+
+    simulated = _bisect_widening(stable, predicted, rel_tol, out, "verify_explicit_limit_error")
+    err = abs(simulated / predicted - 1.0)
+    out["verify_explicit_limit"] = {
+        "body": body.name, "binding_axis": binding, "predicted_scale": predicted,
+        "simulated_scale": simulated,
+        "relative_error": simulated / predicted - 1.0, "bisection_tolerance": rel_tol,
+        "runs": [{"scale": c, "stable": ok} for c, ok in sorted(runs.items())],
+    }  # fmt: skip
+    g = gains
+    fix = (
+        "model and Drake agree"
+        if err <= 0.02
+        else f"trust Drake's boundary: omega_n ≤ {_le(g.omega_n * simulated)}, omega_n_rot ≤ "
+        f"{_le(g.omega_r * simulated)} rad/s (the one-body model misses how the scene moves with the body)"
+        if math.isfinite(simulated)
+        else "no boundary found in Drake: " + out.get("verify_explicit_limit_error", "")
+    )
+    return Check("verify", f"explicit limit: gain scale at the boundary ({binding})", body.name,
+                 "ok" if err <= 0.02 else "warn", err, 0.02, "relative error", fix,
+                 predicted=predicted, simulated=simulated)  # fmt: skip
+
+
+def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> Check | None:
+    """The articulated tool's explicit limit in Drake: the device holds the worst configuration
+    of the check, then steps every channel by 0.02; a scale ``c`` on both bandwidths is stable
+    if the tool's joint speeds decay. Predicted: the joint-space model's largest scale."""
+    if station.god_object.kind != "articulated" or not out.get("explicit"):
+        return None
+    row = out["explicit"][0]
+    predicted = row["bandwidth_scale_max"]
+    device = scenario.device
+    mix = np.array(device.mix, float) if device.mix else np.eye(len(device.channels))
+    channels = np.linalg.lstsq(mix, np.asarray(row["worst_q"], float), rcond=None)[0]
+    h = station.plant.time_step()
+    duration = 0.05 + 600 * h
+
+    def at(t, values):
+        return JointWaypoint(t, dict(zip(device.channels, np.asarray(values).tolist(), strict=True)))
+
+    path = [at(0.0, channels), at(0.03, channels), at(0.05, channels + 0.02), at(duration, channels + 0.02)]
+    base = analysis_scenario(scenario)
+    base.device = sc.ScriptedJoints(channels=list(device.channels), mix=device.mix, limits=device.limits,
+                                    rate_hz=device.rate_hz, waypoints=path)  # fmt: skip
+    base.simulation.duration_s = duration
+    gains = base.god_object.gains
+    tool_v = np.asarray(station.coupling.tool.coupled_v())
+    nq = station.plant.num_positions()
+    runs: dict[float, bool] = {}
+
+    def stable(c: float) -> bool:
+        if c in runs:
+            return runs[c]
+        s = copy.deepcopy(base)
+        s.god_object.gains = _scaled(gains, c)
+        try:
+            result = simulate(_quiet_build(s), progress=False)
+            ok = not result.metrics["diverged"]
+        except RuntimeError:  # Drake gave up on a blown-up state: unstable
+            ok = False
+        if ok:
+            v = result.data["state"][round(0.05 / h) + 1 :, nq + tool_v]
+            ok = not is_growing(np.max(np.abs(v), axis=1))
+        runs[c] = ok
+        return ok
+
+    simulated = _bisect_widening(stable, predicted, rel_tol, out, "verify_explicit_limit_error")
+    err = abs(simulated / predicted - 1.0)
+    out["verify_explicit_limit"] = {
+        "body": "tool", "binding_axis": "joint space", "predicted_scale": predicted,
+        "simulated_scale": simulated, "relative_error": simulated / predicted - 1.0,
+        "bisection_tolerance": rel_tol,
+        "runs": [{"scale": c, "stable": ok} for c, ok in sorted(runs.items())],
+    }  # fmt: skip
+    fix = "model and Drake agree" if err <= 0.02 else (
+        f"trust Drake's boundary: omega_n ≤ {_le(gains.omega_n * simulated)}, omega_n_rot ≤ "
+        f"{_le(gains.omega_r * simulated)} rad/s"
+    )  # fmt: skip
+    return Check("verify", "explicit limit: gain scale at the boundary (joint space, worst configuration)",
+                 "tool", "ok" if err <= 0.02 else "warn", err, 0.02, "relative error", fix,
+                 predicted=predicted, simulated=simulated)  # fmt: skip
+
+
+def _scaled(gains: CouplingGains, c: float) -> CouplingGains:
+    """Both bandwidths times ``c``, the damping ratios kept."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CouplingGainWarning)
+        return CouplingGains(
+            omega_n=gains.omega_n * c, zeta=gains.zeta, omega_n_rot=gains.omega_r * c, zeta_rot=gains.zeta_r
+        )
+
+
+def _bisect_widening(stable, predicted: float, rel_tol: float, out: dict, error_key: str) -> float:
+    """The boundary of ``stable`` near ``predicted`` (bracket [0.8, 1.25]× widened while the
+    model is off), or NaN with the reason in ``out[error_key]``."""
+    lo, hi = 0.8 * predicted, 1.25 * predicted
+    while not stable(lo) and lo > 1e-3 * predicted:
+        lo, hi = lo / 2.0, lo
+    while stable(hi) and hi < 1e3 * predicted:
+        lo, hi = hi, hi * 2.0
+    try:
+        return bisect(stable, lo, hi, rel_tol)
+    except ValueError as e:
+        out[error_key] = str(e)
+        return float("nan")
+
+
+# -- the whole analysis -----------------------------------------------------------------------------------
+
+
+def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None = None) -> dict:
+    """Every check of ``scenario`` (module docstring) as a JSON-ready dict: ``checks`` (the
+    verdict table's rows, :class:`Check`), the numbers behind them, and ``verdict`` (the worst).
+    ``verify`` None: on unless ``quick``."""
+    start = time.perf_counter()
+    verify = (not quick) if verify is None else verify
+    s = analysis_scenario(scenario)
+    sc.check_scenario(s)
+    station = _quiet_build(s)
+    out: dict = {
+        "scene": s.name,
+        "kind": s.kind,
+        "time_step_s": s.time_step,
+        "quick": quick,
+        "verify": verify,
+    }
+    if s.kind == "articulated":
+        cfg = s.god_object
+        out["coupling"] = cfg.coupling
+        checks = _articulated_checks(station, out, s.simulation.duration_s, cfg.check_every)
+    else:
+        g = station.coupling.gains
+        out["gains"] = {"omega_n": g.omega_n, "zeta": g.zeta, "omega_n_rot": g.omega_r, "zeta_rot": g.zeta_r}
+        checks = _pose_tool_checks(station, out)
+    checks += _contact_checks(station, s, out)
+    if s.kind != "articulated":
+        checks += _device_checks(station, s, out)
+    else:
+        checks.append(Check("device", "haptic loop", "device", "info", None, None, "",
+                            "joint-space devices here are not haptic"))  # fmt: skip
+    if verify:
+        tol = 0.02 if quick else 0.005
+        for row in (_verify_penetration(station, s, out), _verify_explicit_limit(station, s, out, tol),
+                    _verify_joint_space_limit(station, s, out, tol)):  # fmt: skip
+            if row is not None:
+                checks.append(row)
+    order = {"fail": 3, "warn": 2, "ok": 1, "info": 0}
+    out["checks"] = [c.as_dict() for c in checks]
+    out["verdict"] = max((c.verdict for c in checks), key=order.__getitem__, default="ok")
+    out["elapsed_s"] = time.perf_counter() - start
+    return out
+
+
+# -- the report -------------------------------------------------------------------------------------------
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.4g}"
+    return str(v)
+
+
+def verdict_table(summary: dict) -> str:
+    """The verdict table as Markdown."""
+    lines = ["| verdict | check | subject | value | limit | unit | predicted | simulated | fix |",
+             "|---|---|---|---:|---:|---|---:|---:|---|"]  # fmt: skip
+    for c in summary["checks"]:
+        cells = [c["verdict"], c["name"], c["subject"], _fmt(c["value"]), _fmt(c["limit"]), c["unit"],
+                 _fmt(c["predicted"]), _fmt(c["simulated"]), c["fix"]]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_report(summary: dict, out_dir: str | Path) -> Path:
+    """``report.md``, ``summary.json`` and ``margins.png`` in ``out_dir``; returns the report's path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    _margins_figure(summary, out / "margins.png")
+    md = [
+        f"# Stability and passivity of `{summary['scene']}` ({summary['kind']} god-object)",
+        "",
+        f"Verdict: **{summary['verdict']}**. h = {summary['time_step_s']:g} s; "
+        f"{'quick' if summary['quick'] else 'full'} analysis, "
+        f"{'checked in Drake' if summary['verify'] else 'not checked in Drake'}; "
+        f"{summary['elapsed_s']:.1f} s.",
+        "",
+        "A row passes (`ok`) with more than 25 % margin, `warn`s within 25 % of its limit, `fail`s past it;",
+        "`info` rows say why there is nothing to judge. `fix` is the change that makes the row pass.",
+        "",
+        verdict_table(summary),
+        "",
+        "![margins](margins.png)",
+        "",
+    ]
+    if summary.get("explicit") and "axis" in summary["explicit"][0]:
+        md += ["## Explicit limit per body and axis", "",
+               "| body | axis | inertia (kg, kg·m²) | ω (rad/s) | ζ | ω·h | limit | radius | h_max (s) |",
+               "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+        for r in summary["explicit"]:
+            md.append(f"| {r['body']} | {r['axis']} | {r['inertia']:.4g} | {r['omega_rad_s']:.4g} "
+                      f"| {r['zeta']:.3g} "
+                      f"| {r['omega_h']:.4g} | {r['omega_h_limit']:.4g} | {r['spectral_radius']:.5f} "
+                      f"| {r['h_max_s']:.4g} |")  # fmt: skip
+        md.append("")
+    (out / "report.md").write_text("\n".join(md))
+    return out / "report.md"
+
+
+def _margins_figure(summary: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [
+        c for c in summary["checks"]
+        if c["value"] is not None and c["limit"] and c["section"] != "verify" and c["bound"] == "upper"
+    ]  # fmt: skip
+    fig, ax = plt.subplots(figsize=(11, 0.45 * len(rows) + 1.4))
+    colors = {"ok": "tab:green", "warn": "tab:orange", "fail": "tab:red"}
+    ratios = [c["value"] / c["limit"] for c in rows]
+    ax.barh(range(len(rows)), ratios, color=[colors.get(c["verdict"], "grey") for c in rows])
+    ax.axvline(1.0, color="k", lw=1)
+    ax.axvline(WARN_FRACTION, color="k", lw=0.5, ls="--")
+    ax.set_yticks(range(len(rows)), [f"{c['name']} [{c['subject']}]"[:64] for c in rows], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("value / limit (past 1: fails; past 0.8: warns)")
+    ax.set_title(f"{summary['scene']}: how close each check is to its limit")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
