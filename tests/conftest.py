@@ -161,3 +161,16 @@ def assert_refused(call, error, *, value: str, limit: str, fix: str) -> str:
     for what, pattern in (("value", value), ("limit", limit), ("fix", fix)):
         assert re.search(pattern, message), f"the refusal does not name the {what} ({pattern!r}): {message}"
     return message
+
+
+def own_scene_files(tmp_path) -> str:
+    """The README's own scene (``cube_post.yaml`` and ``cube_post.sdf``), written to ``tmp_path``
+    as a user copies it; returns the README's command that runs it."""
+    readme = (REPO / "README.md").read_text()
+    section = readme.split("## Describe your own scene")[1].split("\n## ")[0]
+    (yaml_text,) = re.findall(r"```yaml\n(.*?)```", section, flags=re.S)
+    (sdf_text,) = re.findall(r"```xml\n(.*?)```", section, flags=re.S)
+    assert len(yaml_text.splitlines()) <= 40
+    (tmp_path / "cube_post.yaml").write_text(yaml_text)
+    (tmp_path / "cube_post.sdf").write_text(sdf_text)
+    return re.findall(r"```bash\n(python -m godobject_drake run cube_post.yaml.*?)\n```", section)[0]

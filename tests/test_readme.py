@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import REPO
+from conftest import REPO, own_scene_files
 
 from godobject_drake.building import PenetrationBudgetWarning, build_station
 from godobject_drake.scenario import load_scenario
@@ -28,18 +28,6 @@ def test_compose_your_own_diagram_example_runs():
     # the plate (the coupling's 0.037 N on four corner proxies: µm) and the damping term (at rest: 0).
     f_z = float(out.split("F_z =")[1].split()[0])
     assert f_z == pytest.approx(0.2, abs=0.002)
-
-
-def own_scene_files(tmp_path):
-    """The README's own scene, written as a user copies it: the YAML and the SDF side by side."""
-    section = README.split("## Describe your own scene")[1].split("\n## ")[0]
-    (yaml_text,) = re.findall(r"```yaml\n(.*?)```", section, flags=re.S)
-    (sdf_text,) = re.findall(r"```xml\n(.*?)```", section, flags=re.S)
-    assert len(yaml_text.splitlines()) <= 40
-    (tmp_path / "cube_post.yaml").write_text(yaml_text)
-    (tmp_path / "cube_post.sdf").write_text(sdf_text)
-    command = re.findall(r"```bash\n(python -m godobject_drake run cube_post.yaml.*?)\n```", section)[0]
-    return command
 
 
 def test_describe_your_own_scene_runs_as_written(tmp_path):

@@ -1,0 +1,179 @@
+"""``analyze``: the stability and passivity report of any scenario, each prediction checked in Drake.
+
+The shipped scenes' predictions against Drake's numbers on the same scenes, and a scene built to
+fail (the README's own cube and post) whose failing rows name a fix that, applied, passes.
+"""
+
+import json
+import math
+import re
+import subprocess
+import sys
+
+import pytest
+from conftest import REPO, own_scene_files
+
+from godobject_drake import scenario as sc
+from godobject_drake.analyze import WARN_FRACTION, analyze, write_report
+from godobject_drake.limits import explicit_limit_omega_h
+
+README = (REPO / "README.md").read_text()
+
+
+def rows(summary, section=None, name=""):
+    found = [
+        c for c in summary["checks"] if (section is None or c["section"] == section) and name in c["name"]
+    ]
+    assert found, (section, name, [c["name"] for c in summary["checks"]])
+    return found
+
+
+@pytest.fixture(scope="module")
+def lego():
+    return analyze(sc.shipped_scenario("lego"))  # full: checked in Drake, 0.5 % bisections
+
+
+def test_brick_scene_predictions_match_drake(lego):
+    # The explicit limit closed form, ω h < 2(√(1+ζ²) − ζ) = 0.8284 at ζ = 1 (docs/theory.md §1):
+    # rotation binds (ωr = 120 rad/s at h = 1 ms: ω h = 0.12, a 6.9× margin).
+    (rot,) = rows(lego, "simulation", "rotation")
+    assert rot["value"] == pytest.approx(0.12) and rot["limit"] == pytest.approx(2 * (math.sqrt(2) - 1))
+    assert rot["verdict"] == "ok"
+    # Drake's bisection on the gains, in the scene, finds the same boundary within 2 % (the
+    # issue's bound; measured 0.2 % with a 0.5 % bisection).
+    v = lego["verify_explicit_limit"]
+    assert v["predicted_scale"] == pytest.approx(0.8284271 / 0.12, rel=1e-6)
+    assert abs(v["relative_error"]) < 0.02
+    assert any(r["stable"] for r in v["runs"]) and not all(r["stable"] for r in v["runs"])
+    # Static penetration, target 5 cm inside the baseplate: four corner proxies share the
+    # spring's pull, δ = K·5 cm/(4 k + K) with K = m ωn² (hand computation), within 10 %
+    # (the acceptance bound; measured 2e-7).
+    p = lego["verify_penetration"]
+    assert p["contacts"] == 4 and p["obstacle"] == "lego_table::flat_baseplate"
+    K = 0.0023 * 40.0**2
+    assert p["predicted_m"] == pytest.approx(K * 0.05 / (4 * p["pair_stiffness_n_m"] + K), rel=1e-12)
+    assert abs(p["relative_error"]) < 0.1
+    assert lego["verdict"] == "ok"
+
+
+def test_laparoscopy_joint_space_limit_matches_drake():
+    s = analyze(sc.shipped_scenario("laparoscopy"), quick=True, verify=True)
+    (limit,) = rows(s, "simulation", "joint space")
+    assert limit["verdict"] == "ok" and limit["limit"] > 10  # gains far inside their limit
+    v = s["verify_explicit_limit"]
+    assert abs(v["relative_error"]) < 0.02 + v["bisection_tolerance"]
+    # No force cap on an articulated coupling: nothing to predict, said so, not a silent pass.
+    (contact,) = rows(s, "contact")
+    assert contact["verdict"] == "info" and "no force cap" in contact["fix"]
+
+
+def test_deformable_limit_lies_between_its_two_models():
+    """The probe's coupling sizes its gains on core + shell. Drake's boundary lies between the two
+    one-body models: the shell moving with the core (the limit the builder checks) and the core
+    alone (the explicit force acts on it alone). Measured 1.75 against 2.76 and 1.48."""
+    s = analyze(sc.shipped_scenario("deformable_probe"), quick=True, verify=True)
+    v = s["verify_explicit_limit"]
+    row = min((r for r in s["explicit"] if r["axis"] == v["binding_axis"]), key=lambda r: r["margin"])
+    assert row["margin_alone"] < v["simulated_scale"] < row["margin"]
+    (check,) = rows(s, "verify", "explicit limit")
+    assert check["verdict"] == "warn" and check["fix"].startswith("trust Drake's boundary")
+
+
+@pytest.fixture
+def cube(tmp_path):
+    own_scene_files(tmp_path)
+    return tmp_path
+
+
+def analyze_cube(cube, **changes):
+    s = sc.replace(sc.load_scenario(cube / "cube_post.yaml"), **changes)
+    return analyze(s, quick=True, verify=False)
+
+
+def test_gains_past_the_limit_fail_and_the_fix_passes(cube):
+    s = analyze_cube(cube, **{"god_object.gains.omega_n_rot": 900.0})
+    (rot,) = rows(s, "simulation", "rotation")
+    assert rot["verdict"] == "fail" and s["verdict"] == "fail"
+    assert rot["value"] == pytest.approx(0.9) and rot["limit"] == pytest.approx(0.8284271)
+    fixed = float(re.search(r"omega_n_rot ≤ ([\d.]+) rad/s", rot["fix"]).group(1))
+    assert fixed == pytest.approx(WARN_FRACTION * 828.4, rel=1e-3)
+    (rot,) = rows(analyze_cube(cube, **{"god_object.gains.omega_n_rot": fixed}), "simulation", "rotation")
+    assert rot["verdict"] == "ok"
+
+
+def test_contact_too_soft_for_its_budget_fails_and_the_fix_passes(cube):
+    """The README's soft post: 64 N over 2e4 and 1e5 N/m combined (16 667 N/m) is 3.84 mm, past
+    the scene's 2 mm budget. The row names the combined stiffness that passes; making both
+    geometries twice that combines to exactly it."""
+    sdf = cube / "cube_post.sdf"
+    text = sdf.read_text()
+    post = text.index('<link name="post">')
+    sdf.write_text(text[:post] + text[post:].replace("1e5", "2e4", 1))
+    s = analyze_cube(cube)
+    (contact,) = rows(s, "contact")
+    assert contact["verdict"] == "fail" and "cube_post::post" in contact["name"]
+    assert contact["value"] == pytest.approx(64.0 / (2e4 * 1e5 / 1.2e5)) and contact["limit"] == 0.002
+    k = float(re.search(r"≥ ([\d.e+]+) N/m", contact["fix"]).group(1))
+    assert k == pytest.approx(64.0 / (WARN_FRACTION * 0.002), rel=1e-3)
+    sdf.write_text(sdf.read_text().replace("2e4", f"{2 * k:.6g}").replace("1e5", f"{2 * k:.6g}"))
+    (contact,) = rows(analyze_cube(cube), "contact")
+    assert contact["verdict"] == "ok", contact
+
+
+def test_active_feedback_gains_fail_and_the_fix_passes(cube):
+    """An impedance device (0.1 kg, 2 N·s/m, 1 kHz) with kd = 3000 N/m and no feedback damping on
+    the 0.2 kg cube against the 5e4 N/m floor: past the device's stiffness limit (closed-loop
+    poles: 2517 N/m), Colgate's required damping over the device's 2 N·s/m, not passive. Each
+    row's kd, applied, passes it."""
+    haptic = {"haptic.mode": "impedance", "feedback.kd": 3000.0, "feedback.gamma_d": 0.0}
+    s = analyze_cube(cube, **haptic)
+    (colgate,) = rows(s, "device", "Colgate")
+    (limit,) = rows(s, "device", "stiffness limit")
+    (passive,) = rows(s, "device", "passive")
+    assert [r["verdict"] for r in (colgate, limit, passive)] == ["fail"] * 3
+    assert colgate["value"] > colgate["limit"] == 2.0 and limit["value"] == 3000.0 > limit["limit"]
+    d = s["device"]
+    assert d["passivity_margin"] == pytest.approx(2.0 - d["colgate_required_b"]) and not d["proportional"]
+    assert d["k_w"] == pytest.approx(5e4)  # cube on floor, both 1e5 N/m: combined harmonically
+    assert d["closed_loop_radius"] > 1.0
+    for row in (colgate, limit):
+        kd = float(re.search(r"kd ≤ ([\d.e+]+) N/m", row["fix"]).group(1))
+        assert 0 < kd < 3000.0
+        (fixed,) = rows(analyze_cube(cube, **{**haptic, "feedback.kd": kd}), "device", row["name"])
+        assert fixed["verdict"] == "ok", fixed
+    # Proportional gains (kd/γd = k/γ) are absolutely stable: Llewellyn's η_min is exactly 1.
+    k, gamma = 0.2 * 40.0**2, 2 * 0.2 * 40.0
+    s = analyze_cube(cube, **{**haptic, "feedback.kd": 50.0, "feedback.gamma_d": 50.0 * gamma / k})
+    (eta,) = rows(s, "device", "Llewellyn")
+    assert eta["value"] == pytest.approx(1.0, abs=1e-9) and eta["verdict"] == "ok"
+
+
+def test_time_step_row_is_the_closed_form_h_max(cube):
+    """h_max = (√(B² + 4mK) − B)/K (docs/theory.md §1) for the stiffest axis; with ζ = 1 it is
+    the explicit limit over the bandwidth: 2(√2 − 1)/120 s for the cube's rotation."""
+    (row,) = rows(analyze_cube(cube), "simulation", "time step")
+    assert row["limit"] == pytest.approx(explicit_limit_omega_h(1.0) / 120.0, rel=1e-9)
+
+
+def test_command_line_writes_the_report_and_exits_1_on_a_failure(cube):
+    out = cube / "report"
+    command = [sys.executable, "-m", "godobject_drake", "analyze", "cube_post.yaml", "--out", str(out),
+               "--quick", "--omega-n", "900"]  # fmt: skip
+    proc = subprocess.run(command, cwd=cube, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stderr
+    assert "verdict: fail" in proc.stdout and "| fail | explicit limit, translation" in proc.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["verdict"] == "fail" and not summary["verify"]
+    assert (out / "margins.png").stat().st_size > 10_000
+    report = (out / "report.md").read_text()
+    assert "| fail |" in report and "## Explicit limit per body and axis" in report
+
+
+def test_every_summary_key_is_documented(lego, tmp_path):
+    write_report(lego, tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    section = README.split("## Analysing your own scene")[1].split("\n## ")[0]
+    documented = set(re.findall(r"^\| `(\w+)` \|", section, flags=re.M))
+    assert set(summary) <= documented, set(summary) - documented
+    for row in summary["checks"]:
+        assert set(row) <= documented | {"section", "name", "subject"}, row
