@@ -25,6 +25,7 @@ import time
 import warnings
 from pathlib import Path
 
+import control as ct
 import numpy as np
 from pydrake.geometry import Role
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
@@ -32,7 +33,12 @@ from pydrake.multibody.tree import BodyIndex
 
 from godobject_drake import scenario as sc
 from godobject_drake.articulated import joint_space_loop
-from godobject_drake.building import PenetrationBudgetWarning, build_station, penetration_pairs
+from godobject_drake.building import (
+    PenetrationBudgetWarning,
+    build_station,
+    hand_on_handle,
+    penetration_pairs,
+)
 from godobject_drake.coupling import CouplingGains, CouplingGainWarning, graspable_bodies
 from godobject_drake.devices import JointWaypoint, Waypoint
 from godobject_drake.limits import explicit_limit_omega_h
@@ -46,6 +52,7 @@ from godobject_drake.stability import (
     body_spectral_radius,
     closed_loop_radius,
     colgate_required_damping,
+    device_model,
     device_stiffness_limit,
     explicit_h_max,
     human_port_admittance,
@@ -370,6 +377,11 @@ def _hold_scenario(scenario, body, X_WD0: RigidTransform, X_WD1: RigidTransform,
     return s
 
 
+def _without_haptics(scenario: sc.Scenario) -> sc.Scenario:
+    """The device's pose as the target, held: what the one-body models assume."""
+    return sc.replace(scenario, **{"haptic.mode": "none", "haptic.passivity_damping": 0.0})
+
+
 def _start_pose(station, body) -> RigidTransform:
     """The body's centre-of-mass frame at the scene's start (its default pose)."""
     plant = station.plant
@@ -436,7 +448,7 @@ def _verify_penetration(station, scenario, out: dict) -> Check | None:
     if K * (PUSH_IN_M - depth) > f_cap:
         depth = (f_cap + gravity) / (n * k)
     settle = 1.0 + 20.0 / coupling.gains.omega_n
-    s = _hold_scenario(analysis_scenario(scenario), body.name, X0, X1, settle)
+    s = _hold_scenario(_without_haptics(analysis_scenario(scenario)), body.name, X0, X1, settle)
     from godobject_drake.metrics import TrueShapeMetrics
 
     run_station = _quiet_build(s)
@@ -474,7 +486,9 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
                         X0.translation() + 0.03 * away)  # fmt: skip
     h = station.plant.time_step()
     duration = 0.05 + 600 * h
-    base = analysis_scenario(scenario)
+    # The one-body model's target is the device's pose, held: a haptic device's handle moving
+    # with the feedback would make it another loop (the device rows check that one).
+    base = _without_haptics(analysis_scenario(scenario))
     gains = base.god_object.gains
     runs: dict[float, bool] = {}
 
@@ -585,6 +599,92 @@ def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> C
                  predicted=predicted, simulated=simulated)  # fmt: skip
 
 
+def _device_with_hand(dev: DeviceParams, haptic: sc.Haptic) -> ct.StateSpace:
+    """The device's sampled mechanics with the simulated hand on its handle: the hand's force
+    ``−k x − b v`` is computed from the device's state at each sample and held (state feedback)."""
+    G = device_model(dev)
+    A, B, C, D = (np.asarray(M, float) for M in (G.A, G.B, G.C, G.D))
+    hand = hand_on_handle(haptic)
+    return ct.ss(A - B @ np.array([[hand.k, hand.b]]), B, C, D, dt=dev.period_s)
+
+
+def _verify_device_boundary(station, scenario, out: dict, rel_tol: float) -> Check | None:
+    """The largest stable kd in Drake on the user's scene, against the model's: the held body
+    grasped at its start, the hand's target 5 cm inside the nearest fixed obstacle, γd as the
+    scenario has it; stable if the handle's motion per step decays once the push has settled.
+    The model: the pipeline on that obstacle's ``n k`` with the hand on the handle."""
+    if out.get("device") is None or station.god_object.kind != "rigid":
+        return None
+    body = _held_body(station)
+    near = _nearest_fixed_obstacle(station, body)
+    if near is None:
+        return None
+    d0, direction, obstacle, n = near
+    k = min(p["stiffness_n_m"] for p in out["contact_pairs"]
+            if p["body"] == body.name and p["obstacle"] == obstacle)  # fmt: skip
+    haptic, h = scenario.haptic, station.plant.time_step()
+    T = 1.0 / haptic.rate_hz
+    tau = scenario.contact.relaxation_time_s or h
+    g = station.coupling.gains
+    loop = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, k_w=n * k, b_w=n * k * tau)
+    dev = DeviceParams(haptic.device_mass_kg, haptic.device_damping, T, 0)
+    G = _device_with_hand(dev, haptic)
+    pipe = Pipeline(loop, scenario.feedback.kd, scenario.feedback.gamma_d, T)
+
+    def model_stable(kd: float) -> bool:
+        H = pipeline_impedance(dataclasses.replace(pipe, kd=kd))
+        return float(np.max(np.abs(ct.feedback(G, H, sign=-1).poles()))) < 1.0
+
+    hi = 100.0 * dev.mass / T**2
+    predicted = bisect(model_stable, 1e-9 * hi, hi, 1e-5) if not model_stable(hi) else float("nan")
+    X0 = _start_pose(station, body)
+    X1 = RigidTransform(X0.rotation(), X0.translation() + (max(d0, 0.0) + PUSH_IN_M) * direction)
+    base = _hold_scenario(analysis_scenario(scenario), body.name, X0, X1, 3.0)
+    settled = round(0.5 / h)
+    runs: dict[float, bool] = {}
+
+    def stable(kd: float) -> bool:
+        if kd in runs:
+            return runs[kd]
+        s = copy.deepcopy(base)
+        s.feedback.kd = kd
+        try:
+            result = simulate(_quiet_build(s), progress=False)
+            ok = not result.metrics["diverged"]
+        except RuntimeError:
+            ok = False
+        if ok:
+            handle = result.data["terms"][settled:, 5:8]  # the target: the handle's pose
+            ok = _decays(np.linalg.norm(np.diff(handle, axis=0), axis=1))
+        runs[kd] = ok
+        return ok
+
+    simulated = _bisect_widening(stable, predicted, rel_tol, out, "verify_device_boundary_error")
+    err = abs(simulated / predicted - 1.0)
+    out["verify_device_boundary"] = {
+        "body": body.name, "obstacle": obstacle, "contacts": n, "k_w": n * k, "gamma_d": pipe.gamma_d,
+        "predicted_kd": predicted, "simulated_kd": simulated, "relative_error": simulated / predicted - 1.0,
+        "bisection_tolerance": rel_tol, "runs": [{"kd": c, "stable": ok} for c, ok in sorted(runs.items())],
+    }  # fmt: skip
+    fix = "model and Drake agree" if err <= 0.05 else f"trust Drake's boundary: kd ≤ {_le(simulated)} N/m"
+    return Check("verify", f"device stiffness boundary kd, pushing {obstacle} (simulated hand)", body.name,
+                 "ok" if err <= 0.05 else "warn", err, 0.05, "relative error", fix,
+                 predicted=predicted, simulated=simulated)  # fmt: skip
+
+
+def _decays(signal: np.ndarray, factor: float = 0.5, floor: float = 1e-9) -> bool:
+    """The peak of the last quarter is below ``factor`` times that of the second (or below
+    ``floor`` times the first). Stricter than :func:`is_growing`: the device pressing a
+    one-sided contact turns an unstable loop into a chatter of constant amplitude, which
+    never grows. With 2.5 s at h = 1 ms it calls a pole of modulus above 0.99889 unstable."""
+    a = np.abs(np.asarray(signal, float))
+    if not np.all(np.isfinite(a)):
+        return False
+    n = len(a) // 4
+    first, second, last = a[:n].max(), a[n : 2 * n].max(), a[-n:].max()
+    return bool(last < floor * first or last < factor * second)
+
+
 def _scaled(gains: CouplingGains, c: float) -> CouplingGains:
     """Both bandwidths times ``c``, the damping ratios kept."""
     with warnings.catch_warnings():
@@ -645,7 +745,8 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     if verify:
         tol = 0.02 if quick else 0.005
         for row in (_verify_penetration(station, s, out), _verify_explicit_limit(station, s, out, tol),
-                    _verify_joint_space_limit(station, s, out, tol)):  # fmt: skip
+                    _verify_joint_space_limit(station, s, out, tol),
+                    _verify_device_boundary(station, s, out, tol)):  # fmt: skip
             if row is not None:
                 checks.append(row)
     order = {"fail": 3, "warn": 2, "ok": 1, "info": 0}
