@@ -110,7 +110,11 @@ def cli(tmp_path, *flags):
     )
     command = [sys.executable, "-m", "godobject_drake", "run", str(tmp_path / "lego.yaml"), "--no-progress",
                "--duration", "60", "--metrics", str(tmp_path / "m.json"), *flags]  # fmt: skip
-    return subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # A terminal's Ctrl-C, even when the tests themselves run in the background: a job started
+    # with `&` by a non-interactive shell inherits SIGINT ignored, and Python then keeps it
+    # ignored (no KeyboardInterrupt), so the child gets SIGINT's default disposition back.
+    return subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
 
 
 def wait_for(path, timeout_s=60.0):
@@ -123,7 +127,7 @@ def wait_for(path, timeout_s=60.0):
 def test_ctrl_c_leaves_the_metrics_so_far_marked_partial(tmp_path):
     proc = cli(tmp_path)
     # Into the run, whatever start-up costs on this machine: the first checkpoint is written
-    # from inside the simulation loop (a fixed sleep once hit start-up on a fresh CI venv).
+    # from inside the simulation loop.
     wait_for(tmp_path / "m.json", timeout_s=60.0)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)
