@@ -15,6 +15,7 @@ covers at most ``recording.max_duration_s``.
 """
 
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.building import Station
+from godobject_drake.building import Station, is_real_time
 from godobject_drake.coupling import TERMS_LAYOUT
 from godobject_drake.metrics import SceneMetrics
 from godobject_drake.recording import save_recording
@@ -153,7 +154,8 @@ def simulate(
             "or pass build_station(..., meshcat=start_meshcat(port=0))"
         )
     live = station.live or scenario.visualization.serve
-    rate = 1.0 if live else (sim.realtime_rate if realtime_rate is None else realtime_rate)
+    on_wall_clock = live or is_real_time(station.device)
+    rate = 1.0 if on_wall_clock else (sim.realtime_rate if realtime_rate is None else realtime_rate)
     plant, god = station.plant, station.god_object
     h = plant.time_step()
 
@@ -161,9 +163,14 @@ def simulate(
     root = simulator.get_mutable_context()
     god.prepare(plant.GetMyMutableContextFromRoot(root))
     simulator.set_target_realtime_rate(rate)
+    before_step = god.before_step(plant)
+    lag = None
+    if rate > 0:  # at real time: how late each plant step comes, against the wall clock
+        lag = RealtimeLag(rate, late_s=getattr(station.device, "period_s", h))
+        before_step = lag.wrap(before_step)
     guard = install_safeguards(
         simulator, plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
-        meshcat=meshcat if live else None, before_step=god.before_step(plant), mode=god.mode,
+        meshcat=meshcat if live else None, before_step=before_step, mode=god.mode,
     )  # fmt: skip
     simulator.Initialize()
     recording_steps = None
@@ -244,6 +251,8 @@ def simulate(
 
     partial = interrupted or root.get_time() < n_steps * h - 0.5 * h
     metrics = common(wall, folding, diagnosis, partial)
+    if lag is not None:
+        metrics.update(lag.result())
     if guard.stopped:
         metrics["stopped_by_user"] = True
     if interrupted:
@@ -266,6 +275,61 @@ def simulate(
     if interrupted:
         raise RunInterrupted(result)
     return result
+
+
+class RealtimeLag:
+    """How far each plant step lags behind the wall clock in a run at real-time rate.
+
+    Step k at simulated time t is due at ``t / rate`` of wall time after t = 0; its lag is how
+    much later the simulator reaches it (ahead counts as 0). Kept as a histogram of
+    ``BIN_S`` bins up to ``MAX_S`` (memory does not grow with the run; a lag past ``MAX_S``
+    falls in the last bin), so the quantiles are exact to a bin and the maximum exactly.
+    """
+
+    BIN_S = 1e-5
+    MAX_S = 1.0
+
+    def __init__(self, rate: float, late_s: float):
+        self.rate, self.late_s = float(rate), float(late_s)
+        self._hist = np.zeros(round(self.MAX_S / self.BIN_S) + 1, dtype=np.int64)
+        self._wall0: float | None = None
+        self.max_s, self.late_steps = 0.0, 0
+
+    def record(self, t: float, now: float | None = None) -> None:
+        now = time.perf_counter() if now is None else now
+        if self._wall0 is None:
+            self._wall0 = now - t / self.rate
+        lag = max(now - self._wall0 - t / self.rate, 0.0)
+        self._hist[min(int(lag / self.BIN_S), len(self._hist) - 1)] += 1
+        self.max_s = max(self.max_s, lag)
+        self.late_steps += lag > self.late_s
+
+    def wrap(self, before_step):
+        """``before_step`` (or nothing) with the lag recorded first, at every plant step."""
+
+        def step(plant_context, root_context):
+            self.record(root_context.get_time())
+            if before_step is not None:
+                before_step(plant_context, root_context)
+
+        return step
+
+    def quantile(self, q: float) -> float:
+        """The ``q`` quantile of the lags (s), to the bin's upper edge."""
+        n = int(self._hist.sum())
+        if n == 0:
+            return float("nan")
+        i = int(np.searchsorted(np.cumsum(self._hist), math.ceil(q * n)))
+        return min((i + 1) * self.BIN_S, self.max_s)
+
+    def result(self) -> dict:
+        return {
+            "realtime_lag_p50_s": self.quantile(0.5),
+            "realtime_lag_p99_s": self.quantile(0.99),
+            "realtime_lag_max_s": self.max_s,
+            "realtime_late_steps": int(self.late_steps),
+            "realtime_late_threshold_s": self.late_s,
+        }
 
 
 def _measured(measured, metrics_error) -> dict:
