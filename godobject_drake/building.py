@@ -138,6 +138,19 @@ def make_device(
     ``workspace`` its sliders span.
     """
     period = 1.0 / config.rate_hz
+    if isinstance(config, sc.Lcm | sc.LcmJoints):
+        from godobject_drake.lcm_device import LcmDevice, LcmJointDevice, make_lcm
+
+        lcm = make_lcm(config.url)
+        if isinstance(config, sc.LcmJoints):
+            return LcmJointDevice(
+                lcm, config.channels, config.start, config.channel, config.timeout_periods, _mix(config),
+                period, config.latency_s,
+            )  # fmt: skip
+        return LcmDevice(
+            lcm, start_pose(config), config.channel, config.timeout_periods, period, config.latency_s,
+            config.guard, config.interpolation, config.feedback_channel, config.grasp,
+        )  # fmt: skip
     if isinstance(config, sc.JOINT_DEVICES):
         kwargs = dict(mix=_mix(config), period_s=period, latency_s=config.latency_s)
         if isinstance(config, sc.ScriptedJoints):
@@ -183,6 +196,11 @@ def is_live(device) -> bool:
     return isinstance(device, MeshcatDevice | MeshcatJointDevice)
 
 
+def is_real_time(device) -> bool:
+    """Whether a device lives on the wall clock (the browser, a real device over LCM)."""
+    return is_live(device) or hasattr(device, "lcm_status")
+
+
 # -- god-objects -----------------------------------------------------------------------------------------
 
 
@@ -207,6 +225,8 @@ class GodObject:
     hand : SimulatedHand | None
         The simulated user on an impedance device's handle.
     passivity : PassivityController | None
+    publisher : LcmPublisherSystem | None
+        The feedback wrench's publisher, for a real device over LCM.
     shell, observer :
         A deformable god-object's shell and its :class:`~godobject_drake.deformable.ShellObserver`.
     mode : str
@@ -221,6 +241,7 @@ class GodObject:
     haptic: object = None
     hand: object = None
     passivity: object = None
+    publisher: object = None
     shell: object = None
     observer: object = None
     mode: str = "god_object"
@@ -236,6 +257,8 @@ class GodObject:
         if isinstance(self.source, DeviceSource):
             port = self.source.GetOutputPort("device_status")
             out.update(DeviceSource.status_dict(port.Eval(self.source.GetMyContextFromRoot(root_context))))
+        if hasattr(self.source, "lcm_status"):
+            out.update(self.source.lcm_status())
         if isinstance(self.haptic, HapticDevice):
             work = self.haptic.GetOutputPort("work").Eval(self.haptic.GetMyContextFromRoot(root_context))
             out["haptic_energy_to_user_j"] = float(-work[0])
@@ -393,6 +416,12 @@ def add_god_object(
     builder.Connect(god.device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
     for port in ("pose_WT", "V_WT", "pose_WG", "V_WG"):
         builder.Connect(coupling.GetOutputPort(port), feedback.GetInputPort(port))
+    if hasattr(device, "feedback_channel"):  # a real device over LCM renders the wrench itself
+        from godobject_drake.lcm_device import add_feedback_publisher
+
+        device.known_grasps = set(coupling.bodies)
+
+        god.publisher = add_feedback_publisher(builder, feedback.GetOutputPort("F_Do_W"), device)
     return god
 
 

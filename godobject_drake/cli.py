@@ -23,7 +23,7 @@ from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted
 
-DEVICES = ("scripted", "replay", "relative", "meshcat")
+DEVICES = ("scripted", "replay", "relative", "meshcat", "lcm")
 
 
 # (flag, argparse options, help, the scenario field it sets)
@@ -40,8 +40,14 @@ COMMON_FLAGS = (
         "--device",
         dict(choices=DEVICES),
         "scripted: the scenario's path; replay: a CSV log; relative: a CSV of increments with a clutch "
-        "(the paper's mouse); meshcat: live from the browser",
+        "(the paper's mouse); meshcat: live from the browser; lcm: a real device's driver over LCM",
         "device",
+    ),
+    (
+        "--lcm-url",
+        dict(),
+        "with --device lcm: Drake's LCM URL (default Drake's: UDP multicast; memq:// stays in the process)",
+        "device.url",
     ),
     (
         "--device-log",
@@ -192,6 +198,10 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         refuse("--device-log", "give --device replay or --device relative with it")
     device = s.device
     pose = isinstance(device, sc.POSE_DEVICES)
+    if _given(args, "lcm_url"):
+        if not isinstance(device, sc.Lcm | sc.LcmJoints):
+            refuse("--lcm-url", "give --device lcm with it")
+        device.url = args.lcm_url
     if _given(args, "device_rate"):
         if not (math.isfinite(args.device_rate) and args.device_rate > 0):
             refuse("--device-rate", f"{args.device_rate!r} Hz must be > 0")
@@ -265,13 +275,19 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
     settings, and relative and live devices start where the old one starts."""
     old = s.device
     kinds = (
-        {"scripted": sc.ScriptedJoints, "replay": sc.ReplayJoints, "meshcat": sc.MeshcatJointSliders}
+        {
+            "scripted": sc.ScriptedJoints,
+            "replay": sc.ReplayJoints,
+            "meshcat": sc.MeshcatJointSliders,
+            "lcm": sc.LcmJoints,
+        }
         if isinstance(old, sc.JOINT_DEVICES)
         else {
             "scripted": sc.Scripted,
             "replay": sc.Replay,
             "relative": sc.Relative,
             "meshcat": sc.MeshcatSliders,
+            "lcm": sc.Lcm,
         }
     )
     if name not in kinds:
@@ -293,16 +309,16 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
     new = cls(**common)
     if hasattr(new, "log"):
         new.log = str(log.resolve())
-    if cls in (sc.Relative, sc.MeshcatSliders):
+    if cls in (sc.Relative, sc.MeshcatSliders, sc.Lcm):
         X0 = start_pose(old)
         new.start_xyz = X0.translation().tolist()
         new.start_rpy_deg = [math.degrees(a) for a in _rpy(X0)]
-        if cls is sc.MeshcatSliders:
+        if cls in (sc.MeshcatSliders, sc.Lcm):
             new.noise_m = 0.0
             new.grasp = s.god_object.name if s.kind == "deformable" else ""
-    if cls is sc.MeshcatJointSliders:
+    if cls in (sc.MeshcatJointSliders, sc.LcmJoints):
         new.start = [float(v) for v in _joint_start(old)]
-        if len(new.limits) != len(new.channels):
+        if cls is sc.MeshcatJointSliders and len(new.limits) != len(new.channels):
             raise sc.ScenarioError(
                 f"--device meshcat needs device.limits, one [lower, upper] per channel {new.channels}"
             )

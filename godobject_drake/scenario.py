@@ -232,6 +232,39 @@ class MeshcatSliders(_PoseDevice):
 
 
 @dataclasses.dataclass
+class Lcm(_PoseDevice):
+    """A real device whose driver publishes pose samples over LCM (README "Real devices over LCM").
+
+    Attributes
+    ----------
+    url : str
+        Drake's LCM URL; empty: Drake's default (UDP multicast on this network). ``memq://``
+        stays in the process (tests).
+    channel, feedback_channel : str
+        The ``lcmt_robot_state`` samples in; the ``lcmt_force_torque`` feedback wrench out,
+        published at ``rate_hz``.
+    timeout_periods : int
+        Samples without a message after which the device holds at rest (a driver unplugged).
+    start_xyz, start_rpy_deg :
+        Where the device stands until its first message (m, degrees).
+    grasp : str
+        A body the device always holds (a deformable probe's core); empty: the messages'
+        ``grasp=`` entries decide.
+    rate_hz, latency_s, interpolation, guard :
+        The rate the driver is expected to publish at, and the sampling as for any device
+        (``noise_m`` must stay 0: the samples are the device's own).
+    """
+
+    url: str = ""
+    grasp: str = ""
+    channel: str = "GODOBJECT_DEVICE_POSE"
+    feedback_channel: str = "GODOBJECT_FEEDBACK"
+    timeout_periods: int = 5
+    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
 class _JointDevice:
     """What every joint-space device has.
 
@@ -277,15 +310,27 @@ class MeshcatJointSliders(_JointDevice):
     start: list[float] = dataclasses.field(default_factory=list)
 
 
-POSE_DEVICES = (Scripted, Replay, Relative, MeshcatSliders)
-JOINT_DEVICES = (ScriptedJoints, ReplayJoints, MeshcatJointSliders)
+@dataclasses.dataclass
+class LcmJoints(_JointDevice):
+    """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,
+    ``joint_name`` = ``channels``). ``url``, ``channel``, ``timeout_periods`` as for :class:`Lcm`;
+    ``start``: the channel values until the first message."""
+
+    url: str = ""
+    channel: str = "GODOBJECT_DEVICE_JOINTS"
+    timeout_periods: int = 5
+    start: list[float] = dataclasses.field(default_factory=list)
+
+
+POSE_DEVICES = (Scripted, Replay, Relative, MeshcatSliders, Lcm)
+JOINT_DEVICES = (ScriptedJoints, ReplayJoints, MeshcatJointSliders, LcmJoints)
 # The device kinds' names on the command line (--device) and in the metrics.
 DEVICE_NAMES = {
-    Scripted: "scripted", Replay: "replay", Relative: "relative", MeshcatSliders: "meshcat",
-    ScriptedJoints: "scripted", ReplayJoints: "replay", MeshcatJointSliders: "meshcat",
+    Scripted: "scripted", Replay: "replay", Relative: "relative", MeshcatSliders: "meshcat", Lcm: "lcm",
+    ScriptedJoints: "scripted", ReplayJoints: "replay", MeshcatJointSliders: "meshcat", LcmJoints: "lcm",
 }  # fmt: skip
-PoseDevice = Scripted | Replay | Relative | MeshcatSliders
-JointDevice = ScriptedJoints | ReplayJoints | MeshcatJointSliders
+PoseDevice = Scripted | Replay | Relative | MeshcatSliders | Lcm
+JointDevice = ScriptedJoints | ReplayJoints | MeshcatJointSliders | LcmJoints
 HAPTIC_MODES = ("none", "impedance", "admittance")
 
 
@@ -443,9 +488,10 @@ class Scenario:
     god_object : Rigid | Articulated | Deformable
         The tool (YAML tag ``!Rigid``, ``!Articulated`` or ``!Deformable``).
     device : PoseDevice | JointDevice
-        The device, by YAML tag: ``!Scripted``, ``!Replay``, ``!Relative``, ``!MeshcatSliders``
-        (pose devices, for rigid and deformable tools) or ``!ScriptedJoints``,
-        ``!ReplayJoints``, ``!MeshcatJointSliders`` (joint devices, for articulated tools).
+        The device, by YAML tag: ``!Scripted``, ``!Replay``, ``!Relative``, ``!MeshcatSliders``,
+        ``!Lcm`` (pose devices, for rigid and deformable tools) or ``!ScriptedJoints``,
+        ``!ReplayJoints``, ``!MeshcatJointSliders``, ``!LcmJoints`` (joint devices, for
+        articulated tools).
     workspace : Workspace
         Where the device may go (the live sliders' range).
     feedback : FeedbackGains
@@ -628,7 +674,7 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
                 where,
                 "device",
                 f"an articulated god-object needs a joint-space device (!ScriptedJoints, !ReplayJoints, "
-                f"!MeshcatJointSliders); got !{type(device).__name__}",
+                f"!MeshcatJointSliders, !LcmJoints); got !{type(device).__name__}",
             )
         if s.haptic.mode != "none" or s.feedback != FeedbackGains():
             _fail(
@@ -648,9 +694,23 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
         _fail(
             where,
             "device",
-            f"a {kind} god-object needs a pose device (!Scripted, !Replay, !Relative, !MeshcatSliders); "
-            f"got !{type(device).__name__}",
+            f"a {kind} god-object needs a pose device (!Scripted, !Replay, !Relative, !MeshcatSliders, "
+            f"!Lcm); got !{type(device).__name__}",
         )
+    if isinstance(device, Lcm | LcmJoints):
+        if not (isinstance(device.timeout_periods, int) and device.timeout_periods >= 1):
+            _fail(where, "device.timeout_periods", f"{device.timeout_periods!r}: give an integer ≥ 1, e.g. 5")
+        if isinstance(device, Lcm) and device.noise_m:
+            _fail(where, "device.noise_m", "a real device's samples are its own; leave it 0")
+        if isinstance(device, Lcm) and s.haptic.mode != "none":
+            _fail(
+                where,
+                "haptic.mode",
+                f"{s.haptic.mode!r} simulates a haptic device; with !Lcm the real device is the haptic one "
+                "and the feedback wrench goes to it on device.feedback_channel: set haptic.mode: none",
+            )
+        if isinstance(device, LcmJoints) and len(device.start) != len(device.channels):
+            _fail(where, "device.start", f"{device.start} needs one value per channel {device.channels}")
     if kind == "deformable" and s.god_object.shell not in SHELL_MODELS:
         _fail(where, "god_object.shell", f"{s.god_object.shell!r}; choose one of {SHELL_MODELS}")
     vis = s.visualization

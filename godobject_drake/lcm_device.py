@@ -1,0 +1,301 @@
+"""Devices on LCM, Drake's hardware convention: a driver publishes the device's samples, the
+scene publishes the feedback wrench back.
+
+Messages (the ``lcmt_*`` types the drake wheel ships; README "Real devices over LCM"):
+
+- **Pose samples** on ``GODOBJECT_DEVICE_POSE``: ``lcmt_robot_state`` with ``utime`` (µs, the
+  driver's clock), ``joint_name = [x, y, z, qw, qx, qy, qz]`` (m; a unit quaternion, W first)
+  and their values in ``joint_position``. An extra entry named ``grasp=*`` holds the body
+  nearest the device (a device's button), ``grasp=`` holds nothing; without one the grasp is
+  unchanged.
+- **Joint samples** on ``GODOBJECT_DEVICE_JOINTS``: ``lcmt_robot_state`` with the scenario's
+  channels as ``joint_name``, in order.
+- **Feedback** on ``GODOBJECT_FEEDBACK``: ``lcmt_force_torque`` at the device's rate,
+  ``timestamp`` the simulation time in µs, ``fx, fy, fz`` (N) and ``tx, ty, tz`` (N·m) the wrench
+  the device should render, in W (the feedback port's ``F_Do_W``).
+
+What arrives is checked at each device sample (:class:`LcmReceiver`), and every fault is
+counted in the metrics (:data:`LCM_STATUS_KEYS`):
+
+- no message yet: the device stays at its start pose, at rest;
+- none for ``timeout_periods`` samples (a driver unplugged): the sample is dropped, so the
+  device source holds the last pose at rest (``device_dropped_samples``);
+- a ``utime`` going backwards or repeated: the message is dropped (``lcm_stale_messages``);
+- several new messages in one period (a burst): the newest is used (``lcm_bursts``);
+- a message that does not decode as ``lcmt_robot_state``, names other entries, or grasps a
+  body the coupling does not know: dropped (``lcm_bad_messages``);
+- NaN, infinite or a non-unit quaternion: the device's :class:`~godobject_drake.devices.SampleGuard`
+  handles it as for any device (joint devices: a non-finite value drops the message).
+
+Use ``memq://`` for tests (in-process; nothing leaves the process). Drake's default URL is UDP
+multicast, for a lab's own network.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from drake import lcmt_force_torque, lcmt_robot_state
+from pydrake.common.value import AbstractValue
+from pydrake.lcm import DrakeLcm
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
+
+from godobject_drake.coupling import GRASP_NEAREST
+from godobject_drake.devices import DEFAULT_DEVICE_RATE_HZ, DeviceSource, JointDevice, SampleGuard
+
+POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
+JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"
+FEEDBACK_CHANNEL = "GODOBJECT_FEEDBACK"
+POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+GRASP_PREFIX = "grasp="
+LCM_STATUS_KEYS = (
+    "lcm_messages",
+    "lcm_bad_messages",
+    "lcm_stale_messages",
+    "lcm_bursts",
+    "lcm_silent_samples",
+)
+
+
+def make_lcm(url: str = "") -> DrakeLcm:
+    """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast)."""
+    return DrakeLcm(url) if url else DrakeLcm()
+
+
+def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state:
+    """An ``lcmt_robot_state`` pose sample, as a driver publishes it."""
+    msg = lcmt_robot_state()
+    msg.utime = int(utime)
+    names, values = list(POSE_NAMES), [*map(float, p), *map(float, q)]
+    if grasp is not None:
+        names.append(GRASP_PREFIX + grasp)
+        values.append(0.0)
+    msg.num_joints, msg.joint_name, msg.joint_position = len(names), names, values
+    return msg
+
+
+class LcmReceiver:
+    """The messages of one channel, taken at each device sample (module docstring).
+
+    ``poll()`` handles what arrived since the last call and returns whether a new sample was
+    accepted; ``latest`` is ``(values, grasp)`` of the newest accepted one (``grasp`` None when
+    the message did not say), or None before the first.
+    """
+
+    def __init__(
+        self,
+        lcm: DrakeLcm,
+        channel: str,
+        names: Sequence[str],
+        timeout_periods: int = 5,
+        grasp_ok: Callable[[str], bool] | None = None,
+    ):
+        if int(timeout_periods) != timeout_periods or timeout_periods < 1:
+            raise ValueError(
+                f"timeout_periods={timeout_periods!r} must be a whole number of samples ≥ 1; it is how "
+                "many samples without a message make the device hold (e.g. 5)"
+            )
+        self.lcm, self.channel, self.names = lcm, channel, tuple(names)
+        self.grasp_ok = grasp_ok or (lambda name: True)
+        self.timeout_periods = int(timeout_periods)
+        self.counts = dict.fromkeys(LCM_STATUS_KEYS, 0)
+        self.latest: tuple[np.ndarray, str | None] | None = None
+        self._pending: list[bytes] = []
+        self._last_utime: int | None = None
+        self._quiet = 0
+        lcm.Subscribe(channel, self._pending.append)
+
+    def poll(self) -> bool:
+        self.lcm.HandleSubscriptions(0)
+        accepted = 0
+        for raw in self._pending:
+            self.counts["lcm_messages"] += 1
+            parsed = self._parse(raw)
+            if parsed is None:
+                self.counts["lcm_bad_messages"] += 1
+                continue
+            utime, values, grasp = parsed
+            if self._last_utime is not None and utime <= self._last_utime:
+                self.counts["lcm_stale_messages"] += 1
+                continue
+            self._last_utime, self.latest = utime, (values, grasp)
+            accepted += 1
+        self._pending.clear()
+        if accepted > 1:
+            self.counts["lcm_bursts"] += 1
+        self._quiet = 0 if accepted else self._quiet + 1
+        if not accepted:
+            self.counts["lcm_silent_samples"] += 1
+        return accepted > 0
+
+    @property
+    def timed_out(self) -> bool:
+        """No message for more than ``timeout_periods`` samples since the last one."""
+        return self.latest is not None and self._quiet > self.timeout_periods
+
+    def _parse(self, raw: bytes):
+        try:
+            msg = lcmt_robot_state.decode(raw)
+        except ValueError:  # another type, or a truncated message
+            return None
+        names, values = list(msg.joint_name), list(msg.joint_position)
+        if len(names) != msg.num_joints or len(values) != msg.num_joints:
+            return None
+        grasp = None
+        for i, name in enumerate(names):
+            if name.startswith(GRASP_PREFIX):
+                grasp = name[len(GRASP_PREFIX) :]
+                del names[i], values[i]
+                break
+        if tuple(names) != self.names or (grasp is not None and not self.grasp_ok(grasp)):
+            return None
+        return int(msg.utime), np.asarray(values, float), grasp
+
+
+class LcmDevice(DeviceSource):
+    """A pose device whose samples come over LCM (module docstring).
+
+    Parameters
+    ----------
+    lcm : DrakeLcm
+        The LCM to listen on (``memq://`` in tests).
+    X_WD0 : RigidTransform
+        Where the device stands until its first message.
+    channel : str
+        The channel of its ``lcmt_robot_state`` samples.
+    timeout_periods : int
+        Samples without a message after which the device holds at rest.
+    period_s, latency_s, guard, interpolation :
+        As for :class:`~godobject_drake.devices.DeviceSource`: the rate the driver is expected
+        to publish at.
+    feedback_channel : str
+        Where :func:`add_feedback_publisher` sends the feedback wrench.
+    grasp : str
+        A body the device always holds; empty: the messages' ``grasp=`` entries decide.
+    """
+
+    def __init__(
+        self,
+        lcm: DrakeLcm,
+        X_WD0: RigidTransform,
+        channel: str = POSE_CHANNEL,
+        timeout_periods: int = 5,
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+        guard: SampleGuard | None = None,
+        interpolation: str = "hold",
+        feedback_channel: str = FEEDBACK_CHANNEL,
+        grasp: str = "",
+    ):
+        self.lcm, self.feedback_channel, self._fixed_grasp = lcm, feedback_channel, grasp
+        self.known_grasps: set[str] | None = None  # the coupling's names, set by the builder
+        self.receiver = LcmReceiver(lcm, channel, POSE_NAMES, timeout_periods, self._grasp_ok)
+        self._p0 = X_WD0.translation().copy()
+        self._q0 = X_WD0.rotation().ToQuaternion().wxyz()
+        self._grasp = ""
+        self._polled_at = -math.inf
+        super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard)
+
+    def _read(self, t: float):
+        if t > self._polled_at:  # once per device sample; not from a build-time query
+            self._polled_at = t
+            if t > 0.0 or self.receiver.latest is None:
+                self.receiver.poll()
+        latest = self.receiver.latest
+        if latest is None:
+            return self._p0, self._q0, self._fixed_grasp
+        if self.receiver.timed_out:
+            return None  # dropped: the device source holds the last pose, at rest
+        values, grasp = latest
+        if grasp is not None:
+            self._grasp = GRASP_NEAREST if grasp == "*" else grasp
+        return values[:3], values[3:7], self._fixed_grasp or self._grasp
+
+    def _grasp_ok(self, name: str) -> bool:
+        return name in ("", "*") or self.known_grasps is None or name in self.known_grasps
+
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
+        """The fixed body if any: a driver names no body in advance (``grasp=*`` picks the nearest)."""
+        return {self._fixed_grasp} if self._fixed_grasp else set()
+
+    def samples(self, duration_s: float):
+        """Only the start is known before the run (the rest is the driver's)."""
+        return [(0.0, self._read(0.0))]
+
+    def lcm_status(self) -> dict:
+        return dict(self.receiver.counts)
+
+
+class LcmJointDevice(JointDevice):
+    """A joint-space device whose channel values come over LCM; it holds the last good
+    values (the start values before the first message, or after a non-finite one)."""
+
+    def __init__(
+        self,
+        lcm: DrakeLcm,
+        channels: Sequence[str],
+        start: Sequence[float],
+        channel: str = JOINT_CHANNEL,
+        timeout_periods: int = 5,
+        mix=None,
+        period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
+        latency_s: float = 0.0,
+    ):
+        self.lcm = lcm
+        self.receiver = LcmReceiver(lcm, channel, channels, timeout_periods)
+        self._values = np.asarray(start, float).reshape(-1)
+        if self._values.size != len(channels):
+            raise ValueError(f"{len(channels)} channels {list(channels)} need as many start values: {start}")
+        self._polled_at = -math.inf
+        super().__init__(self._read, channels, mix, period_s, latency_s)
+
+    def _read(self, t: float) -> np.ndarray:
+        if t > self._polled_at:
+            self._polled_at = t
+            if t > 0.0 and self.receiver.poll():
+                values, _ = self.receiver.latest
+                if np.all(np.isfinite(values)):
+                    self._values = values
+                else:
+                    self.receiver.counts["lcm_bad_messages"] += 1
+        return self._values
+
+    def samples(self, duration_s: float) -> np.ndarray:
+        """Only the start is known before the run (the builder checks gains there)."""
+        return np.array([self.mix @ self._values])
+
+    def lcm_status(self) -> dict:
+        return dict(self.receiver.counts)
+
+
+def add_feedback_publisher(builder, F_Do_W_port, device: LcmDevice):
+    """Publish ``F_Do_W`` as ``lcmt_force_torque`` on the device's feedback channel at its rate."""
+    from pydrake.systems.lcm import LcmPublisherSystem
+
+    message = builder.AddNamedSystem("feedback_message", ForceTorqueMessage())
+    publisher = builder.AddNamedSystem(
+        "feedback_publisher",
+        LcmPublisherSystem.Make(device.feedback_channel, lcmt_force_torque, device.lcm, device.period_s),
+    )
+    builder.Connect(F_Do_W_port, message.GetInputPort("F_Do_W"))
+    builder.Connect(message.GetOutputPort("message"), publisher.get_input_port())
+    return publisher
+
+
+class ForceTorqueMessage(LeafSystem):
+    """``F_Do_W`` (torque first, as Drake's spatial forces) → ``lcmt_force_torque`` for a publisher."""
+
+    def __init__(self):
+        super().__init__()
+        self._F = self.DeclareVectorInputPort("F_Do_W", 6)
+        self.DeclareAbstractOutputPort("message", lambda: AbstractValue.Make(lcmt_force_torque()), self._calc)
+
+    def _calc(self, context, output):
+        F = self._F.Eval(context)
+        msg = lcmt_force_torque()
+        msg.timestamp = round(context.get_time() * 1e6)
+        msg.tx, msg.ty, msg.tz, msg.fx, msg.fy, msg.fz = (float(v) for v in F)
+        output.set_value(msg)
