@@ -1,0 +1,255 @@
+"""Real devices over LCM (``--device lcm``): samples in, the feedback wrench out, every fault
+held or dropped and counted. In-process on ``memq://`` only: nothing leaves this process."""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import build_scene
+from drake import lcmt_force_torque, lcmt_robot_state
+from pydrake.lcm import DrakeLcm
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import Simulator
+
+from godobject_drake.coupling import GRASP_NEAREST
+from godobject_drake.devices import DeviceSource, write_device_log
+from godobject_drake.lcm_device import (
+    FEEDBACK_CHANNEL,
+    JOINT_CHANNEL,
+    POSE_CHANNEL,
+    LcmDevice,
+    LcmJointDevice,
+    pose_message,
+)
+from godobject_drake.lcm_replay import replay
+from godobject_drake.scenario import ScenarioError
+from godobject_drake.simulation import RealtimeLag, simulate
+
+T = 0.01  # the device's expected period (s)
+Q = (1.0, 0.0, 0.0, 0.0)
+START = [0.1, 0.0, 0.05]
+
+
+class Rig:
+    """An LCM device alone on memq://, stepped sample by sample."""
+
+    def __init__(self, **options):
+        self.lcm = DrakeLcm("memq://")
+        self.device = LcmDevice(self.lcm, RigidTransform(START), period_s=T, **options)
+        self.sim = Simulator(self.device)
+
+    def publish(self, utime, p, q=Q, grasp=None, channel=POSE_CHANNEL):
+        self.lcm.Publish(channel, pose_message(utime, p, q, grasp).encode())
+
+    def at(self, k):
+        """Outputs after sample k: ``(p, V, grasp, counts)``."""
+        self.sim.AdvanceTo(k * T + 1e-6)
+        c = self.sim.get_context()
+        d = self.device
+        counts = {**DeviceSource.status_dict(d.GetOutputPort("device_status").Eval(c)), **d.lcm_status()}
+        X = d.GetOutputPort("X_WD").Eval(c)
+        return X.translation(), d.GetOutputPort("V_WD").Eval(c), d.GetOutputPort("grasp").Eval(c), counts
+
+
+def test_samples_reach_the_target_with_their_grasp():
+    rig = Rig()
+    p, V, grasp, counts = rig.at(0)  # no message yet: the start, at rest
+    np.testing.assert_array_equal(p, START)
+    assert np.all(V == 0) and grasp == "" and counts["lcm_silent_samples"] == 1
+    rig.publish(1_000, [0.10, 0.0, 0.06], grasp="*")
+    p, V, grasp, _ = rig.at(1)
+    np.testing.assert_allclose(p, [0.10, 0.0, 0.06], atol=1e-7)  # lcmt_robot_state carries float32
+    np.testing.assert_allclose(V[3:], [0.0, 0.0, 0.01 / T], atol=2e-5)  # float32 values: 1.5e-8 m / T
+    assert grasp == GRASP_NEAREST
+    rig.publish(2_000, [0.11, 0.0, 0.06])  # no grasp entry: the grasp stays
+    assert rig.at(2)[2] == GRASP_NEAREST
+    rig.publish(3_000, [0.11, 0.0, 0.06], grasp="")  # grasp= : release
+    p, V, grasp, counts = rig.at(3)
+    assert grasp == "" and np.all(V[3:] == 0)
+    assert counts["lcm_messages"] == 3 and counts["device_samples"] == 4
+
+
+def test_a_silent_driver_holds_at_rest_after_its_timeout():
+    """Samples 1 and 2 arrive, then nothing: with timeout_periods = 2 the device repeats sample 2
+    for two samples (at rest), then drops the rest (the device source holds and counts them)."""
+    rig = Rig(timeout_periods=2)
+    rig.publish(1, [0.10, 0.0, 0.05])
+    rig.at(1)
+    rig.publish(2, [0.11, 0.0, 0.05])
+    rig.at(2)
+    p, V, _, counts = rig.at(6)
+    np.testing.assert_allclose(p, [0.11, 0.0, 0.05], atol=1e-7)
+    assert np.all(V == 0)
+    assert counts["lcm_silent_samples"] == 1 + 4  # sample 0, and 3 to 6
+    assert counts["device_dropped_samples"] == 2  # 5 and 6: more than 2 samples without a message
+    rig.publish(7, [0.12, 0.0, 0.05])  # the driver is back (1 cm from the held sample: no jump)
+    p, _, _, counts = rig.at(7)
+    np.testing.assert_allclose(p, [0.12, 0.0, 0.05], atol=1e-7)
+    assert counts["device_dropped_samples"] == 2
+
+
+def test_stale_and_repeated_utimes_are_dropped():
+    rig = Rig()
+    rig.publish(100, [0.10, 0.0, 0.05])
+    rig.at(1)
+    rig.publish(100, [0.12, 0.0, 0.05])  # repeated
+    rig.publish(50, [0.13, 0.0, 0.05])  # backwards
+    p, _, _, counts = rig.at(2)
+    np.testing.assert_allclose(p, [0.10, 0.0, 0.05], atol=1e-7)
+    assert counts["lcm_stale_messages"] == 2 and counts["lcm_messages"] == 3
+
+
+def test_a_burst_takes_the_newest():
+    rig = Rig()
+    for i, x in enumerate((0.100, 0.101, 0.102)):
+        rig.publish(10 + i, [x, 0.0, 0.05])
+    p, _, _, counts = rig.at(1)
+    np.testing.assert_allclose(p, [0.102, 0.0, 0.05], atol=1e-7)
+    assert counts["lcm_bursts"] == 1 and counts["lcm_messages"] == 3
+
+
+def test_messages_of_the_wrong_type_size_or_names_are_dropped():
+    rig = Rig()
+    rig.device.known_grasps = {"brick"}
+    wrong_type = lcmt_force_torque()
+    rig.lcm.Publish(POSE_CHANNEL, wrong_type.encode())
+    rig.lcm.Publish(POSE_CHANNEL, b"\x00\x01garbage")
+    swapped = pose_message(5, [0.2, 0.0, 0.05], Q)
+    swapped.joint_name = ["y", "x", *swapped.joint_name[2:]]
+    rig.lcm.Publish(POSE_CHANNEL, swapped.encode())
+    short = lcmt_robot_state()
+    short.utime, short.num_joints, short.joint_name, short.joint_position = 6, 1, ["x"], [0.2]
+    rig.lcm.Publish(POSE_CHANNEL, short.encode())
+    rig.publish(7, [0.2, 0.0, 0.05], grasp="no_such_body")
+    p, _, _, counts = rig.at(1)
+    np.testing.assert_array_equal(p, START)  # none of them moved the device
+    assert counts["lcm_bad_messages"] == 5 and counts["lcm_messages"] == 5
+    rig.publish(8, [0.1, 0.0, 0.05], grasp="brick")
+    assert rig.at(2)[2] == "brick"
+
+
+@pytest.mark.parametrize(
+    "p, q",
+    [([math.nan, 0.0, 0.05], Q), ([0.1, 0.0, 0.05], (0.9, 0.0, 0.0, 0.0))],
+    ids=["nan", "non-unit-quaternion"],
+)
+def test_bad_values_go_through_the_sample_guard(p, q):
+    rig = Rig()
+    rig.publish(1, [0.1, 0.0, 0.05])
+    rig.at(1)
+    rig.publish(2, p, q)
+    p2, V, _, counts = rig.at(2)
+    np.testing.assert_allclose(p2, [0.1, 0.0, 0.05], atol=1e-7)
+    assert counts["device_invalid_samples"] == 1 and np.all(V == 0)
+
+
+def test_joint_device_holds_its_last_good_values():
+    lcm = DrakeLcm("memq://")
+    device = LcmJointDevice(lcm, ["a", "b"], [0.0, 0.1], mix=[[1, 0], [0, 0.5], [0, 0.5]], period_s=T)
+    sim = Simulator(device)
+
+    def send(utime, values):
+        msg = lcmt_robot_state()
+        msg.utime, msg.num_joints, msg.joint_name, msg.joint_position = utime, 2, ["a", "b"], values
+        lcm.Publish(JOINT_CHANNEL, msg.encode())
+
+    def q_at(k):
+        sim.AdvanceTo(k * T + 1e-6)
+        return device.GetOutputPort("q_device").Eval(sim.get_context())
+
+    np.testing.assert_allclose(q_at(0), [0.0, 0.05, 0.05])  # the start, through the mix
+    send(1, [0.2, 0.4])
+    np.testing.assert_allclose(q_at(1), [0.2, 0.2, 0.2], atol=1e-7)
+    send(2, [math.nan, 0.4])
+    np.testing.assert_allclose(q_at(2), [0.2, 0.2, 0.2], atol=1e-7)
+    assert device.lcm_status()["lcm_bad_messages"] == 1
+
+
+def test_the_scene_publishes_the_feedback_wrench_at_the_device_rate():
+    """The brick scene with --device lcm and kd = 20 N/m: the driver grasps the nearest brick
+    where the device starts, then lifts its target 1 cm; the scene answers on GODOBJECT_FEEDBACK
+    every device period (60 Hz: 13 messages over 0.2 s, t = 0 included), with F_Do_W's values."""
+    flags = ("--device", "lcm", "--lcm-url", "memq://", "--kd", "20", "--duration", "0.2")
+    station = build_scene("lego", *flags)
+    device, lcm = station.device, station.device.lcm
+    received = []
+    lcm.Subscribe(FEEDBACK_CHANNEL, lambda raw: received.append(lcmt_force_torque.decode(raw)))
+    start = device.samples(0.0)[0][1][0]
+    sim = Simulator(station.diagram)
+    lcm.Publish(POSE_CHANNEL, pose_message(1, start, Q, "*").encode())
+    sim.AdvanceTo(1.5 / 60.0)  # sample 1 took the grasp
+    lcm.Publish(POSE_CHANNEL, pose_message(2, start + np.array([0.0, 0.0, 0.01]), Q).encode())
+    context = station.feedback.GetMyContextFromRoot(sim.get_context())
+    published, at_port = [], []
+    for k in range(2, 13):  # each message carries F_Do_W as the port gives it at its time
+        sim.AdvanceTo(k / 60.0)
+        lcm.HandleSubscriptions(0)
+        published.append([received[-1].fx, received[-1].fy, received[-1].fz])
+        at_port.append(station.feedback.GetOutputPort("F_Do_W").Eval(context)[3:])
+    np.testing.assert_allclose(published, at_port, rtol=1e-12, atol=1e-15)
+    assert device.lcm_status()["lcm_messages"] == 2 and device.lcm_status()["lcm_bad_messages"] == 0
+    stamps = np.array([m.timestamp for m in received])
+    period_us = 1e6 / 60.0
+    assert len(stamps) == 13 and np.all(np.abs(stamps / period_us - np.round(stamps / period_us)) < 1e-3)
+    assert np.all(np.diff(stamps) > 0)
+    # The lift reaches the wrench: F = kd (p_G − p_T) is below −0.05 N as the brick trails its target.
+    assert min(f[2] for f in published) < -0.05
+
+
+def test_a_run_on_the_wall_clock_reports_its_lag():
+    m = simulate(build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--duration", "0.3"),
+                 progress=False).metrics  # fmt: skip
+    assert 0 <= m["realtime_lag_p50_s"] <= m["realtime_lag_p99_s"] <= m["realtime_lag_max_s"] + 1e-5
+    assert m["realtime_late_threshold_s"] == pytest.approx(1 / 60.0)
+    assert m["real_time_factor"] == pytest.approx(1.0, abs=0.1)  # paced to the wall clock
+    assert (
+        "realtime_lag_p50_s"
+        not in simulate(build_scene("lego", "--duration", "0.05"), progress=False).metrics
+    )
+
+
+def test_replay_publishes_each_row_at_its_time(tmp_path):
+    log = tmp_path / "path.csv"
+    rows = [(0.0, ([0.1, 0, 0.05], [1, 0, 0, 0], "")), (0.5, ([0.1, 0, 0.06], [1, 0, 0, 0], "*")),
+            (1.25, ([0.1, 0, 0.07], [1, 0, 0, 0], "*"))]  # fmt: skip
+    write_device_log(log, [(t, (np.array(p), np.array(q), g)) for t, (p, q, g) in rows])
+    from godobject_drake.devices import read_device_log
+
+    lcm = DrakeLcm("memq://")
+    got = []
+    lcm.Subscribe(POSE_CHANNEL, lambda raw: got.append(lcmt_robot_state.decode(raw)))
+    now, sleeps = [10.0], []
+
+    def sleep(s):
+        sleeps.append(s)
+        now[0] += s
+
+    assert replay(read_device_log(log), lcm, clock=lambda: now[0], sleep=sleep, speed=2.0) == 3
+    lcm.HandleSubscriptions(0)
+    assert [m.utime for m in got] == [0, 500_000, 1_250_000]
+    assert sleeps == pytest.approx([0.25, 0.375])  # at t / speed
+    assert [m.joint_name[-1] for m in got] == ["grasp=", "grasp=*", "grasp=*"]
+    np.testing.assert_allclose([m.joint_position[2] for m in got], [0.05, 0.06, 0.07], atol=1e-7)
+
+
+def test_lag_quantiles_equal_numpy_to_a_bin():
+    """The histogram's p50 and p99 against numpy's on the same lags (second method): within one
+    10 µs bin; the maximum and the late count exactly."""
+    rng = np.random.default_rng(3)
+    lags = np.abs(rng.gamma(2.0, 2e-4, 5000))
+    lag = RealtimeLag(rate=1.0, late_s=1e-3)
+    for k, x in enumerate(lags):
+        lag.record(k * 1e-3, now=100.0 + k * 1e-3 + x - lags[0])  # t = 0 sets the reference
+    r = lag.result()
+    shifted = np.maximum(lags - lags[0], 0.0)
+    for q, key in ((0.5, "realtime_lag_p50_s"), (0.99, "realtime_lag_p99_s")):
+        assert abs(r[key] - np.quantile(shifted, q, method="inverted_cdf")) <= RealtimeLag.BIN_S + 1e-12
+    assert r["realtime_lag_max_s"] == pytest.approx(shifted.max(), abs=1e-12)
+    assert r["realtime_late_steps"] == int(np.sum(shifted > 1e-3))
+
+
+def test_lcm_flags_are_checked():
+    with pytest.raises(ScenarioError, match=r"--lcm-url: give --device lcm with it"):
+        build_scene("lego", "--lcm-url", "memq://")
+    with pytest.raises(ScenarioError, match=r"haptic.mode.*'impedance'.*set haptic.mode: none"):
+        build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--haptic", "impedance")
