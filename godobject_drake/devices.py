@@ -417,8 +417,11 @@ def _csv_rows(filename: str | Path, header: Sequence[str], hint: str = ""):
     filename = Path(filename)
     if not filename.is_file():
         raise FileNotFoundError(f"device log {filename} does not exist")
-    with filename.open(newline="") as f:
-        rows = list(csv.reader(f))
+    try:
+        with filename.open(newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+    except (UnicodeDecodeError, csv.Error) as e:  # found by tests/test_fuzz.py: not a text CSV
+        raise ValueError(f"{filename}: not a UTF-8 text CSV ({e}); write the log as text.{hint}") from None
     if not rows or tuple(c.strip() for c in rows[0]) != tuple(header):
         got = rows[0] if rows else "an empty file"
         raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}.{hint}")
