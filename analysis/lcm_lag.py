@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     parser.add_argument("--duration", type=float, default=10.0, help="simulated and wall time (s)")
     parser.add_argument("--rate", type=float, default=1000.0, help="the driver's rate (Hz)")
     parser.add_argument(
-        "--switch-interval", type=float, default=1e-4,
+        "--switch-interval", type=float, default=1e-3,
         help="Python's thread switch interval (s); the default 5 ms starves the driver thread",
     )  # fmt: skip
     args = parser.parse_args(argv)
