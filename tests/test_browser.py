@@ -1,0 +1,131 @@
+"""What a user sees, in real Chromium (Playwright, Debian's chromium): each scene's recording
+opens at its first frame, plays and frames the scene; the live page grasps, lifts and stops.
+
+Marked ``browser``. Without Chromium they skip, saying how to install it; with
+``GODOBJECT_REQUIRE_BROWSER=1`` (CI) a missing browser fails instead. ``CHROMIUM=/path``
+picks the browser; ``GODOBJECT_SCREENSHOTS=DIR`` keeps the screenshots (the README's come
+from here: ``GODOBJECT_SCREENSHOTS=docs pytest -m browser``).
+"""
+
+import io
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO, SCENES, run_scene
+
+pytestmark = pytest.mark.browser
+CHROMIUM = os.environ.get("CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
+VIEW = {"width": 1280, "height": 800}
+MIN_COVERAGE = 0.05  # share of the view the scene's models cover (the default camera: 0.2 %)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    why = None
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        why = "Playwright is not installed: pip install -e '.[test]'"
+    if why is None and not Path(CHROMIUM).is_file():
+        why = f"no Chromium at {CHROMIUM}: apt-get install -y chromium (Debian), or set CHROMIUM=/path"
+    if why:
+        if os.environ.get("GODOBJECT_REQUIRE_BROWSER") == "1":
+            pytest.fail(why)
+        pytest.skip(why)
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+def shot(page, name: str) -> np.ndarray:
+    from PIL import Image
+
+    png = page.screenshot()
+    keep = os.environ.get("GODOBJECT_SCREENSHOTS")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        (Path(keep) / f"{name}.png").write_bytes(png)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+
+
+def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.abs(a - b).sum(axis=2) > 30
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_recording_opens_at_the_start_plays_and_frames_the_scene(browser, scene, tmp_path):
+    html = tmp_path / f"{scene}.html"
+    run_scene(scene, "--duration", "5", "--record", str(html))
+    page = browser.new_page(viewport=VIEW)
+    page.goto(html.as_uri())
+    page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
+    t0 = page.evaluate("() => viewer.animator.time")
+    first = shot(page, f"recording_{scene}_start")
+    time.sleep(1.5)
+    t1 = page.evaluate("() => viewer.animator.time")
+    later = shot(page, f"recording_{scene}")
+    # Opens at its first frame and plays on its own, at real speed (the viewer's clock: 1.5 s
+    # of sleep and two screenshots later it is 1.5 to 3 s on), then the pixels move.
+    assert t0 < 1.0 and 1.5 <= t1 - t0 <= 3.0, (t0, t1)
+    assert changed(first, later).mean() > 0.001
+    # Frames the scene: the models cover a share of the view (hide them, paused, and compare).
+    page.evaluate("() => viewer.animator.pause()")
+    shown = shot(page, f"recording_{scene}_paused")
+    page.evaluate(
+        '() => { viewer.set_property(["drake"], "visible", false); '
+        'viewer.set_property(["godobject"], "visible", false); viewer.set_dirty(); }'
+    )
+    time.sleep(0.3)
+    empty = shot(page, f"recording_{scene}_empty")
+    coverage = changed(shown, empty).mean()
+    assert coverage > MIN_COVERAGE, coverage
+    page.close()
+
+
+def test_live_page_grasps_lifts_and_stops_the_run(browser, tmp_path):
+    """The brick scene live: open the controls, click Grasp, raise the target with the O key
+    (z up, 2 mm a press), click Stop. The run stops early with the brick lifted into free space."""
+    metrics = tmp_path / "m.json"
+    scene = str(REPO / "diagrams" / "lego.yaml")
+    command = [sys.executable, "-m", "godobject_drake", "run", scene, "--device", "meshcat",
+               "--duration", "60", "--metrics", str(metrics), "--no-progress"]  # fmt: skip
+    proc = subprocess.Popen(
+        command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        url = None
+        deadline = time.monotonic() + 60
+        while url is None and time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            found = re.search(r"(http://localhost:\d+)", line)
+            url = found.group(1) if found else None
+        assert url, "the live run never printed its Meshcat URL"
+        page = browser.new_page(viewport=VIEW)
+        page.goto(url)
+        page.get_by_text("Open Controls").click()
+        page.get_by_text("Grasp / release").click()
+        time.sleep(0.5)
+        page.mouse.click(640, 700)  # focus the view: the keys go to the page
+        for _ in range(20):
+            page.keyboard.press("o")
+            time.sleep(0.05)
+        time.sleep(1.0)
+        shot(page, "live_lego")
+        page.get_by_text("Stop").click()
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    m = json.loads(metrics.read_text())
+    assert m["stopped_by_user"] and m["sim_time_s"] < 60.0, m
+    assert m["free_space_samples"] > 0  # the held brick was ≥ 2 mm from every other shape
