@@ -420,7 +420,6 @@ def add_god_object(
         from godobject_drake.lcm_device import add_feedback_publisher
 
         device.known_grasps = set(coupling.bodies)
-
         god.publisher = add_feedback_publisher(builder, feedback.GetOutputPort("F_Do_W"), device)
     return god
 

@@ -14,7 +14,7 @@ import pytest
 from conftest import REPO, own_scene_files
 
 from godobject_drake import scenario as sc
-from godobject_drake.analyze import WARN_FRACTION, analyze, write_report
+from godobject_drake.analyze import WARN_FRACTION, analysis_scenario, analyze, write_report
 from godobject_drake.limits import explicit_limit_omega_h
 
 README = (REPO / "README.md").read_text()
@@ -194,3 +194,13 @@ def test_every_summary_key_is_documented(lego, tmp_path):
     assert set(summary) <= documented, set(summary) - documented
     for row in summary["checks"]:
         assert set(row) <= documented | {"section", "name", "subject"}, row
+
+
+def test_a_real_device_is_analysed_without_its_driver():
+    """An LCM device stands at its start for the analysis: no driver needed, no LCM opened."""
+    s = sc.shipped_scenario("lego")
+    s.device = sc.Lcm(url="never-opened://", start_xyz=[0.01, 0.02, 0.03], grasp="")
+    analysed = analysis_scenario(s)
+    assert isinstance(analysed.device, sc.Scripted)
+    assert analysed.device.waypoints[0].xyz == [0.01, 0.02, 0.03]
+    assert isinstance(s.device, sc.Lcm)  # the user's scenario is not changed
