@@ -617,8 +617,12 @@ def add_visualization(
     add_meshcat_visualization(builder, meshcat, scene.scene_graph, period)
     if god.kind == "rigid":
         ghost = builder.AddNamedSystem(
-            "god_object_visualizer", GodObjectVisualizer(meshcat, scene.plant, scene.scene_graph, period)
-        )
+            "god_object_visualizer",
+            GodObjectVisualizer(
+                meshcat, scene.plant, scene.scene_graph, period,
+                max_stretch_m=god.coupling.max_stretch_m if scenario.visualization.force_cue else None,
+            ),
+        )  # fmt: skip
         for name in ("pose_WT", "pose_WG", "held_body"):
             builder.Connect(god.coupling.GetOutputPort(name), ghost.GetInputPort(name))
     elif god.kind == "articulated":

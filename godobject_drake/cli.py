@@ -111,6 +111,12 @@ COMMON_FLAGS = (
         "anyone who reaches it drive the device: it is announced loudly; prefer an SSH tunnel",
         "visualization.host",
     ),
+    (
+        "--force-cue",
+        dict(choices=("on", "off")),
+        "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
+        "visualization.force_cue",
+    ),
     ("--metrics", dict(type=Path), "write the metrics JSON here", "metrics.file"),
     ("--no-progress", dict(action="store_true"), "no progress bar", None),
 )
@@ -238,6 +244,8 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         s.visualization.serve = True
     if _given(args, "meshcat_host"):
         s.visualization.host = args.meshcat_host
+    if _given(args, "force_cue"):
+        s.visualization.force_cue = args.force_cue == "on"
     for name, path in (
         ("haptic", "mode"),
         ("haptic_rate", "rate_hz"),

@@ -11,6 +11,10 @@ same recording (``time_in_recording``):
 - ``/godobject/device``: a small sphere at the device target when nothing
   is held.
 
+With ``max_stretch_m`` (the coupling's force cap, as a stretch) the ghost and the spring carry
+a force cue: faint blue and faint yellow while the body tracks its target, turning solid red as
+the stretch reaches the cap (:func:`cue_level`), live and as animated colours in recordings.
+
 For an articulated tool, :class:`ToolGhostVisualizer` draws the device's
 tool (its kinematic copy) as a wireframe under ``/godobject/device_tool``.
 """
@@ -47,6 +51,25 @@ from godobject_drake.spatial import pose_from_array
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
 DEFAULT_FPS = 64.0
+# The force cue (pseudo-haptics): ghost and spring go from these, while tracking, to solid red
+# at the force cap, by cue_level(stretch / max_stretch).
+CUE_GHOST_RGBA = (0.3, 0.6, 1.0, 0.15)
+CUE_SPRING_RGBA = (1.0, 0.8, 0.1, 0.5)
+CUE_CAP_RGBA = (1.0, 0.0, 0.0, 1.0)
+# Meshcat animates a node's transform and visibility but not its material's colour, so the cue
+# is drawn as CUE_LEVELS copies, each in its colour, one visible at a time.
+CUE_LEVELS = 8
+
+
+def cue_level(ratio: float) -> float:
+    """How strongly the force cue shows a stretch ``ratio`` of the force cap: ``√ratio`` clipped
+    to [0, 1]. The square root makes small pushes visible: a tenth of the cap shows at 0.32."""
+    return float(min(max(ratio, 0.0), 1.0) ** 0.5)
+
+
+def cue_rgba(level: float, base) -> list[float]:
+    """``base`` blended toward solid red by ``level`` in [0, 1] (colour and opacity alike)."""
+    return [b + level * (c - b) for b, c in zip(base, CUE_CAP_RGBA, strict=True)]
 
 
 class GodObjectVisualizer(LeafSystem):
@@ -71,10 +94,14 @@ class GodObjectVisualizer(LeafSystem):
         scene_graph: SceneGraph,
         publish_period_s: float = 1.0 / DEFAULT_FPS,
         prefix: str = "/godobject",
+        max_stretch_m: float | None = None,
     ):
         super().__init__()
         self._meshcat = meshcat
         self._prefix = prefix
+        # The force cue: None (off) or the stretch at the coupling's force cap (m).
+        self._cue_stretch = max_stretch_m if max_stretch_m and np.isfinite(max_stretch_m) else None
+        self._cue_step: int | None = None
         self._pose_WT = self.DeclareVectorInputPort("pose_WT", 7)
         self._pose_WG = self.DeclareVectorInputPort("pose_WG", 7)
         self._held = self.DeclareVectorInputPort("held_body", 1)
@@ -88,12 +115,24 @@ class GodObjectVisualizer(LeafSystem):
                 continue
             path = f"{prefix}/ghost/{name.replace('::', '/')}"
             frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
-            for i, gid in enumerate(inspector.GetGeometries(frame, Role.kIllustration)):
-                meshcat.SetObject(f"{path}/{i}", inspector.GetShape(gid), GHOST_RGBA)
-                meshcat.SetTransform(f"{path}/{i}", inspector.GetPoseInFrame(gid))
+            levels = range(CUE_LEVELS) if self._cue_stretch is not None else [None]
+            for k in levels:
+                level = f"{path}/cue_{k}" if k is not None else path
+                rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), CUE_GHOST_RGBA)) if k is not None else GHOST_RGBA
+                for i, gid in enumerate(inspector.GetGeometries(frame, Role.kIllustration)):
+                    meshcat.SetObject(f"{level}/{i}", inspector.GetShape(gid), rgba)
+                    meshcat.SetTransform(f"{level}/{i}", inspector.GetPoseInFrame(gid))
+                if k is not None:
+                    meshcat.SetProperty(level, "visible", k == 0)
             meshcat.SetProperty(path, "visible", False)
             self._ghosts[body.index] = (path, body.p_BoBcm_B)
-        meshcat.SetObject(f"{prefix}/spring/cylinder", Cylinder(0.0006, 1.0), SPRING_RGBA)
+        if self._cue_stretch is None:
+            meshcat.SetObject(f"{prefix}/spring/cylinder", Cylinder(0.0006, 1.0), SPRING_RGBA)
+        else:
+            for k in range(CUE_LEVELS):
+                rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), CUE_SPRING_RGBA))
+                meshcat.SetObject(f"{prefix}/spring/cylinder/cue_{k}", Cylinder(0.0006, 1.0), rgba)
+                meshcat.SetProperty(f"{prefix}/spring/cylinder/cue_{k}", "visible", k == 0)
         meshcat.SetObject(f"{prefix}/device", Sphere(0.003), GHOST_RGBA)
         self._shown: int | None = None
 
@@ -108,6 +147,7 @@ class GodObjectVisualizer(LeafSystem):
             mc.SetProperty(f"{pre}/spring", "visible", held >= 0, t)
             mc.SetProperty(f"{pre}/device", "visible", held < 0, t)
             self._shown = held
+            self._cue_step = None  # a newly shown ghost gets its colour
         R_WT = RotationMatrix(Quaternion(pose_WT[:4] / np.linalg.norm(pose_WT[:4])))
         if held < 0:
             mc.SetTransform(f"{pre}/device", RigidTransform(R_WT, pose_WT[4:]), t)
@@ -120,6 +160,14 @@ class GodObjectVisualizer(LeafSystem):
         R = RotationMatrix.MakeFromOneVector(z, 2)
         mc.SetTransform(f"{pre}/spring", RigidTransform(R, 0.5 * (pose_WT[4:] + pose_WG[4:])), t)
         mc.SetProperty(f"{pre}/spring/cylinder", "scale", [1.0, 1.0, max(length, 1e-6)], t)
+        if self._cue_stretch is not None:
+            step = round((CUE_LEVELS - 1) * cue_level(length / self._cue_stretch))
+            if step != self._cue_step:
+                for k in range(CUE_LEVELS):
+                    if k == step or k == self._cue_step or self._cue_step is None:
+                        mc.SetProperty(f"{path}/cue_{k}", "visible", k == step, t)
+                        mc.SetProperty(f"{pre}/spring/cylinder/cue_{k}", "visible", k == step, t)
+                self._cue_step = step
 
 
 def wire_mesh(shape, n: int = 12) -> tuple[np.ndarray, np.ndarray]:

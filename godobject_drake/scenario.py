@@ -427,6 +427,9 @@ class Visualization:
         Drawing period (s), live and in recordings.
     camera : Camera | None
         The view to open on; None: Meshcat's default.
+    force_cue : bool
+        Rigid god-objects: the target ghost and the spring turn from faint to solid red as the
+        coupling's stretch reaches its force cap (pseudo-haptics for a non-haptic device).
     """
 
     serve: bool = False
@@ -434,6 +437,7 @@ class Visualization:
     port: int | None = None
     publish_period_s: float = 1.0 / 64.0
     camera: Camera | None = None
+    force_cue: bool = True
 
 
 @dataclasses.dataclass
