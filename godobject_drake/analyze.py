@@ -424,11 +424,10 @@ def _nearest_fixed_obstacle(station, body):
     return d0, direction, inspector.GetName(b), contacts
 
 
-def _verify_penetration(station, scenario, out: dict) -> Check | None:
-    """Hold the target 5 cm inside the nearest fixed obstacle; the body settles where the
-    spring's pull equals the contacts' push, ``δ = F/(n k)`` with ``F = K (5 cm − δ)``."""
-    if station.god_object.kind != "rigid" or not out.get("contact_pairs"):
-        return None
+def _push_in(station, out: dict):
+    """The held body, the nearest fixed obstacle, its ``n`` touching geometries and their pair
+    stiffness ``k``, the push direction, and the device poses that grasp the body at its start
+    (``X0``) and hold its target ``PUSH_IN_M`` inside the obstacle (``X1``); None without one."""
     body = _held_body(station)
     near = _nearest_fixed_obstacle(station, body)
     if near is None:
@@ -438,6 +437,18 @@ def _verify_penetration(station, scenario, out: dict) -> Check | None:
             if p["body"] == body.name and p["obstacle"] == obstacle)  # fmt: skip
     X0 = _start_pose(station, body)
     X1 = RigidTransform(X0.rotation(), X0.translation() + (max(d0, 0.0) + PUSH_IN_M) * direction)
+    return body, obstacle, n, k, direction, X0, X1
+
+
+def _verify_penetration(station, scenario, out: dict) -> Check | None:
+    """Hold the target 5 cm inside the nearest fixed obstacle; the body settles where the
+    spring's pull equals the contacts' push, ``δ = F/(n k)`` with ``F = K (5 cm − δ)``."""
+    if station.god_object.kind != "rigid" or not out.get("contact_pairs"):
+        return None
+    push = _push_in(station, out)
+    if push is None:
+        return None
+    body, obstacle, n, k, direction, X0, X1 = push
     coupling = station.coupling
     K = body.mass * coupling.gains.omega_n**2
     f_cap, _ = coupling.force_caps(body)
@@ -615,13 +626,10 @@ def _verify_device_boundary(station, scenario, out: dict, rel_tol: float) -> Che
     The model: the pipeline on that obstacle's ``n k`` with the hand on the handle."""
     if out.get("device") is None or station.god_object.kind != "rigid":
         return None
-    body = _held_body(station)
-    near = _nearest_fixed_obstacle(station, body)
-    if near is None:
+    push = _push_in(station, out)
+    if push is None:
         return None
-    d0, direction, obstacle, n = near
-    k = min(p["stiffness_n_m"] for p in out["contact_pairs"]
-            if p["body"] == body.name and p["obstacle"] == obstacle)  # fmt: skip
+    body, obstacle, n, k, _, X0, X1 = push
     haptic, h = scenario.haptic, station.plant.time_step()
     T = 1.0 / haptic.rate_hz
     tau = scenario.contact.relaxation_time_s or h
@@ -637,8 +645,6 @@ def _verify_device_boundary(station, scenario, out: dict, rel_tol: float) -> Che
 
     hi = 100.0 * dev.mass / T**2
     predicted = bisect(model_stable, 1e-9 * hi, hi, 1e-5) if not model_stable(hi) else float("nan")
-    X0 = _start_pose(station, body)
-    X1 = RigidTransform(X0.rotation(), X0.translation() + (max(d0, 0.0) + PUSH_IN_M) * direction)
     base = _hold_scenario(analysis_scenario(scenario), body.name, X0, X1, 3.0)
     settled = round(0.5 / h)
     runs: dict[float, bool] = {}
