@@ -178,7 +178,7 @@ def make_device(
     if isinstance(config, sc.Relative):
         if not config.log:
             raise sc.ScenarioError("device: !Relative needs log: FILE.csv (README 'Relative device')")
-        return RelativeDevice(config.log, start_pose(config), **noisy, **kwargs)
+        return RelativeDevice(config.log, start_pose(config), **noisy, **kwargs, aids=config.aids())
     from godobject_drake.live import MeshcatDevice
 
     if meshcat is None or workspace is None:
@@ -186,7 +186,9 @@ def make_device(
     if config.noise_m:
         raise sc.ScenarioError("device.noise_m: a live device's samples are the user's own; leave it 0")
     box = (workspace.lower_m, workspace.upper_m)
-    return MeshcatDevice(meshcat, start_pose(config), box, grasp=config.grasp or None, **kwargs)
+    return MeshcatDevice(
+        meshcat, start_pose(config), box, grasp=config.grasp or None, **kwargs, aids=config.aids()
+    )
 
 
 def is_live(device) -> bool:
@@ -360,6 +362,17 @@ def add_god_object(
     )
     coupling.validate_grasp_names(device.grasp_names())
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
+    aids = getattr(device, "aids", None)
+    if aids is not None:  # a tether or a control/display ratio: the device reads T and G
+        if haptic.mode != "none":
+            raise ValueError(
+                f"a tether or control/display ratio is for a device that cannot feel the god-object; "
+                f"with haptic mode {haptic.mode!r} it is felt. Use haptic mode none, or no aids"
+            )
+        aids.cap_stretch_m = coupling.max_stretch_m
+        aids.check_cap(coupling.max_stretch_m)
+        for port in ("pose_WT", "pose_WG"):
+            builder.Connect(coupling.GetOutputPort(port), device.GetInputPort(port))
     feedback = builder.AddNamedSystem("feedback", FeedbackPort(feedback_gains))
     god = GodObject("rigid", coupling, feedback, source=device, device=device)
     period = 1.0 / haptic.rate_hz

@@ -117,6 +117,32 @@ COMMON_FLAGS = (
         "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
         "visualization.force_cue",
     ),
+    (
+        "--tether",
+        dict(type=float),
+        "relative and live devices: re-index the target after each sample to stay within this "
+        "distance (m) of the god-object; inf: off",
+        "device.tether_m",
+    ),
+    (
+        "--tether-angle",
+        dict(type=float),
+        "relative and live devices: ... and within this angle (rad); inf: off",
+        "device.tether_angle_rad",
+    ),
+    (
+        "--cd-ratio",
+        dict(type=float),
+        "relative and live devices: the control/display ratio at the force cap; an increment pushing the "
+        "target away from a blocked god-object is divided by a ratio growing from 1 to this; 1: off",
+        "device.cd_ratio",
+    ),
+    (
+        "--cd-onset",
+        dict(type=float),
+        "relative and live devices: the stretch (m) where the control/display ratio starts to grow",
+        "device.cd_onset_m",
+    ),
     ("--metrics", dict(type=Path), "write the metrics JSON here", "metrics.file"),
     ("--no-progress", dict(action="store_true"), "no progress bar", None),
 )
@@ -226,6 +252,18 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         if not pose:
             refuse("--max-device-speed", "the scenario's joint-space device has no sample guard")
         device.guard = dataclasses.replace(device.guard, max_speed_m_s=args.max_device_speed)
+    for flag, field in (("--tether", "tether_m"), ("--tether-angle", "tether_angle_rad"),
+                        ("--cd-ratio", "cd_ratio"), ("--cd-onset", "cd_onset_m")):  # fmt: skip
+        if _given(args, flag[2:].replace("-", "_")):
+            if not isinstance(device, sc.INCREMENT_DEVICES):
+                name = sc.DEVICE_NAMES[type(device)]
+                refuse(
+                    flag,
+                    f"re-indexes a device's increments; the scenario's {name} device reports absolute "
+                    f"{'poses' if pose else 'joint values'}, which cannot be re-indexed (the target would "
+                    "leave the device). Use --device relative or --device meshcat",
+                )
+            setattr(device, field, getattr(args, flag[2:].replace("-", "_")))
     gains = s.god_object.gains
     if _given(args, "omega_n"):
         ratio = gains.omega_r / gains.omega_n

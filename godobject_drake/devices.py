@@ -14,6 +14,7 @@ linear in position and slerp in orientation) and :class:`ReplayDevice`
 
 import csv
 import dataclasses
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -26,7 +27,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.trajectories import PiecewisePolynomial, PiecewiseQuaternionSlerp
 
-from godobject_drake.spatial import normalized_quaternion, rotation_error
+from godobject_drake.spatial import normalized_quaternion, pose_from_array, quat_to_rotation, rotation_error
 
 CSV_HEADER = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "grasp")
 DEFAULT_DEVICE_RATE_HZ = 60.0
@@ -50,6 +51,7 @@ DEVICE_STATUS_KEYS = (
     "device_dropped_samples",
     "device_rejected_jumps",
     "device_relocations",
+    "device_tethered_samples",
     "device_longest_gap_s",
 )
 
@@ -98,11 +100,127 @@ class SampleGuard:
             )
 
 
+@dataclasses.dataclass
+class RelativeAids:
+    """What an increment device does for a god-object it cannot feel (README "Pseudo-haptics").
+
+    A relative device (a mouse, the live keys and gamepad) moves its target by increments; with
+    the god-object stopped at an obstacle, nothing stops the target, which runs on through the
+    obstacle, and the tool lags by the whole overshoot when the user turns back (the paper's
+    "impossible position"). Both aids act once per device sample, on the increment just
+    reported, given the coupling's target T and god-object G at that instant:
+
+    - **tether** (``tether_m``, ``tether_angle_rad``): after the increment, the target is
+      re-indexed (moved, as a mouse is lifted and put down) so that ``|p_T − p_G| ≤ tether_m``
+      and the angle of ``R_G⁻¹ R_T`` is at most ``tether_angle_rad``. Turning back then moves
+      the tool at once. ``inf``: off.
+    - **control/display ratio** (``cd_ratio`` R ≥ 1): the component of a translation increment
+      that carries T further from G is divided by ``CD(s) = 1 + (R − 1)(s − s₀)/(s_cap − s₀)``
+      for a stretch ``s = |p_T − p_G|`` past ``s₀ = cd_onset_m`` (1 below it), ``s_cap`` the
+      coupling's force-cap stretch: the ratio grows linearly from 1 at the onset to R at the
+      force cap, where the force cue turns solid red. The target visibly resists being pushed
+      into an obstacle. ``R = 1``: off. Rotation increments are not scaled.
+
+    With the god-object held still, pushing the device a distance X past the onset leaves the
+    target :meth:`predicted_stretch` ``(X)`` past it (the continuous curve's integral).
+    """
+
+    tether_m: float = math.inf
+    tether_angle_rad: float = math.inf
+    cd_ratio: float = 1.0
+    cd_onset_m: float = 0.005
+    cap_stretch_m: float = math.inf  # the coupling's (set by add_god_object)
+
+    def __post_init__(self):
+        self.check()
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming a setting out of its range."""
+        for name, unit in (("tether_m", "m"), ("tether_angle_rad", "rad")):
+            value = getattr(self, name)
+            if not value > 0.0:
+                raise ValueError(f"{name}={value!r} {unit} must be > 0 (inf: no tether)")
+        if not (math.isfinite(self.cd_ratio) and self.cd_ratio >= 1.0):
+            raise ValueError(f"cd_ratio={self.cd_ratio!r} must be ≥ 1 (1: off; e.g. 10)")
+        if not (math.isfinite(self.cd_onset_m) and self.cd_onset_m >= 0.0):
+            raise ValueError(f"cd_onset_m={self.cd_onset_m!r} m must be ≥ 0")
+
+    @property
+    def active(self) -> bool:
+        return self.tethered or self.cd_ratio != 1.0
+
+    @property
+    def tethered(self) -> bool:
+        return math.isfinite(self.tether_m) or math.isfinite(self.tether_angle_rad)
+
+    def check_cap(self, cap_stretch_m: float) -> None:
+        """Refuse a ratio that has no force cap to grow to."""
+        if self.cd_ratio != 1.0 and not (cap_stretch_m > self.cd_onset_m and math.isfinite(cap_stretch_m)):
+            raise ValueError(
+                f"cd_ratio={self.cd_ratio:g} grows to R at the coupling's force-cap stretch, which is "
+                f"{cap_stretch_m!r} m; it must be finite and past cd_onset_m={self.cd_onset_m!r} m. "
+                "Set god_object.max_stretch_m, or a smaller cd_onset_m"
+            )
+
+    def cd(self, stretch_m: float) -> float:
+        """The control/display ratio at a stretch (m): 1 up to the onset, R at the force cap."""
+        if self.cd_ratio == 1.0 or stretch_m <= self.cd_onset_m:
+            return 1.0
+        s0 = self.cd_onset_m
+        return 1.0 + (self.cd_ratio - 1.0) * (stretch_m - s0) / (self.cap_stretch_m - s0)
+
+    def predicted_stretch(self, push_m: float) -> float:
+        """The stretch after pushing the device ``push_m`` straight away from a fixed god-object,
+        from the onset: ``u + a u²/2 = X − s₀``, ``u = s − s₀``, ``a = (R−1)/(s_cap − s₀)``."""
+        s0 = self.cd_onset_m
+        if push_m <= s0 or self.cd_ratio == 1.0:
+            return push_m
+        a = (self.cd_ratio - 1.0) / (self.cap_stretch_m - s0)
+        return s0 + (math.sqrt(1.0 + 2.0 * a * (push_m - s0)) - 1.0) / a
+
+    def apply(
+        self, X_WD: RigidTransform, dp: np.ndarray, dR: np.ndarray, X_WT: RigidTransform, X_WG: RigidTransform
+    ) -> tuple[RigidTransform, bool]:
+        """The device pose after an increment (``dp`` in W, rotation ``dR`` about D's origin in W),
+        from ``X_WD``, with the coupling's target ``X_WT`` (= ``X_WD X_DT``) and god-object
+        ``X_WG`` before it; and whether the tether moved it."""
+        p_TG = X_WT.translation() - X_WG.translation()
+        s = float(np.linalg.norm(p_TG))
+        if s > 0.0 and self.cd_ratio != 1.0:
+            u = p_TG / s
+            out = float(dp @ u)
+            if out > 0.0:
+                dp = dp - (1.0 - 1.0 / self.cd(s)) * out * u
+        X_DT = X_WD.inverse() @ X_WT
+        D = RigidTransform(RotationMatrix(dR @ X_WD.rotation().matrix()), X_WD.translation() + dp)
+        T = D @ X_DT
+        moved = False
+        if math.isfinite(self.tether_angle_rad):
+            e = rotation_error(T.rotation().ToQuaternion().wxyz(), X_WG.rotation().ToQuaternion().wxyz())
+            angle = float(np.linalg.norm(e))
+            if angle > self.tether_angle_rad:
+                # rotate D about T's origin, so T turns back to the tether's angle and stays put
+                back = rotation_from_vector(e * (self.tether_angle_rad / angle - 1.0))
+                p_T = T.translation()
+                D = RigidTransform(
+                    RotationMatrix(back @ D.rotation().matrix()), p_T + back @ (D.translation() - p_T)
+                )
+                T, moved = D @ X_DT, True
+        if math.isfinite(self.tether_m):
+            p_GT = T.translation() - X_WG.translation()
+            s = float(np.linalg.norm(p_GT))
+            if s > self.tether_m:
+                D = RigidTransform(D.rotation(), D.translation() - (1.0 - self.tether_m / s) * p_GT)
+                moved = True
+        return D, moved
+
+
 # DeviceSource state layout.
 _QC, _PC, _QP, _PP = slice(0, 4), slice(4, 7), slice(7, 11), slice(11, 14)
 _QN, _PN, _NCAND, _GAP, _TLAST = slice(14, 18), slice(18, 21), 21, 22, 23
-_STATUS = slice(24, 30)
-_N_STATE = 30
+_STATUS = slice(24, 31)
+_QR, _PR = slice(31, 35), slice(35, 38)  # the last raw sample, when RelativeAids move the target
+_N_STATE = 38
 
 
 class DeviceSource(LeafSystem):
@@ -151,7 +269,15 @@ class DeviceSource(LeafSystem):
     guard : SampleGuard | None
         What to do with invalid, missing and absurd samples; default
         :class:`SampleGuard()`.
+    aids : RelativeAids | None
+        A tether and a control/display ratio, for a device that reports increments
+        (``reports_increments``; others refuse them). Active aids add the input ports
+        ``pose_WT`` and ``pose_WG`` (``[qw qx qy qz x y z]``), to wire from the coupling's
+        outputs of the same names (:func:`~godobject_drake.building.add_god_object` does); the
+        outputs do not depend on them, so the loop has no algebraic cycle.
     """
+
+    reports_increments = False  # a relative device: only its increments mean anything
 
     def __init__(
         self,
@@ -162,9 +288,18 @@ class DeviceSource(LeafSystem):
         seed: int = 0,
         interpolation: str = "hold",
         guard: SampleGuard | None = None,
+        aids: RelativeAids | None = None,
     ):
         super().__init__()
         _check_timing(period_s, latency_s)
+        if aids is not None and aids.active and not self.reports_increments:
+            raise ValueError(
+                f"a tether or control/display ratio re-indexes a device's increments; a "
+                f"{type(self).__name__} reports absolute poses, which cannot be re-indexed (the "
+                "target would no longer be where the device is). Use a relative or live device, or "
+                "leave the aids off"
+            )
+        self.aids = aids if aids is not None and aids.active else None
         if not (noise_m >= 0.0 and math.isfinite(noise_m)):
             raise ValueError(f"device noise_m={noise_m!r} must be ≥ 0 m")
         if interpolation not in INTERPOLATIONS:
@@ -188,7 +323,8 @@ class DeviceSource(LeafSystem):
         q0 = q0 / np.linalg.norm(q0)
         x0 = np.zeros(_N_STATE)
         x0[_QC] = x0[_QP] = x0[_QN] = q0
-        x0[_PC] = x0[_PP] = x0[_PN] = p0
+        x0[_PC] = x0[_PP] = x0[_PN] = x0[_PR] = p0
+        x0[_QR] = q0
         self._pose_index = self.DeclareDiscreteState(x0)
         self._grasp_index = self.DeclareAbstractState(AbstractValue.Make(g0))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.period_s, 0.0, self._update)
@@ -204,6 +340,8 @@ class DeviceSource(LeafSystem):
             lambda c, o: o.SetFromVector(c.get_discrete_state(self._pose_index).get_value()[_STATUS]),
             prerequisites_of_calc={self.xd_ticket()},
         )
+        if self.aids is not None:
+            self._aid_ports = [self.DeclareVectorInputPort(name, 7) for name in ("pose_WT", "pose_WG")]
 
     def _sample(self, t: float) -> Sample | None:
         raw = self._sampler(max(0.0, t - self.latency_s))
@@ -246,22 +384,25 @@ class DeviceSource(LeafSystem):
             p, q, name = sample
             q = q / np.linalg.norm(q)
             step = g.max_speed_m_s * self.period_s
-            if np.linalg.norm(p - x[_PC]) <= step * (x[_GAP] + 1.0):
-                x[_QP], x[_PP] = x[_QC], x[_PC]
-                x[_QC], x[_PC] = q, p
+            last = x[_PR] if self.aids else x[_PC]  # with aids the target is not the sample
+            relocated = False
+            if np.linalg.norm(p - last) <= step * (x[_GAP] + 1.0):
                 accepted = True
             else:
                 agrees = x[_NCAND] > 0 and np.linalg.norm(p - x[_PN]) <= step
                 x[_NCAND] = x[_NCAND] + 1 if agrees else 1
                 x[_QN], x[_PN] = q, p
                 if x[_NCAND] >= g.confirm_samples:  # the device really is there now
-                    x[_QP] = x[_QC] = q
-                    x[_PP] = x[_PC] = p
                     status[4] += 1
-                    accepted = True
+                    accepted = relocated = True
                 else:
                     status[3] += 1
             if accepted:
+                if self.aids:
+                    q, p = self._aided(context, x, q, p, status)
+                # a relocation arrives at rest (no damping kick): the previous sample is the new one
+                x[_QP], x[_PP] = (q, p) if relocated else (x[_QC], x[_PC])
+                x[_QC], x[_PC] = q, p
                 grasp = name
         if accepted:
             x[_NCAND] = 0.0
@@ -269,10 +410,22 @@ class DeviceSource(LeafSystem):
         else:
             x[_QP], x[_PP] = x[_QC], x[_PC]  # hold, at rest
             x[_GAP] += 1.0
-            status[5] = max(status[5], x[_GAP] * self.period_s)
+            status[6] = max(status[6], x[_GAP] * self.period_s)
         x[_STATUS] = status
         state.get_mutable_discrete_state(self._pose_index).set_value(x)
         state.get_mutable_abstract_state(self._grasp_index).set_value(grasp)
+
+    def _aided(self, context, x, q_raw, p_raw, status):
+        """The target after the raw sample's increment, through :class:`RelativeAids`."""
+        pose_WT, pose_WG = (port.Eval(context) for port in self._aid_ports)
+        dR = quat_to_rotation(q_raw) @ quat_to_rotation(x[_QR]).T
+        X_WD = RigidTransform(Quaternion(x[_QC]), x[_PC])
+        X_WT, X_WG = pose_from_array(pose_WT), pose_from_array(pose_WG)
+        X, moved = self.aids.apply(X_WD, p_raw - x[_PR], dR, X_WT, X_WG)
+        x[_QR], x[_PR] = q_raw, p_raw
+        status[5] += moved
+        q = X.rotation().ToQuaternion().wxyz()
+        return q / np.linalg.norm(q), X.translation()
 
     def _calc_X_WD(self, context, output):
         x = context.get_discrete_state(self._pose_index).get_value()
@@ -554,6 +707,22 @@ def write_increment_log(filename: str | Path, log: IncrementLog) -> None:
             writer.writerow([*map(repr, map(float, cells)), int(log.clutch[k]), log.grasp[k]])
 
 
+def increments_along(samples: Sequence[tuple[float, Sample]]) -> IncrementLog:
+    """The increments a relative device reports along absolute samples ``(t_k, (p, q, grasp))``
+    (e.g. :meth:`DeviceSource.samples` of a scripted path): row k is the motion from sample
+    k−1 to k, clutch released; a :class:`RelativeDevice` started at the first sample follows
+    the samples (to the rounding of summing the increments)."""
+    pairs = itertools.pairwise(samples)
+    rows = [(t1, p1 - p0, rotation_error(q1, q0), g1) for (_, (p0, q0, _)), (t1, (p1, q1, g1)) in pairs]
+    return IncrementLog(
+        np.array([r[0] for r in rows]),
+        np.array([r[1] for r in rows]).reshape(-1, 3),
+        np.array([r[2] for r in rows]).reshape(-1, 3),
+        np.zeros(len(rows), bool),
+        [r[3] for r in rows],
+    )
+
+
 class RelativeDevice(DeviceSource):
     """The paper's mouse: a device that reports increments, applied to the target.
 
@@ -565,8 +734,11 @@ class RelativeDevice(DeviceSource):
     and brings it back without moving the target (paper: "their movement can
     be ignored, if necessary"). The target starts at ``X_WD0``; between rows
     it holds the latest row at or before ``t`` (1 ns tolerance), sampled at
-    the device period like :class:`ReplayDevice`.
+    the device period like :class:`ReplayDevice`. ``aids``: a tether and a control/display
+    ratio (:class:`RelativeAids`).
     """
+
+    reports_increments = True
 
     def __init__(
         self,
@@ -578,6 +750,7 @@ class RelativeDevice(DeviceSource):
         seed: int = 0,
         interpolation: str = "hold",
         guard: SampleGuard | None = None,
+        aids: RelativeAids | None = None,
     ):
         self.log = log if isinstance(log, IncrementLog) else read_increment_log(log)
         X = X_WD0 or RigidTransform()
@@ -591,7 +764,7 @@ class RelativeDevice(DeviceSource):
             self._q.append(RotationMatrix(R).ToQuaternion().wxyz())
         self._p0, self._q0 = X.translation().copy(), X.rotation().ToQuaternion().wxyz()
         self.end_time_s = float(self.log.t[-1])
-        super().__init__(self._sample_log, period_s, latency_s, noise_m, seed, interpolation, guard)
+        super().__init__(self._sample_log, period_s, latency_s, noise_m, seed, interpolation, guard, aids)
 
     def _sample_log(self, t: float) -> Sample:
         k = int(np.searchsorted(self.log.t, t + 1e-9, side="right")) - 1
@@ -798,6 +971,7 @@ __all__ = [
     "JointDevice",
     "JointPath",
     "JointWaypoint",
+    "RelativeAids",
     "RelativeDevice",
     "ReplayDevice",
     "ReplayJointDevice",
@@ -805,6 +979,7 @@ __all__ = [
     "ScriptedDevice",
     "ScriptedJointDevice",
     "Waypoint",
+    "increments_along",
     "load_device_path",
     "load_joint_path",
     "read_device_log",

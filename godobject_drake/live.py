@@ -28,7 +28,13 @@ from pydrake.math import RigidTransform
 from pydrake.visualization import MeshcatPoseSliders
 
 from godobject_drake.coupling import GRASP_NEAREST
-from godobject_drake.devices import DEFAULT_DEVICE_RATE_HZ, DeviceSource, JointDevice, SampleGuard
+from godobject_drake.devices import (
+    DEFAULT_DEVICE_RATE_HZ,
+    DeviceSource,
+    JointDevice,
+    RelativeAids,
+    SampleGuard,
+)
 from godobject_drake.spatial import pose_arrays
 
 STOP_BUTTON = "Stop"
@@ -50,6 +56,10 @@ def add_stop_button(meshcat: Meshcat) -> None:
 class MeshcatDevice(DeviceSource):
     """A pose device driven from the browser: sliders and keys, gamepad, grasp button.
 
+    The user moves the target by steps (keys, a slider, the stick), so it is an increment
+    device: a tether and a control/display ratio (``aids``, :class:`RelativeAids`) act on the
+    steps; the sliders then show the device, not the target.
+
     Parameters
     ----------
     meshcat : Meshcat
@@ -68,6 +78,8 @@ class MeshcatDevice(DeviceSource):
         Slider and key step (m); rotation steps are 0.05 rad.
     """
 
+    reports_increments = True
+
     def __init__(
         self,
         meshcat: Meshcat,
@@ -79,6 +91,7 @@ class MeshcatDevice(DeviceSource):
         guard: SampleGuard | None = None,
         step_m: float = 0.002,
         interpolation: str = "hold",
+        aids: RelativeAids | None = None,
     ):
         lo, hi = (np.asarray(v, float).reshape(3) for v in workspace)
         p0 = X_WD0.translation()
@@ -106,7 +119,7 @@ class MeshcatDevice(DeviceSource):
         if grasp is None:
             meshcat.AddButton(GRASP_BUTTON, "Space")
         add_stop_button(meshcat)
-        super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard)
+        super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard, aids=aids)
 
     def _read(self, t: float):
         X = self._pose(t)

@@ -31,7 +31,7 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 
 from godobject_drake.coupling import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
 from godobject_drake.deformable import SHELL_MODELS, ShellSpec
-from godobject_drake.devices import INTERPOLATIONS, JointWaypoint, SampleGuard, Waypoint
+from godobject_drake.devices import INTERPOLATIONS, JointWaypoint, RelativeAids, SampleGuard, Waypoint
 from godobject_drake.feedback import FeedbackGains
 
 
@@ -169,13 +169,25 @@ class Deformable:
 
 @dataclasses.dataclass
 class _PoseDevice:
-    """What every pose device has: its rate, latency, interpolation, noise and sample guard."""
+    """What every pose device has: its rate, latency, interpolation, noise and sample guard;
+    and, for the increment devices (``!Relative``, ``!MeshcatSliders``) only, the pseudo-haptic
+    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.RelativeAids`):
+    ``tether_m`` (m) and ``tether_angle_rad`` (rad), ``.inf`` for none; ``cd_ratio`` (the
+    control/display ratio at the force cap, 1 for none) and ``cd_onset_m`` (m, where it starts
+    to grow)."""
 
     rate_hz: float = 60.0
     latency_s: float = 0.0
     interpolation: str = "hold"
     noise_m: float = 0.0
     guard: SampleGuard = dataclasses.field(default_factory=SampleGuard)
+    tether_m: float = math.inf
+    tether_angle_rad: float = math.inf
+    cd_ratio: float = 1.0
+    cd_onset_m: float = 0.005
+
+    def aids(self) -> RelativeAids:
+        return RelativeAids(self.tether_m, self.tether_angle_rad, self.cd_ratio, self.cd_onset_m)
 
 
 @dataclasses.dataclass
@@ -464,11 +476,15 @@ class Metrics:
     ``checkpoint_period_s``: while a run goes, the command line rewrites ``file`` with the
     metrics so far (marked ``partial``) every this many seconds of wall time, so even a killed
     run leaves them.
+    ``impossible_pose_distance_m``: a target farther than this from the god-object (m) is in a
+    pose the god-object cannot take (it is blocked); ``impossible_pose_time_s`` is the time
+    spent so. The default, 5 mm, is four times the shipped scenes' free-space tracking lag.
     """
 
     file: str = ""
     penetration_budget_m: float = 1e-3
     checkpoint_period_s: float = 10.0
+    impossible_pose_distance_m: float = 0.005
 
 
 @dataclasses.dataclass
@@ -701,6 +717,8 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"a {kind} god-object needs a pose device (!Scripted, !Replay, !Relative, !MeshcatSliders, "
             f"!Lcm); got !{type(device).__name__}",
         )
+    if isinstance(device, _PoseDevice):
+        _check_aids(s, device, where)
     if isinstance(device, Lcm | LcmJoints):
         if not (isinstance(device.timeout_periods, int) and device.timeout_periods >= 1):
             _fail(where, "device.timeout_periods", f"{device.timeout_periods!r}: give an integer ≥ 1, e.g. 5")
@@ -734,6 +752,43 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     budget = s.metrics.penetration_budget_m
     if not (budget > 0):
         _fail(where, "metrics.penetration_budget_m", f"{budget!r} m must be > 0")
+    far = s.metrics.impossible_pose_distance_m
+    if not (math.isfinite(far) and far > 0):
+        _fail(where, "metrics.impossible_pose_distance_m", f"{far!r} m must be > 0 (e.g. 0.005)")
+
+
+INCREMENT_DEVICES = (Relative, MeshcatSliders)
+
+
+def _check_aids(s: Scenario, device: _PoseDevice, where: str) -> None:
+    defaults = _PoseDevice()
+    changed = [
+        f for f in ("tether_m", "tether_angle_rad", "cd_ratio", "cd_onset_m")
+        if getattr(device, f) != getattr(defaults, f)
+    ]  # fmt: skip
+    if not changed:
+        return
+    field = changed[0]
+    value = getattr(device, field)
+    if not isinstance(device, INCREMENT_DEVICES):
+        _fail(
+            where,
+            f"device.{field}",
+            f"{value!r} re-indexes a device's increments; !{type(device).__name__} reports absolute "
+            "poses, which cannot be re-indexed (the target would leave the device). Use !Relative or "
+            f"!MeshcatSliders (--device relative or meshcat), or remove {field}",
+        )
+    if s.haptic.mode != "none":
+        _fail(
+            where,
+            f"device.{field}",
+            f"{value!r} is for a device that cannot feel the god-object; with haptic.mode "
+            f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
+        )
+    try:
+        device.aids()
+    except ValueError as e:
+        _fail(where, "device", str(e))
 
 
 def replace(scenario: Scenario, **changes) -> Scenario:
