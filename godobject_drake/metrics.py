@@ -355,11 +355,23 @@ class ToolMetrics:
             0,
         )
         self._device_tip, self._last_q = None, None
+        self._sep_tip, self._sep_q = None, None  # the device's tip at every row, for the separation
+        self._tips: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def take_tips(self, n: int, finite: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The device's and the tool's tip positions (N, 3) at the last :meth:`update`'s rows,
+        laid out over ``n`` rows of which ``finite`` were measured (NaN elsewhere)."""
+        device, tool = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+        if self._tips:
+            device[finite], tool[finite] = (np.array(v) for v in zip(*self._tips, strict=True))
+        self._tips = []
+        return device, tool
 
     def update(self, states: np.ndarray, q_device: np.ndarray) -> None:
         """``states`` (N, nq+nv) plant states; ``q_device`` (N, nq_device) the device's joint values."""
         plant, ctx, inspector = self.plant, self._plant_context, self._inspector
         nq = plant.num_positions()
+        self._tips = []
         for x, qd in zip(states, q_device, strict=True):
             plant.SetPositions(ctx, x[:nq])
             query = self._query_port.Eval(ctx)
@@ -372,6 +384,10 @@ class ToolMetrics:
             if -closest > self.max_pen:
                 self.max_pen, self.k_max = -closest, self.rows
             X_WTip = plant.EvalBodyPoseInWorld(ctx, self._tip)
+            if self._sep_q is None or not np.array_equal(qd, self._sep_q):
+                device = self.tool.set_device_state(qd, None, x)
+                self._sep_tip, self._sep_q = plant.EvalBodyPoseInWorld(device, self._tip).translation(), qd
+            self._tips.append((self._sep_tip, X_WTip.translation()))
             if self._p_WP is not None:
                 axis = X_WTip.rotation().col(2)
                 offset = float(np.linalg.norm(np.cross(self._p_WP - X_WTip.translation(), axis)))
@@ -481,6 +497,96 @@ def shell_metrics(diagram, plant, shell, obstacles, states, vertices, rest, pose
     return acc.result()
 
 
+REVERSAL_MOVE_M = 1e-3  # the god-object has answered a reversal once it moved this far back
+
+
+class SeparationMetrics:
+    """How far the target runs from the god-object, and how long the tool takes to turn back.
+
+    ``max_target_separation_m`` is the largest distance between the target T and the
+    god-object G; ``impossible_pose_time_s`` the time T spends farther than
+    ``distance_m`` from G (the paper's "impossible position" of the tool). For a relative
+    device, ``reversals`` are the device samples ``(t, d)`` where it turns back (its increment
+    points more than 90° from the last one, ``d`` its unit direction); the latency of one is
+    the time from ``t`` to G having moved :data:`REVERSAL_MOVE_M` along ``d``, and
+    ``reversal_latency_max_s`` the longest. A reversal G has not answered by the next one (or
+    the run's end) is counted in ``reversals_unanswered`` instead. Rows come in order, a
+    chunk at a time; any split gives the same numbers.
+    """
+
+    def __init__(self, h: float, distance_m: float, reversals: list[tuple[float, np.ndarray]] | None = None):
+        self.h, self.distance_m = h, distance_m
+        self.max_sep, self.far_rows, self.rows = 0.0, 0, 0
+        self.reversals = list(reversals) if reversals is not None else None
+        self._next = 0  # the next reversal to start waiting for
+        self._waiting: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, d, p_G at t)
+        self.latencies: list[float] = []
+        self.unanswered = 0
+
+    def update(self, separation: np.ndarray, p_WG: np.ndarray) -> None:
+        """``separation`` (N,) |p_T − p_G| (m) and ``p_WG`` (N, 3), one row per plant step."""
+        n = len(separation)
+        if n:
+            self.max_sep = max(self.max_sep, float(np.max(separation)))
+            self.far_rows += int(np.sum(separation > self.distance_m))
+        if self.reversals is not None:
+            for i in range(n):
+                self._follow(self.rows + i, p_WG[i])
+        self.rows += n
+
+    def _follow(self, row: int, p: np.ndarray) -> None:
+        t = row * self.h
+        rev = self.reversals
+        if self._next < len(rev) and t >= rev[self._next][0] - 1e-9:
+            if self._waiting is not None:
+                self.unanswered += 1
+            self._waiting = (t, rev[self._next][1], p.copy())
+            self._next += 1
+        if self._waiting is not None:
+            t0, d, p0 = self._waiting
+            if float((p - p0) @ d) >= REVERSAL_MOVE_M:
+                self.latencies.append(t - t0)
+                self._waiting = None
+
+    def result(self) -> dict:
+        out = {
+            "max_target_separation_m": self.max_sep,
+            "impossible_pose_time_s": self.far_rows * self.h,
+            "impossible_pose_distance_m": self.distance_m,
+        }
+        if self.reversals is not None:
+            out["reversals"] = len(self.latencies) + self.unanswered + (self._waiting is not None)
+            out["reversal_latency_max_s"] = max(self.latencies) if self.latencies else None
+            out["reversals_unanswered"] = self.unanswered + (self._waiting is not None)
+        return out
+
+
+def device_reversals(device, min_travel_m: float = 2 * REVERSAL_MOVE_M) -> list[tuple[float, np.ndarray]]:
+    """Where a :class:`~godobject_drake.devices.RelativeDevice` turns back: ``(t, d)`` for each
+    log row whose increment points more than 90° from the last non-zero one and that starts a
+    return of at least ``min_travel_m`` along ``d`` (so a jitter is not a reversal); ``t`` is
+    the device sample that reports it."""
+    log, period, latency = device.log, device.period_s, device.latency_s
+    moving = [k for k in range(len(log.t)) if not log.clutch[k] and np.linalg.norm(log.dp[k]) > 0.0]
+    out, last = [], None
+    for i, k in enumerate(moving):
+        dp = log.dp[k]
+        if last is not None and float(dp @ last) < 0.0:
+            d = dp / np.linalg.norm(dp)
+            travel = 0.0
+            for j in moving[i:]:
+                step = float(log.dp[j] @ d)
+                if step < 0.0:
+                    break
+                travel += step
+            if travel < min_travel_m:
+                continue  # a jitter: the motion it interrupts goes on
+            t = math.ceil((log.t[k] + latency) / period - 1e-9) * period
+            out.append((t, d))
+        last = dp
+    return out
+
+
 class SceneMetrics:
     """A station's metrics (by god-object kind), folded in from its logs chunk by chunk.
 
@@ -503,6 +609,12 @@ class SceneMetrics:
         )
         self.kind = god.kind
         self.capped = 0
+        from godobject_drake.devices import RelativeDevice
+
+        reversals = device_reversals(god.source) if isinstance(god.source, RelativeDevice) else None
+        self._sep = SeparationMetrics(
+            plant.time_step(), station.scenario.metrics.impossible_pose_distance_m, reversals
+        )
         if god.kind == "rigid":
             self._acc = RigidMetrics(TrueShapeMetrics(plant, scene_graph, diagram))
         elif god.kind == "articulated":
@@ -527,24 +639,32 @@ class SceneMetrics:
             held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
             self._acc.update(states, held, terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:])
             self.capped += int(np.sum(data["terms"][:, TERMS_LAYOUT["capped"]] > 0.5))
+            p_WT, p_WG = (data["terms"][:, TERMS_LAYOUT[name]][:, 4:] for name in ("pose_WT", "pose_WG"))
         elif self.kind == "articulated":
             self._acc.update(states, rows["q_device"])
+            p_WT, p_WG = self._acc.take_tips(len(data["state"]), finite)
         else:
             self._acc.update(states, rows["vertex_positions"], rows["rest_positions"], rows["pose_WC"],
                              rows["pose_WT"])  # fmt: skip
+            p_WT, p_WG = data["pose_WT"][:, 4:], data["pose_WC"][:, 4:]
+        # every row, so that row k is at t = k h (a non-finite row gives a NaN, never the maximum)
+        separation = np.linalg.norm(p_WT - p_WG, axis=1)
+        self._sep.update(np.where(np.isfinite(separation), separation, 0.0), p_WG)
 
     def result(self) -> dict:
         out = self._acc.result()
+        sep = self._sep.result()
         if self.kind == "rigid":
-            return {**out, "coupling_capped_steps": self.capped}
+            return {**out, "coupling_capped_steps": self.capped, **sep}
         if self.kind == "articulated":
             return {
                 "max_penetration_m": out["max_penetration_m"],
                 "rms_tracking_error_m": out["tip_tracking_rms_m"],
                 "max_other_body_speed_mps": None,
                 **out,
+                **sep,
             }
-        return {"max_other_body_speed_mps": None, **out}
+        return {"max_other_body_speed_mps": None, **out, **sep}
 
 
 def scene_metrics(station, data: dict) -> dict:
