@@ -279,61 +279,50 @@ def test_the_live_device_is_tethered_too():
 # -- refusals --------------------------------------------------------------------------------------
 
 
-def test_aids_are_refused_where_they_cannot_work():
-    assert_refused(
-        lambda: scenario("lego", "--tether", "0.002"),
-        ScenarioError,
-        value=r"--tether",
-        limit=r"scripted device reports absolute poses, which cannot be re-indexed",
-        fix=r"--device relative or --device meshcat",
-    )
-    assert_refused(
-        lambda: scenario("laparoscopy", "--cd-ratio", "4"),
-        ScenarioError,
-        value=r"--cd-ratio",
-        limit=r"absolute joint values",
-        fix=r"--device relative",
-    )
-    assert_refused(
-        lambda: scenario("lego", *RELATIVE, "--cd-ratio", "0.5"),
-        ScenarioError,
-        value=r"cd_ratio=0\.5",
-        limit=r"must be ≥ 1",
-        fix=r"1: off",
-    )
-    assert_refused(
-        lambda: scenario("lego", *RELATIVE, "--tether", "0"),
-        ScenarioError,
-        value=r"tether_m=0\.0",
-        limit=r"must be > 0",
-        fix=r"inf: no tether",
-    )
-    assert_refused(
-        lambda: scenario("lego", *RELATIVE, "--tether", "0.01", "--haptic", "impedance"),
-        ScenarioError,
-        value=r"device\.tether_m: 0\.01",
-        limit=r"haptic\.mode 'impedance' the force is felt",
-        fix=r"set haptic\.mode: none",
-    )
-    text = (REPO / "diagrams/lego.yaml").read_text().replace("rate_hz: 60.0", "rate_hz: 60.0\n  cd_ratio: 4")
-    assert_refused(
-        lambda: scenario_from_yaml(text, REPO / "diagrams"),
-        ScenarioError,
-        value=r"device\.cd_ratio: 4",
-        limit=r"!Scripted reports absolute poses",
-        fix=r"Use !Relative or !MeshcatSliders",
-    )
-    assert_refused(
+SCRIPTED_WITH_RATIO = (
+    (REPO / "diagrams/lego.yaml").read_text().replace("rate_hz: 60.0", "rate_hz: 60.0\n  cd_ratio: 4")
+)
+REFUSALS = {  # what is refused: (call, error, the value, the limit, the fix), as regular expressions
+    "tether on a scripted device": (
+        lambda: scenario("lego", "--tether", "0.002"), ScenarioError, r"--tether",
+        r"scripted device reports absolute poses, which cannot be re-indexed",
+        r"--device relative or --device meshcat",
+    ),
+    "ratio on a joint device": (
+        lambda: scenario("laparoscopy", "--cd-ratio", "4"), ScenarioError, r"--cd-ratio",
+        r"absolute joint values", r"--device relative",
+    ),
+    "ratio below 1": (
+        lambda: scenario("lego", *RELATIVE, "--cd-ratio", "0.5"), ScenarioError, r"cd_ratio=0\.5",
+        r"must be ≥ 1", r"1: off",
+    ),
+    "zero tether": (
+        lambda: scenario("lego", *RELATIVE, "--tether", "0"), ScenarioError, r"tether_m=0\.0",
+        r"must be > 0", r"inf: no tether",
+    ),
+    "tether on a haptic device": (
+        lambda: scenario("lego", *RELATIVE, "--tether", "0.01", "--haptic", "impedance"), ScenarioError,
+        r"device\.tether_m: 0\.01", r"haptic\.mode 'impedance' the force is felt", r"set haptic\.mode: none",
+    ),
+    "ratio in a scripted scenario file": (
+        lambda: scenario_from_yaml(SCRIPTED_WITH_RATIO, REPO / "diagrams"), ScenarioError,
+        r"device\.cd_ratio: 4", r"!Scripted reports absolute poses", r"Use !Relative or !MeshcatSliders",
+    ),
+    "aids on an absolute DeviceSource": (
         lambda: DeviceSource(lambda t: ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], ""), aids=RelativeAids(0.01)),
-        ValueError,
-        value=r"DeviceSource reports absolute poses",
-        limit=r"cannot be re-indexed",
-        fix=r"Use a relative or live device",
-    )
-    assert_refused(
-        lambda: build_scene("lego", *RELATIVE, "--cd-ratio", "4", "--cd-onset", "0.3"),
-        ValueError,
-        value=r"cd_ratio=4 grows to R at the coupling's force-cap stretch, which is 0\.2 m",
-        limit=r"past cd_onset_m=0\.3",
-        fix=r"smaller cd_onset_m",
-    )
+        ValueError, r"DeviceSource reports absolute poses", r"cannot be re-indexed",
+        r"Use a relative or live device",
+    ),
+    "ratio with its onset past the force cap": (
+        lambda: build_scene("lego", *RELATIVE, "--cd-ratio", "4", "--cd-onset", "0.3"), ValueError,
+        r"cd_ratio=4 grows to R at the coupling's force-cap stretch, which is 0\.2 m",
+        r"past cd_onset_m=0\.3",
+        r"smaller cd_onset_m",
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", REFUSALS)
+def test_aids_are_refused_where_they_cannot_work(case):
+    call, error, value, limit, fix = REFUSALS[case]
+    assert_refused(call, error, value=value, limit=limit, fix=fix)
