@@ -77,9 +77,12 @@ def test_recording_opens_at_the_start_plays_and_frames_the_scene(browser, scene,
     later = shot(page, f"recording_{scene}")
     # Opens at its first frame and plays on its own, at real speed: the viewer's clock is no
     # further on than the time since the page loaded (a recording that opened on its last frame
-    # would read 5 s); then it advances with the page's own clock.
+    # would read 5 s); then it advances with the page's own clock. The viewer's clock moves at
+    # its frames, so each reading may be one frame old: on a loaded machine (a CI run beside a
+    # benchmark) frames came 100 ms apart and the clock read 3.53 s over 3.43 s of page time.
+    # A frame's slack of 0.2 s either way still fails a recording paused or played at 1.25x.
     assert t0 <= since_load and t0 < 3.0, (t0, since_load)
-    assert 1.5 <= wall and 0.9 * wall <= t1 - t0 <= wall + 0.05, (t0, t1, wall)
+    assert 1.5 <= wall and 0.9 * wall - 0.2 <= t1 - t0 <= wall + 0.2, (t0, t1, wall)
     assert changed(first, later).mean() > 0.001
     # Frames the scene: the models cover a share of the view (hide them, paused, and compare).
     page.evaluate("() => viewer.animator.pause()")
