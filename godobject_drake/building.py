@@ -59,8 +59,9 @@ from godobject_drake.recording import (
     add_meshcat_visualization,
     start_meshcat,
 )
-from godobject_drake.scenes import SceneParts, exclude_self_collisions
+from godobject_drake.scenes import SceneParts, add_bricks, exclude_self_collisions
 from godobject_drake.scenes import add_plant as add_scene_plant
+from godobject_drake.sleeping import SleepManager
 
 
 class PenetrationBudgetWarning(UserWarning):
@@ -71,14 +72,24 @@ class PenetrationBudgetWarning(UserWarning):
 
 
 def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=None) -> SceneParts:
-    """The scenario's plant: its config, directives and contact settings; finalized."""
+    """The scenario's plant: its config, directives, ``bricks`` and contact settings; finalized."""
+
+    def before(plant, scene_graph):
+        if scenario.bricks:
+            try:
+                add_bricks(plant, scenario.bricks)
+            except ValueError as e:
+                raise sc.ScenarioError(str(e)) from None
+        if before_finalize is not None:
+            before_finalize(plant, scene_graph)
+
     return add_scene_plant(
         builder,
         scenario.plant,
         scenario.directives,
         scenario.contact.geometry,
         scenario.contact.relaxation_time_s,
-        before_finalize,
+        before,
     )
 
 
@@ -562,6 +573,9 @@ class Station:
     predicted_penetration_m : float | None
         Deepest static penetration the god-object's capped pull could cause (m), None where
         it cannot be predicted (:func:`predict_penetration`).
+    sleeper : SleepManager | None
+        Locks resting free bodies (``scenario.sleep``); rigid and deformable god-objects (an
+        articulated tool's bodies are not free bodies it could watch).
     """
 
     scenario: sc.Scenario
@@ -572,6 +586,7 @@ class Station:
     loggers: dict[str, VectorLogSink]
     meshcat: Meshcat | None = None
     predicted_penetration_m: float | None = None
+    sleeper: SleepManager | None = None
 
     @property
     def device(self):
@@ -685,9 +700,12 @@ def finish(
             PenetrationBudgetWarning,
             stacklevel=2,
         )
+    sleeper = None
+    if scenario.sleep.enabled and god.kind != "articulated":
+        sleeper = SleepManager(scene.plant, scene.scene_graph, scenario.sleep, god.coupling, meshcat)
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, god, loggers, meshcat,
-        predicted[0] if predicted else None,
+        predicted[0] if predicted else None, sleeper,
     )  # fmt: skip
 
 

@@ -143,6 +143,13 @@ COMMON_FLAGS = (
         "relative and live devices: the stretch (m) where the control/display ratio starts to grow",
         "device.cd_onset_m",
     ),
+    (
+        "--sleep",
+        dict(choices=("on", "off")),
+        "lock free bodies that rest and that nothing can reach, so they cost nothing; off: all awake",
+        "sleep.enabled",
+    ),
+    ("--bricks", dict(type=int), "the brick scene's brick count: 8, and more on a grid in layers", "bricks"),
     ("--metrics", dict(type=Path), "write the metrics JSON here", "metrics.file"),
     ("--no-progress", dict(action="store_true"), "no progress bar", None),
 )
@@ -282,6 +289,10 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         s.visualization.serve = True
     if _given(args, "meshcat_host"):
         s.visualization.host = args.meshcat_host
+    if _given(args, "sleep"):
+        s.sleep.enabled = args.sleep == "on"
+    if _given(args, "bricks"):
+        s.bricks = args.bricks
     if _given(args, "force_cue"):
         s.visualization.force_cue = args.force_cue == "on"
     for name, path in (

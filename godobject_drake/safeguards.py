@@ -105,6 +105,7 @@ class Safeguards:
         stop: Callable[[], bool] | None = None,
         before_step: Callable | None = None,
         project_quaternions: bool = True,
+        sleeper=None,
     ):
         h = plant.time_step()
         if not h > 0.0:
@@ -117,6 +118,7 @@ class Safeguards:
         self.every = max(1, round(check_period_s / h))  # plant steps between checks
         self.max_speed, self.stop, self.before_step = float(max_speed), stop, before_step
         self.project_quaternions = project_quaternions
+        self.sleeper = sleeper
         self.diagnosis: str | None = None
         self.stopped = False
         self.checks = self.projections = 0
@@ -135,6 +137,10 @@ class Safeguards:
         self._root = simulator.get_mutable_context()
         self._plant_context = self.plant.GetMyMutableContextFromRoot(self._root)
         self._next_check = self.every
+        self._next_sleep = None
+        if self.sleeper is not None:
+            self.sleeper.reset()  # a new simulator's context: every body awake
+            self._next_sleep = self.sleeper.every
         simulator.set_monitor(self._monitor)
         return self
 
@@ -154,6 +160,9 @@ class Safeguards:
                 return EventStatus.ReachedTermination(
                     self._simulator.get_system(), f"Stop pressed at t={t:.3f} s"
                 )
+        if self._next_sleep is not None and n >= self._next_sleep:
+            self._next_sleep = n + self.sleeper.every
+            self.sleeper.check(self._plant_context, self._root)
         if self.before_step is not None:
             self.before_step(self._plant_context, self._root)
         return EventStatus.DidNothing()
@@ -230,6 +239,7 @@ def install_safeguards(
     before_step: Callable | None = None,
     project_quaternions: bool = True,
     mode: str = "god_object",
+    sleeper=None,
 ) -> Safeguards:
     """Check ``simulator``'s diagram's wiring, then watch the run (module docstring).
 
@@ -250,6 +260,8 @@ def install_safeguards(
     mode : str
         ``god_object`` (the coupling's force must reach the plant) or ``position`` (it must not:
         the position baseline sets the body instead); see :func:`check_wiring`.
+    sleeper : SleepManager | None
+        Checked every ``sleeper.every`` plant steps (:mod:`godobject_drake.sleeping`).
     """
     diagram = simulator.get_system()
     plant = plant or find_plant(diagram)
@@ -270,6 +282,7 @@ def install_safeguards(
         stop=stop,
         before_step=before_step,
         project_quaternions=project_quaternions,
+        sleeper=sleeper,
     )
     return guard.install(simulator)
 

@@ -33,6 +33,7 @@ from godobject_drake.coupling import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RA
 from godobject_drake.deformable import SHELL_MODELS, ShellSpec
 from godobject_drake.devices import INTERPOLATIONS, JointWaypoint, RelativeAids, SampleGuard, Waypoint
 from godobject_drake.feedback import FeedbackGains
+from godobject_drake.sleeping import Sleep
 
 
 class ScenarioError(ValueError):
@@ -517,6 +518,12 @@ class Scenario:
     feedback : FeedbackGains
         Feedback gains ``kd`` (N/m), ``gamma_d`` (N·s/m), ``kd_rot`` (N·m/rad),
         ``gamma_d_rot`` (N·m·s/rad); all zero for a non-haptic device.
+    bricks : int
+        The brick scene's brick count: 0 keeps the directives' models; N adds brick_2x4 models
+        (``brick_8``, ...) on a grid beside the path, in layers, up to N in all (``--bricks``).
+    sleep : Sleep
+        When resting free bodies are locked, so they cost nothing (``--sleep on|off``; README
+        "Sleeping bodies").
     haptic, simulation, visualization, recording, metrics :
         See their classes.
     """
@@ -535,6 +542,8 @@ class Scenario:
     visualization: Visualization = dataclasses.field(default_factory=Visualization)
     recording: Recording = dataclasses.field(default_factory=Recording)
     metrics: Metrics = dataclasses.field(default_factory=Metrics)
+    bricks: int = 0
+    sleep: Sleep = dataclasses.field(default_factory=Sleep)
 
     @property
     def kind(self) -> str:
@@ -752,6 +761,12 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     budget = s.metrics.penetration_budget_m
     if not (budget > 0):
         _fail(where, "metrics.penetration_budget_m", f"{budget!r} m must be > 0")
+    if not (isinstance(s.bricks, int) and s.bricks >= 0):
+        _fail(where, "bricks", f"{s.bricks!r}: give a whole number of bricks, or 0 for the directives' own")
+    try:
+        s.sleep.check()
+    except ValueError as e:
+        _fail(where, "sleep", str(e))
     far = s.metrics.impossible_pose_distance_m
     if not (math.isfinite(far) and far > 0):
         _fail(where, "metrics.impossible_pose_distance_m", f"{far!r} m must be > 0 (e.g. 0.005)")

@@ -9,8 +9,10 @@ always measured on true shapes (:mod:`godobject_drake.metrics`).
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
+from pydrake.common.schema import Transform
 from pydrake.geometry import (
     CollisionFilterDeclaration,
     GeometrySet,
@@ -21,12 +23,14 @@ from pydrake.geometry import (
 )
 from pydrake.multibody.parsing import (
     AddDirectives,
+    AddModel,
     ModelDirective,
     ModelDirectives,
     Parser,
     ProcessModelDirectives,
 )
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
@@ -176,6 +180,49 @@ def add_plant(
     set_relaxation_time(plant, scene_graph, h if relaxation_time is None else relaxation_time)
     apply_contact_model(plant, scene_graph, contact)
     return SceneParts(plant, scene_graph, contact)
+
+
+BRICK_URL = "package://godobject_models/lego/brick_2x4.sdf"
+BRICK_HEIGHT_M = 0.0096
+# Where the brick scene's extra bricks go: 3 rows on each side of the table, past the wall's ends
+# (|y| ≤ 0.1 m) and the default path's set-down spot, 9 columns, stacked layer by layer.
+BRICK_GRID_X_M = tuple(-0.16 + 0.04 * i for i in range(9))
+BRICK_GRID_Y_M = (0.125, 0.15, 0.175, -0.125, -0.15, -0.175)
+
+
+def brick_grid_positions(count: int) -> list[tuple[float, float, float]]:
+    """Centres (m) of ``count`` extra bricks: the grid's 54 places a layer, then the next layer up."""
+    per_layer = len(BRICK_GRID_X_M) * len(BRICK_GRID_Y_M)
+    out = []
+    for k in range(count):
+        layer, place = divmod(k, per_layer)
+        y, x = divmod(place, len(BRICK_GRID_X_M))
+        out.append((BRICK_GRID_X_M[x], BRICK_GRID_Y_M[y], 0.5 * BRICK_HEIGHT_M + BRICK_HEIGHT_M * layer))
+    return out
+
+
+def add_bricks(plant: MultibodyPlant, total: int) -> int:
+    """Make the brick scene's brick count ``total``: the ``brick_0..`` it has, and brick_2x4 models
+    on :func:`brick_grid_positions` for the rest; returns how many were added."""
+    names = {plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())}
+    have = sum(1 for n in names if re.fullmatch(r"brick_\d+", n))
+    if have == 0:
+        raise ValueError(
+            f"bricks: {total} adds brick_2x4 models to the brick scene; this scene has no brick_k models. "
+            "Leave bricks at 0 (the directives' models)"
+        )
+    if total < have:
+        raise ValueError(
+            f"bricks: {total} is fewer than the {have} bricks the scene has; give ≥ {have} (0: as is)"
+        )
+    directives = []
+    for k, xyz in enumerate(brick_grid_positions(total - have)):
+        pose = Transform()
+        pose.translation = list(xyz)
+        add = AddModel(name=f"brick_{have + k}", file=BRICK_URL, default_free_body_pose={"brick": pose})
+        directives.append(ModelDirective(add_model=add))
+    ProcessModelDirectives(ModelDirectives(directives=directives), plant, make_parser(plant))
+    return len(directives)
 
 
 def add_scene_from_directives(

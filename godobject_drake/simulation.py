@@ -173,7 +173,7 @@ def simulate(
         before_step = lag.wrap(before_step)
     guard = install_safeguards(
         simulator, plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
-        meshcat=meshcat if live else None, before_step=before_step, mode=god.mode,
+        meshcat=meshcat if live else None, before_step=before_step, mode=god.mode, sleeper=station.sleeper,
     )  # fmt: skip
     simulator.Initialize()
     recording_steps = None
@@ -214,6 +214,7 @@ def simulate(
             "partial": partial,
             "predicted_static_penetration_m": station.predicted_penetration_m,
             **configuration(scenario, station),
+            **(station.sleeper.result() if station.sleeper is not None else {}),
         }
 
     diagnosis, interrupted = None, False
@@ -382,6 +383,8 @@ def configuration(scenario: Scenario, station: Station) -> dict:
         "omega_n_rot_rad_s": god.gains.omega_r,
         "zeta": god.gains.zeta,
         "seed": scenario.random_seed,
+        "sleep": station.sleeper is not None,
+        "free_bodies": len(station.plant.GetFloatingBaseBodies()),
     }
     if scenario.kind == "articulated":
         out["coupling"] = god.coupling
