@@ -447,6 +447,14 @@ class GodObjectCoupling(LeafSystem):
             lam * self._wr2 * self.max_twist_rad,
         )
 
+    def device_and_grasp(self, context) -> tuple[int, np.ndarray, float]:
+        """``(held BodyIndex or −1, p_WD, |v_WD|)``: what is held (the coupling's state) and where
+        the device point is and how fast it goes (its inputs), without computing the terms."""
+        held = int(context.get_discrete_state(self._grasp_state).get_value()[0])
+        p_WD = self._X_WD_port.Eval(context).translation()
+        v_WD = self._V_WD_port.Eval(context)
+        return held, p_WD, math.sqrt(v_WD[3] ** 2 + v_WD[4] ** 2 + v_WD[5] ** 2)
+
     # -- grasping -------------------------------------------------------------
     def body_for_grasp(self, name: str) -> GraspableBody | None:
         """The body a grasp name selects; None for ``""`` (and ``"*"``). Raises for unknown names."""

@@ -45,8 +45,6 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex, JointIndex
 
-from godobject_drake.spatial import quats_to_rotations
-
 SLEEP_RGBA = (0.25, 0.45, 0.95, 0.9)
 
 
@@ -109,8 +107,7 @@ class _Body:
     joint: object
     q_start: int
     v_start: int  # in [q; v]
-    center_B: np.ndarray  # the bounding sphere's centre in B (m)
-    radius: float
+    radius: float  # of a sphere about Bo that holds its proximity geometry (m)
     frame: object  # its SceneGraph FrameId
 
 
@@ -161,8 +158,7 @@ class SleepManager:
                 spheres.append((inspector.GetPoseInFrame(g).translation(), r))
             if not spheres:
                 continue  # a mesh: no bounding sphere here, so it stays awake
-            center = np.mean([c for c, _ in spheres], axis=0)
-            radius = max(float(np.linalg.norm(c - center)) + r for c, r in spheres)
+            radius = max(float(np.linalg.norm(c)) + r for c, r in spheres)  # about Bo
             self.bodies.append(
                 _Body(
                     name=body.scoped_name().get_full(),
@@ -170,22 +166,23 @@ class SleepManager:
                     joint=joints[int(i)],
                     q_start=body.floating_positions_start(),
                     v_start=nq + body.floating_velocities_start_in_v(),
-                    center_B=center,
                     radius=radius,
                     frame=frame,
                 )
             )
         self._radius = np.array([b.radius for b in self.bodies])
-        self._center_B = np.array([b.center_B for b in self.bodies]).reshape(-1, 3)
         starts = np.array([[b.q_start, b.v_start] for b in self.bodies], int).reshape(-1, 2)
-        self._q_index = starts[:, :1] + np.arange(7)  # (n, 7) indices of each body's q in [q; v]
-        self._v_index = starts[:, 1:] + np.arange(6)  # (n, 6) of its v
+        self._p_index = starts[:, :1] + np.arange(4, 7)  # (n, 3) indices of each p_WBo in [q; v]
+        self._w_index = starts[:, 1:] + np.arange(3)  # (n, 3) of its w_WB
+        self._v_index = starts[:, 1:] + np.arange(3, 6)  # (n, 3) of its v_WBo
         self._anchored = [plant.GetBodyFrameIdIfExists(BodyIndex(k)) for k in range(plant.num_bodies())
                           if plant.IsAnchored(plant.get_body(BodyIndex(k)))]  # fmt: skip
         self._anchored = [f for f in self._anchored if f is not None]
         self.reset()
         self._meshcat = meshcat
         self.held_accel = self._held_accel()
+        self._index = np.array([b.index for b in self.bodies], int)
+        self._pull = np.array([0.5 * self.held_accel.get(b.index, 0.0) for b in self.bodies])  # a/2
         if meshcat is not None:
             for b in self.bodies:
                 meshcat.SetObject(f"/godobject/sleep/{b.name}", Sphere(0.0025), _rgba(SLEEP_RGBA))
@@ -216,39 +213,29 @@ class SleepManager:
         """Put calm bodies to sleep and wake the ones something can reach (module docstring)."""
         cfg, P = self.config, self.period_s
         x = self.plant.GetPositionsAndVelocities(plant_context)
-        n = len(self.bodies)
-        q = x[self._q_index]  # (n, 7): [qw qx qy qz x y z] per body
-        v = x[self._v_index]  # (n, 6): [w; v_Bo]
-        R = quats_to_rotations(q[:, :4] / np.linalg.norm(q[:, :4], axis=1, keepdims=True))
-        r = np.einsum("kij,kj->ki", R, self._center_B)  # the sphere's centre from Bo, in W
-        centers = q[:, 4:] + r
-        speed = np.linalg.norm(v[:, 3:] + np.cross(v[:, :3], r), axis=1)
-        spin = np.linalg.norm(v[:, :3], axis=1)
+        centers = x[self._p_index]  # (n, 3): each body's sphere is about Bo
+        v, w = x[self._v_index], x[self._w_index]
+        speed, spin = np.sqrt(np.sum(v * v, axis=1)), np.sqrt(np.sum(w * w, axis=1))
         held, device = -1, None
         if self.coupling is not None:
-            cc = self.coupling.GetMyContextFromRoot(root_context)
-            held = int(self.coupling.GetOutputPort("held_body").Eval(cc)[0])
-            p_T = self.coupling.GetOutputPort("pose_WT").Eval(cc)[4:]
-            v_T = float(np.linalg.norm(self.coupling.GetOutputPort("V_WT").Eval(cc)[3:]))
-            # the target: where a grasp would take a body (within grasp_reach_m) if nothing is held
-            device = (p_T, v_T * P + cfg.margin_m + (self.coupling.grasp_reach_m if held < 0 else 0.0))
-        is_held = np.array([b.index == held for b in self.bodies], bool)
+            # read off the coupling's state and the device's outputs: nothing here recomputes the
+            # coupling's terms (a Lock or Unlock changes the plant's parameters: they would be stale)
+            held, p_WD, v_WD = self.coupling.device_and_grasp(
+                self.coupling.GetMyContextFromRoot(root_context)
+            )
+            # the device point: where a grasp would take a body (within grasp_reach_m) if nothing is held
+            device = (p_WD, v_WD * P + cfg.margin_m + (self.coupling.grasp_reach_m if held < 0 else 0.0))
+        is_held = self._index == held
         calm = (speed < cfg.speed_m_s) & (spin < cfg.spin_rad_s) & ~is_held
         self.calm_s = np.where(calm | self.asleep, self.calm_s + P, 0.0)
         active = ~self.asleep & (~calm | is_held)
-        reach = self._radius + speed * P + cfg.margin_m
-        for k in np.flatnonzero(is_held):
-            reach[k] += 0.5 * self.held_accel.get(self.bodies[k].index, 0.0) * P * P
-        reachers = [(centers[k], reach[k]) for k in np.flatnonzero(active)]
+        # how far each active body's fastest point can go before the next check
+        reach = self._radius + (speed + spin * self._radius) * P + cfg.margin_m + is_held * self._pull * P * P
+        c, r = centers[active], reach[active]
         if device is not None:
-            reachers.append(device)
-        near = np.zeros(n, bool)
-        if reachers:
-            c = np.array([c for c, _ in reachers])  # (m, 3)
-            reach_r = np.array([r for _, r in reachers])  # (m,)
-            d = np.linalg.norm(centers[:, None, :] - c[None, :, :], axis=2)  # (n, m)
-            near = np.any(d < self._radius[:, None] + reach_r[None, :], axis=1)
-        near |= is_held
+            c, r = np.vstack([c, device[0]]), np.append(r, device[1])
+        d2 = np.sum((centers[:, None, :] - c[None, :, :]) ** 2, axis=2)  # (n, m)
+        near = np.any(d2 < (self._radius[:, None] + r[None, :]) ** 2, axis=1) | is_held
         wake = self.asleep & near
         sleep = ~self.asleep & calm & (self.calm_s >= cfg.hold_s - 1e-9) & ~near
         changed = bool(wake.any() or sleep.any())
