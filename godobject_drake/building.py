@@ -779,7 +779,9 @@ def predict_penetration(scene: SceneParts, god: GodObject, penetration_allowance
     """
     if god.kind != "rigid":
         return None
-    pairs = penetration_pairs(scene.plant, scene.scene_graph, god.coupling, penetration_allowance)
+    pairs = penetration_pairs(
+        scene.plant, scene.scene_graph, god.coupling, penetration_allowance, softest=True
+    )
     if not pairs:
         return None
     best = max(pairs, key=lambda pair: pair.depth_m)
@@ -804,10 +806,14 @@ class ContactPair:
         return self.force_n / self.stiffness_n_m
 
 
-def penetration_pairs(plant, scene_graph, coupling, penetration_allowance: float = 1e-3) -> list[ContactPair]:
+def penetration_pairs(
+    plant, scene_graph, coupling, penetration_allowance: float = 1e-3, softest: bool = False
+) -> list[ContactPair]:
     """Every (held body geometry, obstacle geometry) pair that can touch, with the coupling's
     force cap on the body and the pair's combined stiffness (:func:`predict_penetration`);
-    empty without point contact."""
+    empty without point contact. ``softest``: only, for each held geometry, the softest obstacle
+    it can touch (the deepest pair, found by trying obstacles from the softest up: what the
+    prediction needs, without the bodies × geometries² loop that took 18 s for 128 bricks)."""
     if plant.get_contact_model() != ContactModel.kPoint:
         return []
     inspector = scene_graph.model_inspector()
@@ -823,21 +829,27 @@ def penetration_pairs(plant, scene_graph, coupling, penetration_allowance: float
     world = inspector.world_frame_id()
     welded = plant.GetBodiesWeldedTo(plant.world_body())  # the world body included
     anchored = {plant.GetBodyFrameIdOrThrow(b.index()) for b in welded} | {world}
+    stiffness = {b: _stiffness(inspector, b, default_k) for b in ids}
+    if softest:
+        ids = sorted(ids, key=lambda b: stiffness[b])
     pairs = []
     for body in {b.index: b for b in coupling.bodies.values()}.values():
         force, _ = coupling.force_caps(body)
         frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
         for a in inspector.GetGeometries(frame, Role.kProximity):
+            ka = stiffness[a]
             for b in ids:
                 if inspector.GetFrameId(b) == frame or inspector.CollisionFiltered(a, b):
                     continue
-                ka, kb = _stiffness(inspector, a, default_k), _stiffness(inspector, b, default_k)
+                kb = stiffness[b]
                 k = ka * kb / (ka + kb)
                 if k > 0:
                     pairs.append(ContactPair(
                         body.name, body.index, inspector.GetName(a), inspector.GetName(b),
                         inspector.GetFrameId(b) in anchored, force, k,
                     ))  # fmt: skip
+                    if softest:
+                        break
     return pairs
 
 
