@@ -41,7 +41,10 @@ class Case:
         Runs; the cost is their median.
     engine : str
         ``drake``, or ``mujoco`` (the brick scene's peer, at the scenario's time step,
-        duration and device rate) with ``mujoco_mode`` ``weld`` or ``perturb``.
+        duration, device rate and ``bricks``) with ``mujoco_mode`` ``weld`` or ``perturb``.
+    mujoco_timeconst_s, mujoco_cone, mujoco_sleep :
+        The peer's contact ``solref`` time constant (None: MuJoCo's 0.02 s), friction cone and
+        sleeping islands (:func:`~godobject_drake.mujoco_peer.scene_xml`).
     """
 
     label: str
@@ -49,6 +52,9 @@ class Case:
     repeats: int = 3
     engine: str = "drake"
     mujoco_mode: str = "weld"
+    mujoco_timeconst_s: float | None = None
+    mujoco_cone: str = "elliptic"
+    mujoco_sleep: bool = False
 
     @property
     def scenario(self) -> Scenario:
@@ -56,17 +62,24 @@ class Case:
 
 
 def make_case(scenario: Scenario, label: str | None = None, repeats: int = 3, engine: str = "drake",
-              mujoco_mode: str = "weld") -> Case:  # fmt: skip
+              mujoco_mode: str = "weld", mujoco_timeconst_s: float | None = None,
+              mujoco_cone: str = "elliptic", mujoco_sleep: bool = False) -> Case:  # fmt: skip
     """A :class:`Case` of ``scenario`` (label: :func:`describe`)."""
     if engine not in ENGINES:
         raise ValueError(f"engine={engine!r}; choose one of {ENGINES}")
     if label is None:
-        label = (
-            describe(scenario)
-            if engine == "drake"
-            else f"mujoco {describe(scenario, short=True)} {mujoco_mode}"
-        )
-    return Case(label, scenario_to_yaml(scenario), repeats, engine, mujoco_mode)
+        if engine == "drake":
+            label = describe(scenario)
+        else:
+            label = f"mujoco {describe(scenario, short=True)} {mujoco_mode}"
+            if mujoco_timeconst_s is not None:
+                label += f" tc={mujoco_timeconst_s * 1e3:g}ms"
+            if mujoco_cone != "elliptic":
+                label += f" {mujoco_cone}"
+            if mujoco_sleep:
+                label += " sleep"
+    return Case(label, scenario_to_yaml(scenario), repeats, engine, mujoco_mode, mujoco_timeconst_s,
+                mujoco_cone, mujoco_sleep)  # fmt: skip
 
 
 def describe(scenario: Scenario, short: bool = False) -> str:
@@ -81,6 +94,10 @@ def describe(scenario: Scenario, short: bool = False) -> str:
             parts.append(scenario.god_object.shell)
     if scenario.device.rate_hz != 60.0:
         parts.append(f"dev={scenario.device.rate_hz:g}Hz")
+    if scenario.bricks:
+        parts.append(f"bricks={scenario.bricks}")
+    if not scenario.sleep.enabled and scenario.kind == "rigid":
+        parts.append("awake")
     return " ".join(parts)
 
 
@@ -89,7 +106,8 @@ def case_config(scenario: Scenario, case: Case) -> dict:
     and per kind contact and approximation (rigid), coupling (articulated; the MuJoCo mode for a
     MuJoCo case), shell (deformable), engine, repeats; None where it does not apply."""
     kind, god = scenario.kind, scenario.god_object
-    rigid = kind == "rigid" and case.engine == "drake"
+    mujoco = case.engine == "mujoco"
+    rigid = kind == "rigid" and not mujoco
     coupling = (
         god.coupling if kind == "articulated" else (case.mujoco_mode if case.engine == "mujoco" else None)
     )
@@ -104,6 +122,10 @@ def case_config(scenario: Scenario, case: Case) -> dict:
         "shell": god.shell if kind == "deformable" else None,
         "engine": case.engine,
         "repeats": case.repeats,
+        "bricks": max(scenario.bricks, 8) if kind == "rigid" else None,
+        "sleep": None if kind != "rigid" else (case.mujoco_sleep if mujoco else scenario.sleep.enabled),
+        "mujoco_timeconst_s": case.mujoco_timeconst_s if mujoco else None,
+        "mujoco_cone": case.mujoco_cone if mujoco else None,
     }
 
 
@@ -155,17 +177,20 @@ def run_case(case: Case) -> dict:
     times, p, q, energy = trajectory(
         first.station.plant, first.states, scenario.time_step, god_object_body(scenario)
     )
-    return {
-        **out,
-        "wall_s_per_sim_s": walls,
-        "max_penetration_m": first.metrics["max_penetration_m"],
-        "diverged": bool(first.metrics["diverged"]),
-        "diagnosis": first.metrics["diagnosis"],
-        "times": times,
-        "p_WG": p,
-        "q_WG": q,
-        "energy_j": energy,
-    }
+    out.update(
+        wall_s_per_sim_s=walls,
+        max_penetration_m=first.metrics["max_penetration_m"],
+        diverged=bool(first.metrics["diverged"]),
+        diagnosis=first.metrics["diagnosis"],
+        times=times,
+        p_WG=p,
+        q_WG=q,
+        energy_j=energy,
+    )
+    if scenario.kind == "rigid":
+        stride = max(1, round(SAMPLE_DT_S / scenario.time_step))
+        out.update(engine_neutral_errors(scenario, first.states[::stride]))
+    return out
 
 
 def trajectory(plant, states: np.ndarray, time_step: float, body_name: str):
@@ -197,6 +222,61 @@ def trajectory(plant, states: np.ndarray, time_step: float, body_name: str):
         q.append(X.rotation().ToQuaternion().wxyz())
         energy.append(plant.CalcKineticEnergy(context) + plant.CalcPotentialEnergy(context))
     return times, np.array(p), np.array(q), np.array(energy)
+
+
+def engine_neutral_errors(scenario: Scenario, states: np.ndarray) -> dict:
+    """What both engines define the same way, from the free bodies' sampled poses (every
+    :data:`SAMPLE_DT_S`), measured by the same code whatever engine ran them:
+
+    - ``true_penetration_m``: the held body's deepest overlap with any other true shape
+      (:class:`~godobject_drake.metrics.TrueShapeMetrics`: boxes by separating axes);
+    - ``free_tracking_rms_m``: RMS distance of its centre of mass from the device's target
+      while it is held and in free space (≥ 2 mm from every other true shape); the target is
+      the device's zero-order-held sample, with the grasp offset the first held sample gives;
+    - ``crossed_wall``: the brick scene's held brick was ever beyond the wall (x > 0) below its
+      top and within its ends: through it, where the penetration would read small again.
+
+    ``states``: (N, nq + nv) rows of the scenario's plant's state (only the free bodies'
+    positions are read).
+    """
+    from pydrake.systems.framework import DiagramBuilder
+
+    from godobject_drake.building import add_plant, make_device
+    from godobject_drake.coupling import graspable_bodies
+    from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
+
+    parts = add_plant(DiagramBuilder(), scenario)
+    name = god_object_body(scenario)
+    body = graspable_bodies(parts.plant)[name]
+    shapes = TrueShapeMetrics(parts.plant, parts.scene_graph)
+    overlap = shapes.overlaps(body.index, states)  # (N, M)
+    n = len(states)
+    times = np.arange(n) * SAMPLE_DT_S
+    device = make_device(scenario.device)
+    samples = dict(device.samples(max(times[-1], 0.0) if n else 0.0))
+    ticks = np.floor(times / device.period_s + 1e-9) * device.period_s
+    keys = sorted(samples)
+    held = np.zeros(n, bool)
+    target = np.full((n, 3), np.nan)
+    for i, t in enumerate(ticks):
+        k = keys[min(int(np.searchsorted(keys, t + 1e-12, side="right")) - 1, len(keys) - 1)]
+        p, _q, grasp = samples[k]
+        held[i] = grasp == name or grasp.split("::")[0] == name
+        target[i] = p
+    cm = _cm_positions(body, states)
+    if held.any():  # the grasp offset: where the body was from the device at its first held sample
+        first = int(np.argmax(held))
+        target = target + (cm[first] - target[first])
+    free = held & np.all(overlap < -FREE_SPACE_MARGIN_M, axis=1)
+    d2 = np.sum((cm - target) ** 2, axis=1)
+    p_Bo = states[:, body.q_start + 4 : body.q_start + 7]
+    crossed = bool(np.any((p_Bo[:, 0] > 0.0) & (np.abs(p_Bo[:, 1]) < 0.1) & (p_Bo[:, 2] < 0.048)))
+    return {
+        "true_penetration_m": float(max(0.0, np.max(overlap[held], initial=0.0))),
+        "free_tracking_rms_m": float(np.sqrt(np.mean(d2[free]))) if free.any() else None,
+        "free_samples": int(free.sum()),
+        "crossed_wall": crossed,
+    }
 
 
 def rigid_energy(p, q, v, w, masses, inertias_B, g: float = 9.81) -> np.ndarray:
@@ -267,6 +347,10 @@ def _run_mujoco(scenario: Scenario, case: Case) -> dict:
         device_rate_hz=scenario.device.rate_hz,
         sample_dt_s=SAMPLE_DT_S,
         repeats=case.repeats,
+        bricks=max(scenario.bricks, 8),
+        contact_timeconst_s=case.mujoco_timeconst_s,
+        cone=case.mujoco_cone,
+        sleep=case.mujoco_sleep,
     )
     i = r["body_names"].index(god_object_body(scenario))
     bodies = _rigid_bodies(scenario)  # the same masses and inertias as the Drake scene's
@@ -283,7 +367,27 @@ def _run_mujoco(scenario: Scenario, case: Case) -> dict:
         "q_WG": r["q_WB"][:, i],
         "energy_j": energy,
         "mujoco_version": r["mujoco_version"],
+        "mean_awake_trees": r["mean_awake_trees"],
+        **engine_neutral_errors(scenario, _drake_states(scenario, r)),
     }
+
+
+def _drake_states(scenario: Scenario, r: dict) -> np.ndarray:
+    """The MuJoCo samples as rows of the Drake plant's state (free bodies' poses, zero velocity)."""
+    from pydrake.systems.framework import DiagramBuilder
+
+    from godobject_drake.building import add_plant
+    from godobject_drake.coupling import graspable_bodies
+
+    plant = add_plant(DiagramBuilder(), scenario).plant
+    bodies = graspable_bodies(plant)
+    x0 = plant.GetPositionsAndVelocities(plant.CreateDefaultContext())
+    states = np.tile(x0, (len(r["times"]), 1))
+    for j, name in enumerate(r["body_names"]):
+        b = bodies[name]
+        states[:, b.q_start : b.q_start + 4] = r["q_WB"][:, j]
+        states[:, b.q_start + 4 : b.q_start + 7] = r["p_WB"][:, j]
+    return states
 
 
 def _rigid_bodies(scenario: Scenario):

@@ -122,7 +122,7 @@ try:
 except ImportError as e:  # an optional extra, never a runtime dependency of godobject_drake
     raise ImportError(
         "godobject_drake.mujoco_peer needs MuJoCo, which godobject_drake does not install. "
-        "Install the benchmark extra: pip install -e .[bench]  (or: pip install mujoco==3.3.7)"
+        "Install the benchmark extra: pip install -e .[bench]  (mujoco, mujoco-core and mujoco-studio 4.0.0)"
     ) from e
 
 from godobject_drake.devices import ScriptedDevice, load_device_path
@@ -132,9 +132,10 @@ MODES = ("weld", "perturb")
 
 DEVICE_PATH = Path(__file__).resolve().parent.parent / "models" / "lego" / "default_path.yaml"
 BODY_NAMES = [f"brick_{i}" for i in range(8)]
+CONES = ("elliptic", "pyramidal")
 
 # Rest positions of the brick centres (m), as models/lego/lego.dmd.yaml (all unrotated).
-BRICK_XYZ = [
+BRICK_XYZ = [  # (list: brick_positions extends it)
     (-0.10, 0.0, 0.0048),
     (-0.06, 0.05, 0.0048),
     (-0.06, -0.05, 0.0048),
@@ -154,11 +155,44 @@ DIVERGED_SPEED = 1000.0  # m/s or rad/s, as godobject_drake.safeguards
 BAD_STATE_WARNINGS = ("mjWARN_BADQACC", "mjWARN_BADQPOS", "mjWARN_BADQVEL")
 
 
-def scene_xml(time_step_s: float, mode: str) -> str:
-    """MJCF of the brick scene for ``mode``; see the module docstring for each setting."""
-    bricks = []
-    for name, (x, y, z) in zip(BODY_NAMES, BRICK_XYZ, strict=True):
-        bricks.append(
+def brick_names(bricks: int = 8) -> list[str]:
+    return [f"brick_{i}" for i in range(bricks)]
+
+
+def brick_positions(bricks: int = 8) -> list[tuple[float, float, float]]:
+    """The scene's 8 bricks, and more where Drake's ``--bricks`` puts them (a grid, in layers)."""
+    from godobject_drake.scenes import brick_grid_positions
+
+    if not (isinstance(bricks, int) and bricks >= 8):
+        raise ValueError(f"bricks={bricks!r}: the brick scene has 8; give an integer ≥ 8")
+    return BRICK_XYZ + brick_grid_positions(bricks - 8)
+
+
+def scene_xml(
+    time_step_s: float,
+    mode: str,
+    bricks: int = 8,
+    contact_timeconst_s: float | None = None,
+    cone: str = "elliptic",
+    sleep: bool = False,
+) -> str:
+    """MJCF of the brick scene for ``mode``; see the module docstring for each setting.
+
+    ``bricks``: 8, or more on Drake's grid. ``contact_timeconst_s``: every geom's contact
+    ``solref`` time constant (s); None keeps MuJoCo's 0.02 s; MuJoCo's floor is 2 h (``refsafe``),
+    the stiffest contact it allows. ``cone``: ``elliptic`` (Drake's circular cone) or ``pyramidal``.
+    ``sleep``: MuJoCo's sleeping islands (``<flag sleep="enable"/>``, MuJoCo ≥ 3.4).
+    """
+    if cone not in CONES:
+        raise ValueError(f"cone={cone!r}; choose one of {CONES}")
+    if contact_timeconst_s is not None and not (
+        math.isfinite(contact_timeconst_s) and contact_timeconst_s > 0
+    ):
+        raise ValueError(f"contact_timeconst_s={contact_timeconst_s!r} s must be > 0 (None: MuJoCo's 0.02 s)")
+    names = brick_names(bricks)
+    bricks_xml = []
+    for name, (x, y, z) in zip(names, brick_positions(bricks), strict=True):
+        bricks_xml.append(
             f'<body name="{name}" pos="{x} {y} {z}"><freejoint name="{name}"/>'
             f'<inertial pos="0 0 0" mass="{BRICK_MASS}" diaginertia="{" ".join(map(str, BRICK_INERTIA))}"/>'
             f'<geom name="{name}" type="box" size="{" ".join(map(str, BRICK_HALF_SIZE))}" '
@@ -170,18 +204,20 @@ def scene_xml(time_step_s: float, mode: str) -> str:
         solref = f"{1.0 / OMEGA_N} 1"
         rows = [
             f'<weld name="grasp_{n}" body1="device" body2="{n}" active="false" solref="{solref}"/>'
-            for n in BODY_NAMES
+            for n in names
         ]
         welds = f"<equality>{''.join(rows)}</equality>"
+    solref = "" if contact_timeconst_s is None else f' solref="{contact_timeconst_s!r} 1"'
+    flag = '<flag sleep="enable"/>' if sleep else ""
     return f"""
 <mujoco model="lego_bricks">
-  <option timestep="{time_step_s!r}" gravity="0 0 -9.81" cone="elliptic"/>
+  <option timestep="{time_step_s!r}" gravity="0 0 -9.81" cone="{cone}">{flag}</option>
   <visual><map stiffness="{OMEGA_N**2}" stiffnessrot="{OMEGA_R**2}"/></visual>
-  <default><geom friction="{FRICTION} 0.005 0.0001" condim="3"/></default>
+  <default><geom friction="{FRICTION} 0.005 0.0001" condim="3"{solref}/></default>
   <worldbody>
     <geom name="baseplate" type="box" pos="0 0 -0.005" size="0.2 0.2 0.005" rgba="0.2 0.55 0.25 1"/>
     <geom name="wall" type="box" pos="0 0 0.024" size="0.004 0.1 0.024" rgba="0.6 0.6 0.65 1"/>
-    {"".join(bricks)}
+    {"".join(bricks_xml)}
     {mocap}
   </worldbody>
   {welds}
@@ -248,7 +284,9 @@ class _Grasp:
         """A new device sample: move the target, grasp or release if ``name`` changed."""
         m, d = self.model, self.data
         if name and name not in self.body_ids:
-            raise ValueError(f"the device grasps {name!r}; the bricks are {BODY_NAMES}. Fix the path.")
+            raise ValueError(
+                f"the device grasps {name!r}; the bricks are {sorted(self.body_ids)}. Fix the path."
+            )
         if self.mode == "weld":
             d.mocap_pos[self.mocap] = p_WD
             d.mocap_quat[self.mocap] = q_WD
@@ -305,22 +343,23 @@ def _diagnosis(model, data, qvel: np.ndarray) -> str | None:
     return None
 
 
-def _run_once(model, path, mode, duration_s, h, device_rate_hz, sample_dt_s):
-    """One run from rest: the recording, max penetration, loop wall time (s) and diagnosis."""
+def _run_once(model, path, mode, duration_s, h, device_rate_hz, sample_dt_s, names):
+    """One run from rest: the recording, max penetration, loop wall time (s), diagnosis and the
+    mean number of awake trees (MuJoCo's sleeping islands; every brick when sleep is off)."""
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    body_ids = {name: model.body(name).id for name in BODY_NAMES}
-    qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in BODY_NAMES])
-    vadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in BODY_NAMES])
+    body_ids = {name: model.body(name).id for name in names}
+    qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
+    vadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
     qidx, vidx = qadr[:, None] + np.arange(7), vadr[:, None] + np.arange(6)
     grasp = _Grasp(model, data, mode, body_ids)
 
     n_steps = round(duration_s / h)
     n_samples = math.floor(duration_s / sample_dt_s + 1e-9) + 1
     sample_step = [round(k * sample_dt_s / h) for k in range(n_samples)]
-    qpos = np.full((n_samples, 8, 7), np.nan)
-    qvel = np.full((n_samples, 8, 6), np.nan)
-    max_pen, diagnosis, k, next_tick = 0.0, None, 0, 0
+    qpos = np.full((n_samples, len(names), 7), np.nan)
+    qvel = np.full((n_samples, len(names), 6), np.nan)
+    max_pen, diagnosis, k, next_tick, awake = 0.0, None, 0, 0, 0
 
     wall0 = time.perf_counter()
     for j in range(n_steps + 1):
@@ -337,10 +376,11 @@ def _run_once(model, path, mode, duration_s, h, device_rate_hz, sample_dt_s):
             next_tick = tick + 1
         grasp.apply()
         mujoco.mj_step(model, data)
+        awake += data.ntree_awake
         if data.ncon:
             max_pen = max(max_pen, -float(data.contact.dist.min()))
     wall = time.perf_counter() - wall0
-    return qpos[:k], qvel[:k], max_pen, wall, data.time, diagnosis
+    return qpos[:k], qvel[:k], max_pen, wall, data.time, diagnosis, awake / max(j, 1)
 
 
 def run_mujoco(
@@ -350,6 +390,10 @@ def run_mujoco(
     device_rate_hz: float = 60.0,
     sample_dt_s: float = 0.01,
     repeats: int = 1,
+    bricks: int = 8,
+    contact_timeconst_s: float | None = None,
+    cone: str = "elliptic",
+    sleep: bool = False,
 ) -> dict:
     """Run the brick scene in MuJoCo on the default device path; see the module docstring.
 
@@ -367,6 +411,8 @@ def run_mujoco(
         Recording period (s); each sample is the state at the step nearest ``k * sample_dt_s``.
     repeats : int
         Runs from rest, each timed; the recording is the last run's (runs are deterministic).
+    bricks, contact_timeconst_s, cone, sleep :
+        The scene's settings (:func:`scene_xml`).
 
     Returns
     -------
@@ -375,16 +421,20 @@ def run_mujoco(
         ``v_WB`` (N, 8, 3) m/s of the centre, ``w_WB`` (N, 8, 3) rad/s in W,
         ``max_penetration_m``, ``wall_s_per_sim_s`` (one per repeat: loop wall time over
         the simulated time reached, which is ``duration_s`` unless the run diverged),
-        ``diverged``, ``diagnosis``, ``mujoco_version``, ``mode``, ``time_step_s``.
+        ``diverged``, ``diagnosis``, ``mujoco_version``, ``mode``, ``time_step_s``,
+        ``mean_awake_trees`` (the last run's, per step).
         A diverged run stops at the first bad sample; the arrays end there.
     """
     _check_args(duration_s, time_step_s, mode, device_rate_hz, sample_dt_s, repeats)
-    model = mujoco.MjModel.from_xml_string(scene_xml(time_step_s, mode))
+    model = mujoco.MjModel.from_xml_string(
+        scene_xml(time_step_s, mode, bricks, contact_timeconst_s, cone, sleep)
+    )
+    names = brick_names(bricks)
     path = ScriptedDevice(load_device_path(DEVICE_PATH).waypoints, period_s=1.0 / device_rate_hz)
     walls, max_pen = [], 0.0
     for _ in range(int(repeats)):
-        qpos, qvel, pen, wall, sim_time, diagnosis = _run_once(
-            model, path, mode, duration_s, time_step_s, device_rate_hz, sample_dt_s
+        qpos, qvel, pen, wall, sim_time, diagnosis, awake = _run_once(
+            model, path, mode, duration_s, time_step_s, device_rate_hz, sample_dt_s, names
         )
         max_pen = max(max_pen, pen)
         walls.append(wall / sim_time if sim_time > 0 else math.inf)
@@ -393,11 +443,11 @@ def run_mujoco(
     n = len(qpos)
     return {
         "times": np.arange(n) * sample_dt_s,
-        "body_names": list(BODY_NAMES),
+        "body_names": list(names),
         "p_WB": qpos[:, :, :3].copy(),
         "q_WB": qpos[:, :, 3:].copy(),
         "v_WB": qvel[:, :, :3].copy(),
-        "w_WB": _world_angular_velocity(qpos.reshape(-1, 7), qvel.reshape(-1, 6)).reshape(n, 8, 3),
+        "w_WB": _world_angular_velocity(qpos.reshape(-1, 7), qvel.reshape(-1, 6)).reshape(n, len(names), 3),
         "max_penetration_m": max_pen,
         "wall_s_per_sim_s": walls,
         "diverged": diagnosis is not None,
@@ -405,6 +455,7 @@ def run_mujoco(
         "mujoco_version": mujoco.__version__,
         "mode": mode,
         "time_step_s": time_step_s,
+        "mean_awake_trees": awake,
     }
 
 
