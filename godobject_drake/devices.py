@@ -417,6 +417,12 @@ class DeviceSource(LeafSystem):
 
     def _aided(self, context, x, q_raw, p_raw, status):
         """The target after the raw sample's increment, through :class:`RelativeAids`."""
+        if not all(port.HasValue(context) for port in self._aid_ports):
+            raise RuntimeError(
+                f"{self.get_name()}: a tether or control/display ratio needs the coupling's pose_WT and "
+                "pose_WG on the device's inputs of the same names; connect them "
+                "(godobject_drake.building.add_god_object does), or build the device without aids"
+            )
         pose_WT, pose_WG = (port.Eval(context) for port in self._aid_ports)
         dR = quat_to_rotation(q_raw) @ quat_to_rotation(x[_QR]).T
         X_WD = RigidTransform(Quaternion(x[_QC]), x[_PC])

@@ -326,3 +326,17 @@ REFUSALS = {  # what is refused: (call, error, the value, the limit, the fix), a
 def test_aids_are_refused_where_they_cannot_work(case):
     call, error, value, limit, fix = REFUSALS[case]
     assert_refused(call, error, value=value, limit=limit, fix=fix)
+
+
+def test_aids_without_the_coupling_wired_say_what_to_connect():
+    from pydrake.systems.analysis import Simulator
+
+    device = RelativeDevice(read_increment_log(LOG), aids=RelativeAids(tether_m=0.01))
+    simulator = Simulator(device)
+    assert_refused(
+        lambda: simulator.AdvanceTo(0.1),
+        RuntimeError,
+        value=r"tether or control/display ratio",
+        limit=r"needs the coupling's pose_WT and pose_WG",
+        fix=r"add_god_object does",
+    )
