@@ -81,11 +81,12 @@ class Sleep:
         for name, unit in (("check_period_s", "s"), ("speed_m_s", "m/s"), ("spin_rad_s", "rad/s")):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"sleep.{name}={value!r} {unit} must be > 0")
+                default = getattr(Sleep, name)
+                raise ValueError(f"sleep.{name}={value!r} {unit} must be > 0 (default {default!r})")
         for name in ("hold_s", "margin_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"sleep.{name}={value!r} must be ≥ 0")
+                raise ValueError(f"sleep.{name}={value!r} must be ≥ 0 (default {getattr(Sleep, name)!r})")
 
 
 def shape_radius(shape) -> float | None:
@@ -111,7 +112,6 @@ class _Body:
     q_start: int
     v_start: int  # in [q; v]
     radius: float  # of a sphere about Bo that holds its proximity geometry (m)
-    frame: object  # its SceneGraph FrameId
 
 
 class SleepManager:
@@ -134,7 +134,7 @@ class SleepManager:
         h = plant.time_step()
         if not h > 0.0:
             raise ValueError(f"sleeping bodies need a discrete plant (time_step={h!r} s)")
-        self.plant, self.scene_graph, self.config, self.coupling = plant, scene_graph, config, coupling
+        self.plant, self.config, self.coupling = plant, config, coupling
         self.every = max(1, round(config.check_period_s / h))
         self.period_s = self.every * h
         inspector = scene_graph.model_inspector()
@@ -170,7 +170,6 @@ class SleepManager:
                     q_start=body.floating_positions_start(),
                     v_start=nq + body.floating_velocities_start_in_v(),
                     radius=radius,
-                    frame=frame,
                 )
             )
         self._radius = np.array([b.radius for b in self.bodies])

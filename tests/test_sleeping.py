@@ -119,7 +119,7 @@ def test_bad_sleep_and_brick_settings_are_refused():
         ScenarioError,
         value=r"sleep\.hold_s=-1\.0",
         limit=r"must be ≥ 0",
-        fix=r"sleep: ",
+        fix=r"default 0\.03",
     )
     assert_refused(
         lambda: build_scene("laparoscopy", "--bricks", "4"),
