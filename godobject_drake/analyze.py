@@ -121,18 +121,7 @@ def analysis_scenario(scenario: sc.Scenario) -> sc.Scenario:
     """``scenario`` made headless: no recording, no page served, a live or LCM device replaced
     by a scripted one standing at its start (the analysis needs no browser and no driver)."""
     s = sc.replace(scenario, **{"recording.file": "", "visualization.serve": False, "metrics.file": ""})
-    d = s.device
-    if isinstance(d, sc.MeshcatSliders | sc.Lcm):  # no browser, no LCM traffic
-        s.device = sc.Scripted(
-            rate_hz=d.rate_hz,
-            waypoints=[Waypoint(t=0.0, xyz=list(d.start_xyz), rpy_deg=list(d.start_rpy_deg), grasp=d.grasp)],
-        )
-    elif isinstance(d, sc.MeshcatJointSliders | sc.LcmJoints):
-        start = dict(zip(d.channels, d.start or [0.0] * len(d.channels), strict=True))
-        s.device = sc.ScriptedJoints(
-            channels=list(d.channels), mix=d.mix, limits=d.limits, rate_hz=d.rate_hz,
-            waypoints=[JointWaypoint(0.0, start)],
-        )  # fmt: skip
+    s.device = s.device.stand_in()  # the device kind's own (device_kinds): no browser, no driver
     return s
 
 

@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import Meshcat, Role
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import ContactModel, MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
@@ -32,18 +32,8 @@ from godobject_drake import scenario as sc
 from godobject_drake.articulated import ArticulatedFeedback, add_articulated_god_object
 from godobject_drake.coupling import CouplingGains, GodObjectCoupling
 from godobject_drake.deformable import add_deformable_god_object
-from godobject_drake.devices import (
-    DeviceSource,
-    JointDevice,
-    JointPath,
-    RelativeDevice,
-    ReplayDevice,
-    ReplayJointDevice,
-    ScriptedDevice,
-    ScriptedJointDevice,
-    load_device_path,
-    load_joint_path,
-)
+from godobject_drake.device_kinds import kind_of
+from godobject_drake.devices import DeviceSource, JointDevice
 from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.haptic import (
     AdmittanceDevice,
@@ -98,41 +88,13 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
 
 def start_pose(config) -> RigidTransform:
     """Where a pose device's target starts: a path's first waypoint, a log's first row, or its start."""
-    if isinstance(config, sc.Scripted):
-        p, q, _ = ScriptedDevice(_waypoints(config)).path_sample(0.0)
-        return RigidTransform(Quaternion(q), p)
-    if isinstance(config, sc.Replay):
-        device = ReplayDevice(config.log)
-        return RigidTransform(Quaternion(device.log.q[0]), device.log.p[0])
-    rpy = RollPitchYaw(np.radians(config.start_rpy_deg))
-    return RigidTransform(rpy, np.asarray(config.start_xyz, dtype=float))
+    return config.start_pose()
 
 
 def first_pose(device: DeviceSource) -> RigidTransform:
     """The pose a device system reports first (its t = 0 sample, noise and all)."""
     p0, q0, _ = device.samples(0.0)[0][1]
     return RigidTransform(Quaternion(q0 / np.linalg.norm(q0)), p0)
-
-
-def _waypoints(config: "sc.Scripted"):
-    if config.path and config.waypoints:
-        raise sc.ScenarioError("device: give a scripted path as path or as waypoints, not both")
-    return load_device_path(config.path).waypoints if config.path else config.waypoints
-
-
-def _joint_path(config: "sc.ScriptedJoints") -> JointPath:
-    if config.path and config.waypoints:
-        raise sc.ScenarioError("device: give a joint path as path or as waypoints, not both")
-    path = load_joint_path(config.path) if config.path else JointPath(config.channels, config.waypoints)
-    if config.channels and list(path.channels) != list(config.channels):
-        raise sc.ScenarioError(
-            f"device.channels {config.channels} differ from the path's channels {path.channels}"
-        )
-    return path
-
-
-def _mix(config):
-    return np.array(config.mix, dtype=float) if config.mix else None
 
 
 def make_device(
@@ -142,76 +104,24 @@ def make_device(
     meshcat: Meshcat | None = None,
     workspace: "sc.Workspace | None" = None,
 ) -> DeviceSource | JointDevice:
-    """The device a scenario's ``device`` field describes (not yet added to a builder).
+    """The device a scenario's ``device`` field describes (not yet added to a builder): its
+    registered kind's factory (:mod:`~godobject_drake.device_kinds`).
 
     ``seed`` seeds the pose devices' noise; a live device (``MeshcatSliders``,
     ``MeshcatJointSliders``) needs the ``meshcat`` whose page drives it, and a pose one the
     ``workspace`` its sliders span.
     """
-    period = 1.0 / config.rate_hz
-    if isinstance(config, sc.Lcm | sc.LcmJoints):
-        from godobject_drake.lcm_device import LcmDevice, LcmJointDevice, make_lcm
-
-        lcm = make_lcm(config.url)
-        if isinstance(config, sc.LcmJoints):
-            return LcmJointDevice(
-                lcm, config.channels, config.start, config.channel, config.timeout_periods, _mix(config),
-                period, config.latency_s,
-            )  # fmt: skip
-        return LcmDevice(
-            lcm, start_pose(config), config.channel, config.timeout_periods, period, config.latency_s,
-            config.guard, config.interpolation, config.feedback_channel, config.grasp,
-        )  # fmt: skip
-    if isinstance(config, sc.JOINT_DEVICES):
-        kwargs = dict(mix=_mix(config), period_s=period, latency_s=config.latency_s)
-        if isinstance(config, sc.ScriptedJoints):
-            return ScriptedJointDevice(_joint_path(config), **kwargs)
-        if isinstance(config, sc.ReplayJoints):
-            if not config.log:
-                raise sc.ScenarioError("device: !ReplayJoints needs log: FILE.csv (header t,<channels>)")
-            return ReplayJointDevice(config.log, config.channels, **kwargs)
-        from godobject_drake.live import MeshcatJointDevice
-
-        if meshcat is None:
-            raise sc.ScenarioError("device: !MeshcatJointSliders needs the scene's Meshcat")
-        limits = [tuple(lim) for lim in config.limits]
-        return MeshcatJointDevice(meshcat, config.channels, limits, config.start, **kwargs)
-    kwargs = dict(
-        period_s=period, latency_s=config.latency_s, interpolation=config.interpolation, guard=config.guard
-    )
-    noisy = dict(noise_m=config.noise_m, seed=seed)
-    if isinstance(config, sc.Scripted):
-        return ScriptedDevice(_waypoints(config), **noisy, **kwargs)
-    if isinstance(config, sc.Replay):
-        if not config.log:
-            raise sc.ScenarioError("device: !Replay needs log: FILE.csv (README 'Device log format')")
-        return ReplayDevice(config.log, **noisy, **kwargs)
-    if isinstance(config, sc.Relative):
-        if not config.log:
-            raise sc.ScenarioError("device: !Relative needs log: FILE.csv (README 'Relative device')")
-        return RelativeDevice(config.log, start_pose(config), **noisy, **kwargs, aids=config.aids())
-    from godobject_drake.live import MeshcatDevice
-
-    if meshcat is None or workspace is None:
-        raise sc.ScenarioError("device: !MeshcatSliders needs the scene's Meshcat and workspace")
-    if config.noise_m:
-        raise sc.ScenarioError("device.noise_m: a live device's samples are the user's own; leave it 0")
-    box = (workspace.lower_m, workspace.upper_m)
-    return MeshcatDevice(
-        meshcat, start_pose(config), box, grasp=config.grasp or None, **kwargs, aids=config.aids()
-    )
-
-
-def is_live(device) -> bool:
-    """Whether a device is driven from the browser (the run goes at real time)."""
-    from godobject_drake.live import MeshcatDevice, MeshcatJointDevice
-
-    return isinstance(device, MeshcatDevice | MeshcatJointDevice)
-
-
-def is_real_time(device) -> bool:
-    """Whether a device lives on the wall clock (the browser, a real device over LCM)."""
-    return is_live(device) or hasattr(device, "lcm_status")
+    kind_of(config)  # an unregistered config is refused, naming the known kinds
+    try:
+        config.check()
+    except ValueError as e:
+        raise sc.ScenarioError(f"device.{e}") from None
+    try:
+        return config.make(seed=seed, meshcat=meshcat, workspace=workspace)
+    except ValueError as e:
+        if str(e).startswith("device:"):  # what the kind needs from the scene (a Meshcat, a workspace)
+            raise sc.ScenarioError(str(e)) from None
+        raise
 
 
 # -- god-objects -----------------------------------------------------------------------------------------
@@ -266,12 +176,7 @@ class GodObject:
 
     def device_metrics(self, root_context) -> dict:
         """The device guard's counts and the haptic loop's energies (J) at the end of a run."""
-        out = {}
-        if isinstance(self.source, DeviceSource):
-            port = self.source.GetOutputPort("device_status")
-            out.update(DeviceSource.status_dict(port.Eval(self.source.GetMyContextFromRoot(root_context))))
-        if hasattr(self.source, "lcm_status"):
-            out.update(self.source.lcm_status())
+        out = dict(self.source.status(self.source.GetMyContextFromRoot(root_context)))
         if isinstance(self.haptic, HapticDevice):
             work = self.haptic.GetOutputPort("work").Eval(self.haptic.GetMyContextFromRoot(root_context))
             out["haptic_energy_to_user_j"] = float(-work[0])
@@ -359,31 +264,12 @@ def add_god_object(
     """
     feedback_gains = feedback_gains or FeedbackGains()
     haptic = haptic or sc.Haptic()
-    if haptic.mode not in sc.HAPTIC_MODES:
-        raise ValueError(f"haptic.mode={haptic.mode!r}; choose one of {sc.HAPTIC_MODES}")
-    if not (math.isfinite(haptic.rate_hz) and haptic.rate_hz > 0):
-        raise ValueError(f"haptic.rate_hz={haptic.rate_hz!r} Hz must be > 0")
-    if haptic.passivity_damping and haptic.mode != "impedance":
-        raise ValueError(
-            f"passivity damping {haptic.passivity_damping} N·s/m acts on an impedance device's handle; "
-            f"with haptic mode {haptic.mode!r} there is none. Use haptic mode impedance."
-        )
     coupling = builder.AddNamedSystem(
         name, GodObjectCoupling(plant, gains, device_period_s=device.period_s, **coupling_options)
     )
     coupling.validate_grasp_names(device.grasp_names())
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
-    aids = getattr(device, "aids", None)
-    if aids is not None:  # a tether or a control/display ratio: the device reads T and G
-        if haptic.mode != "none":
-            raise ValueError(
-                f"a tether or control/display ratio is for a device that cannot feel the god-object; "
-                f"with haptic mode {haptic.mode!r} it is felt. Use haptic mode none, or no aids"
-            )
-        aids.cap_stretch_m = coupling.max_stretch_m
-        aids.check_cap(coupling.max_stretch_m)
-        for port in ("pose_WT", "pose_WG"):
-            builder.Connect(coupling.GetOutputPort(port), device.GetInputPort(port))
+    device.follow(builder, coupling)  # pseudo-haptic aids read T and G
     feedback = builder.AddNamedSystem("feedback", FeedbackPort(feedback_gains))
     god = GodObject("rigid", coupling, feedback, source=device, device=device)
     period = 1.0 / haptic.rate_hz
@@ -440,11 +326,7 @@ def add_god_object(
     builder.Connect(god.device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
     for port in ("pose_WT", "V_WT", "pose_WG", "V_WG"):
         builder.Connect(coupling.GetOutputPort(port), feedback.GetInputPort(port))
-    if hasattr(device, "feedback_channel"):  # a real device over LCM renders the wrench itself
-        from godobject_drake.lcm_device import add_feedback_publisher
-
-        device.known_grasps = set(coupling.bodies)
-        god.publisher = add_feedback_publisher(builder, feedback.GetOutputPort("F_Do_W"), device)
+    god.publisher = device.connect_feedback(builder, feedback.GetOutputPort("F_Do_W"), coupling.bodies)
     return god
 
 
@@ -603,8 +485,8 @@ class Station:
 
     @property
     def live(self) -> bool:
-        """Driven from the browser."""
-        return is_live(self.god_object.source)
+        """Driven from the browser (the device kind says so)."""
+        return kind_of(self.scenario.device).live
 
 
 def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
@@ -612,8 +494,7 @@ def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     ``visualization.port`` when it is live (``visualization.serve`` or a browser device), on
     any free port for a recording only, None otherwise (:func:`~godobject_drake.recording.start_meshcat`)."""
     vis = scenario.visualization
-    live = isinstance(scenario.device, sc.MeshcatSliders | sc.MeshcatJointSliders)
-    if vis.serve or live:
+    if vis.serve or kind_of(scenario.device).live:
         return start_meshcat(vis.host, vis.port)
     return start_meshcat(vis.host, 0) if scenario.recording.file else None
 

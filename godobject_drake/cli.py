@@ -15,15 +15,20 @@ import warnings
 from pathlib import Path
 
 from godobject_drake import scenario as sc
-from godobject_drake.building import PenetrationBudgetWarning, build_station, make_meshcat, start_pose
+from godobject_drake.building import PenetrationBudgetWarning, build_station, make_meshcat
 from godobject_drake.coupling import CouplingGainError
 from godobject_drake.deformable import SHELL_MODELS, ShellSpecError
+from godobject_drake.device_kinds import DEVICE_KINDS, kind_of, kinds_in
 from godobject_drake.devices import INTERPOLATIONS
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted
 
-DEVICES = ("scripted", "replay", "relative", "meshcat", "lcm")
+
+def device_names() -> tuple[str, ...]:
+    """Every registered device kind's name, pose and joint alike (``--device NAME``), read when a
+    parser is made, so a kind registered after this module was imported is offered too."""
+    return tuple(dict.fromkeys(k.name for k in DEVICE_KINDS.values()))
 
 
 # (flag, argparse options, help, the scenario field it sets)
@@ -38,7 +43,7 @@ COMMON_FLAGS = (
     ("--time-step", dict(type=float), "plant step h (s)", "plant.time_step"),
     (
         "--device",
-        dict(choices=DEVICES),
+        dict(choices=device_names),
         "scripted: the scenario's path; replay: a CSV log; relative: a CSV of increments with a clutch "
         "(the paper's mouse); meshcat: live from the browser; lcm: a real device's driver over LCM",
         "device",
@@ -208,6 +213,8 @@ def add_arguments(parser: argparse.ArgumentParser, kinds=("rigid", "articulated"
         for flag, options, text, field in flags:
             if flag not in seen:
                 seen.add(flag)
+                if callable(options.get("choices")):
+                    options = {**options, "choices": options["choices"]()}
                 parser.add_argument(flag, help=f"{text} [{field}]" if field else text, **options)
 
 
@@ -236,9 +243,9 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
     elif _given(args, "device_log"):
         refuse("--device-log", "give --device replay or --device relative with it")
     device = s.device
-    pose = isinstance(device, sc.POSE_DEVICES)
+    pose = kind_of(device).space == "pose"
     if _given(args, "lcm_url"):
-        if not isinstance(device, sc.Lcm | sc.LcmJoints):
+        if not hasattr(device, "url"):
             refuse("--lcm-url", "give --device lcm with it")
         device.url = args.lcm_url
     if _given(args, "device_rate"):
@@ -262,8 +269,8 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
     for flag, field in (("--tether", "tether_m"), ("--tether-angle", "tether_angle_rad"),
                         ("--cd-ratio", "cd_ratio"), ("--cd-onset", "cd_onset_m")):  # fmt: skip
         if _given(args, flag[2:].replace("-", "_")):
-            if not isinstance(device, sc.INCREMENT_DEVICES):
-                name = sc.DEVICE_NAMES[type(device)]
+            if not kind_of(device).increments:
+                name = kind_of(device).name
                 refuse(
                     flag,
                     f"re-indexes a device's increments; the scenario's {name} device reports absolute "
@@ -328,35 +335,22 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
 
 
 def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
-    """The scenario's device as the ``--device`` kind ``name``: a new kind keeps the old one's sampling
-    settings, and relative and live devices start where the old one starts."""
+    """The scenario's device as the ``--device`` kind ``name`` of the same space (pose or joint): a new
+    kind keeps the old one's sampling settings and starts where the old one starts."""
     old = s.device
-    kinds = (
-        {
-            "scripted": sc.ScriptedJoints,
-            "replay": sc.ReplayJoints,
-            "meshcat": sc.MeshcatJointSliders,
-            "lcm": sc.LcmJoints,
-        }
-        if isinstance(old, sc.JOINT_DEVICES)
-        else {
-            "scripted": sc.Scripted,
-            "replay": sc.Replay,
-            "relative": sc.Relative,
-            "meshcat": sc.MeshcatSliders,
-            "lcm": sc.Lcm,
-        }
-    )
+    space = kind_of(old).space
+    kinds = kinds_in(space)
     if name not in kinds:
         raise sc.ScenarioError(
-            f"--device {name}: the scenario's joint-space device is absolute; use one of {sorted(kinds)}"
+            f"--device {name}: the scenario's device is a {sc.SPACE_NAMES[space]} device; use one of "
+            f"{sorted(kinds)}"
         )
     cls = kinds[name]
     if isinstance(old, cls):
         if log is not None:
             old.log = str(log.resolve())
         return old
-    if cls in (sc.Replay, sc.Relative, sc.ReplayJoints) and log is None:
+    if DEVICE_KINDS[cls].needs_log and log is None:
         raise sc.ScenarioError(
             f"--device {name} needs --device-log FILE.csv (README 'Device log format' and 'Relative device')"
         )
@@ -366,19 +360,17 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
     new = cls(**common)
     if hasattr(new, "log"):
         new.log = str(log.resolve())
-    if cls in (sc.Relative, sc.MeshcatSliders, sc.Lcm):
-        X0 = start_pose(old)
+    if hasattr(new, "start_xyz"):
+        X0 = old.start_pose()
         new.start_xyz = X0.translation().tolist()
         new.start_rpy_deg = [math.degrees(a) for a in _rpy(X0)]
-        if cls in (sc.MeshcatSliders, sc.Lcm):
-            new.noise_m = 0.0
-            new.grasp = s.god_object.name if s.kind == "deformable" else ""
-    if cls in (sc.MeshcatJointSliders, sc.LcmJoints):
-        new.start = [float(v) for v in _joint_start(old)]
-        if cls is sc.MeshcatJointSliders and len(new.limits) != len(new.channels):
-            raise sc.ScenarioError(
-                f"--device meshcat needs device.limits, one [lower, upper] per channel {new.channels}"
-            )
+    if hasattr(new, "grasp"):  # a device that holds a body keeps a deformable tool's core
+        new.grasp = s.god_object.name if s.kind == "deformable" else ""
+    if DEVICE_KINDS[cls].live or DEVICE_KINDS[cls].real_time:
+        if hasattr(new, "noise_m"):
+            new.noise_m = 0.0  # the samples are the user's or the device's own
+    if hasattr(new, "start") and space == "joint":
+        new.start = old.start_values()
     return new
 
 
@@ -386,12 +378,6 @@ def _rpy(X):
     from pydrake.math import RollPitchYaw
 
     return RollPitchYaw(X.rotation()).vector()
-
-
-def _joint_start(config):
-    from godobject_drake.building import make_device
-
-    return make_device(config).channel_values(0.0)
 
 
 def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):

@@ -129,7 +129,7 @@ class RelativeAids:
     tether_angle_rad: float = math.inf
     cd_ratio: float = 1.0
     cd_onset_m: float = 0.005
-    cap_stretch_m: float = math.inf  # the coupling's (set by add_god_object)
+    cap_stretch_m: float = math.inf  # the coupling's (DeviceSource.follow sets it)
 
     def __post_init__(self):
         self.check()
@@ -462,6 +462,26 @@ class DeviceSource(LeafSystem):
         if duration_s is None:
             duration_s = getattr(self, "end_time_s", 0.0)
         return {s[2] for _, s in self.samples(duration_s) if s is not None and s[2]}
+
+    def status(self, context) -> dict:
+        """The device's counts in ``context`` (its own): the metrics' ``device_*`` keys."""
+        return self.status_dict(self.GetOutputPort("device_status").Eval(context))
+
+    def follow(self, builder, coupling) -> None:
+        """Pseudo-haptic aids read where the coupling puts T and G: wire ``pose_WT`` and ``pose_WG``
+        and grow the control/display ratio to the coupling's force-cap stretch. Without aids: nothing."""
+        if self.aids is None:
+            return
+        self.aids.check_cap(coupling.max_stretch_m)
+        self.aids = dataclasses.replace(self.aids, cap_stretch_m=coupling.max_stretch_m)
+        for port in ("pose_WT", "pose_WG"):
+            builder.Connect(coupling.GetOutputPort(port), self.GetInputPort(port))
+
+    def connect_feedback(self, builder, F_Do_W_port, grasp_names) -> "LeafSystem | None":
+        """Wire the feedback wrench ``F_Do_W`` to a device that renders it itself (a real haptic
+        device: its kind's class overrides this) and tell it the bodies it may grasp; other
+        devices add nothing (None)."""
+        return None
 
     @staticmethod
     def status_dict(values) -> dict:
@@ -862,6 +882,10 @@ class JointDevice(LeafSystem):
         """``q_device`` at every sample time on ``[0, duration_s]``, one row per sample."""
         n = math.floor(duration_s / self.period_s + 1e-9)
         return np.array([self.sample(k * self.period_s) for k in range(n + 1)])
+
+    def status(self, context) -> dict:
+        """The device's counts for the metrics (none for a joint device that cannot fail)."""
+        return {}
 
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._state).get_value()

@@ -191,7 +191,7 @@ class LcmDevice(DeviceSource):
         grasp: str = "",
     ):
         self.lcm, self.feedback_channel, self._fixed_grasp = lcm, feedback_channel, grasp
-        self.known_grasps: set[str] | None = None  # the coupling's names, set by the builder
+        self.known_grasps: set[str] | None = None  # the coupling's names (connect_feedback)
         self.receiver = LcmReceiver(lcm, channel, POSE_NAMES, timeout_periods, self._grasp_ok)
         self._p0 = X_WD0.translation().copy()
         self._q0 = X_WD0.rotation().ToQuaternion().wxyz()
@@ -227,6 +227,15 @@ class LcmDevice(DeviceSource):
 
     def lcm_status(self) -> dict:
         return dict(self.receiver.counts)
+
+    def status(self, context) -> dict:
+        return {**super().status(context), **self.lcm_status()}
+
+    def connect_feedback(self, builder, F_Do_W_port, grasp_names):
+        """The real device renders the feedback: publish it; a message naming another body than
+        ``grasp_names`` is refused (counted)."""
+        self.known_grasps = set(grasp_names)
+        return add_feedback_publisher(builder, F_Do_W_port, self)
 
 
 class LcmJointDevice(JointDevice):
@@ -269,6 +278,9 @@ class LcmJointDevice(JointDevice):
 
     def lcm_status(self) -> dict:
         return dict(self.receiver.counts)
+
+    def status(self, context) -> dict:
+        return self.lcm_status()
 
 
 def add_feedback_publisher(builder, F_Do_W_port, device: LcmDevice):

@@ -24,6 +24,7 @@ import copy
 import dataclasses
 import math
 from pathlib import Path
+from typing import ClassVar
 
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
@@ -31,7 +32,19 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 
 from godobject_drake.coupling import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
 from godobject_drake.deformable import SHELL_MODELS, ShellSpec
-from godobject_drake.devices import INTERPOLATIONS, JointWaypoint, RelativeAids, SampleGuard, Waypoint
+from godobject_drake.device_kinds import (  # noqa: F401  the scenario's names for the device kinds
+    DEVICE_KINDS,
+    Lcm,
+    LcmJoints,
+    MeshcatJointSliders,
+    MeshcatSliders,
+    Relative,
+    Replay,
+    Scripted,
+    ScriptedJoints,
+    device_union,
+    kind_of,
+)
 from godobject_drake.feedback import FeedbackGains
 from godobject_drake.sleeping import Sleep
 
@@ -98,6 +111,8 @@ class Rigid:
     max_twist_rad: float = DEFAULT_MAX_TWIST_RAD
     grasp_reach_m: float = 0.05
 
+    DEVICE_SPACE: ClassVar[str] = "pose"
+
 
 ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
 
@@ -142,6 +157,8 @@ class Articulated:
     tip_body: str = ""
     pivot_body: str = ""
 
+    DEVICE_SPACE: ClassVar[str] = "joint"
+
 
 @dataclasses.dataclass
 class Deformable:
@@ -167,183 +184,14 @@ class Deformable:
     spec: ShellSpec = dataclasses.field(default_factory=ShellSpec)
     gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
 
-
-@dataclasses.dataclass
-class _PoseDevice:
-    """What every pose device has: its rate, latency, interpolation, noise and sample guard;
-    and, for the increment devices (``!Relative``, ``!MeshcatSliders``) only, the pseudo-haptic
-    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.RelativeAids`):
-    ``tether_m`` (m) and ``tether_angle_rad`` (rad), ``.inf`` for none; ``cd_ratio`` (the
-    control/display ratio at the force cap, 1 for none) and ``cd_onset_m`` (m, where it starts
-    to grow)."""
-
-    rate_hz: float = 60.0
-    latency_s: float = 0.0
-    interpolation: str = "hold"
-    noise_m: float = 0.0
-    guard: SampleGuard = dataclasses.field(default_factory=SampleGuard)
-    tether_m: float = math.inf
-    tether_angle_rad: float = math.inf
-    cd_ratio: float = 1.0
-    cd_onset_m: float = 0.005
-
-    def aids(self) -> RelativeAids:
-        return RelativeAids(self.tether_m, self.tether_angle_rad, self.cd_ratio, self.cd_onset_m)
+    DEVICE_SPACE: ClassVar[str] = "pose"
 
 
-@dataclasses.dataclass
-class Scripted(_PoseDevice):
-    """A scripted path: waypoints, linear in position, slerp in orientation.
-
-    Attributes
-    ----------
-    path : str
-        A YAML file of ``waypoints`` (t, xyz, rpy_deg, grasp); or give them inline.
-    waypoints : list[Waypoint]
-        Inline waypoints (when ``path`` is empty).
-    rate_hz, latency_s, interpolation, noise_m, guard :
-        The device's sampling: rate (Hz), latency (s), ``hold`` or ``linear`` between
-        samples, Gaussian noise on each position sample (m, seeded by the scenario's
-        ``random_seed``), what to do with bad samples.
-    """
-
-    path: str = ""
-    waypoints: list[Waypoint] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class Replay(_PoseDevice):
-    """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``)."""
-
-    log: str = ""
-
-
-@dataclasses.dataclass
-class Relative(_PoseDevice):
-    """Increments with a clutch, the paper's mouse (CSV ``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
-
-    ``start_xyz`` (m) and ``start_rpy_deg`` (degrees) are where the target starts.
-    """
-
-    log: str = ""
-    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-
-
-@dataclasses.dataclass
-class MeshcatSliders(_PoseDevice):
-    """Driven live from the browser: pose sliders and keys, a gamepad, Grasp and Stop buttons.
-
-    ``grasp``: empty for the Grasp button (it takes the nearest free body), or a body the
-    device always holds. The sliders span the scenario's ``workspace``; the target starts at
-    ``start_xyz`` (m), ``start_rpy_deg`` (degrees).
-    """
-
-    grasp: str = ""
-    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-
-
-@dataclasses.dataclass
-class Lcm(_PoseDevice):
-    """A real device whose driver publishes pose samples over LCM (README "Real devices over LCM").
-
-    Attributes
-    ----------
-    url : str
-        Drake's LCM URL; empty: Drake's default (UDP multicast on this network). ``memq://``
-        stays in the process (tests).
-    channel, feedback_channel : str
-        The ``lcmt_robot_state`` samples in; the ``lcmt_force_torque`` feedback wrench out,
-        published at ``rate_hz``.
-    timeout_periods : int
-        Samples without a message after which the device holds at rest (a driver unplugged).
-    start_xyz, start_rpy_deg :
-        Where the device stands until its first message (m, degrees).
-    grasp : str
-        A body the device always holds (a deformable probe's core); empty: the messages'
-        ``grasp=`` entries decide.
-    rate_hz, latency_s, interpolation, guard :
-        The rate the driver is expected to publish at, and the sampling as for any device
-        (``noise_m`` must stay 0: the samples are the device's own).
-    """
-
-    url: str = ""
-    grasp: str = ""
-    channel: str = "GODOBJECT_DEVICE_POSE"
-    feedback_channel: str = "GODOBJECT_FEEDBACK"
-    timeout_periods: int = 5
-    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-
-
-@dataclasses.dataclass
-class _JointDevice:
-    """What every joint-space device has.
-
-    Attributes
-    ----------
-    channels : list[str]
-        The interface's channels (rad or m each), in the order it reports them.
-    mix : list[list[float]]
-        Rows: the tool's device joints; columns: channels (``q_device = mix · channels``);
-        empty: identity.
-    limits : list[list[float]]
-        Each channel's ``[lower, upper]``: the live sliders' range.
-    rate_hz, latency_s : float
-        Sampling rate (Hz) and latency (s).
-    """
-
-    channels: list[str] = dataclasses.field(default_factory=list)
-    mix: list[list[float]] = dataclasses.field(default_factory=list)
-    limits: list[list[float]] = dataclasses.field(default_factory=list)
-    rate_hz: float = 60.0
-    latency_s: float = 0.0
-
-
-@dataclasses.dataclass
-class ScriptedJoints(_JointDevice):
-    """A scripted joint-space path (``path`` YAML with ``channels`` and ``waypoints``, or inline)."""
-
-    path: str = ""
-    waypoints: list[JointWaypoint] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class ReplayJoints(_JointDevice):
-    """A joint-space device log replayed (CSV ``t,<channels>``)."""
-
-    log: str = ""
-
-
-@dataclasses.dataclass
-class MeshcatJointSliders(_JointDevice):
-    """Joint channels driven live from the browser, one slider and key pair each; ``start``: values."""
-
-    start: list[float] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class LcmJoints(_JointDevice):
-    """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,
-    ``joint_name`` = ``channels``). ``url``, ``channel``, ``timeout_periods`` as for :class:`Lcm`;
-    ``start``: the channel values until the first message."""
-
-    url: str = ""
-    channel: str = "GODOBJECT_DEVICE_JOINTS"
-    timeout_periods: int = 5
-    start: list[float] = dataclasses.field(default_factory=list)
-
-
-POSE_DEVICES = (Scripted, Replay, Relative, MeshcatSliders, Lcm)
-JOINT_DEVICES = (ScriptedJoints, ReplayJoints, MeshcatJointSliders, LcmJoints)
-# The device kinds' names on the command line (--device) and in the metrics.
-DEVICE_NAMES = {
-    Scripted: "scripted", Replay: "replay", Relative: "relative", MeshcatSliders: "meshcat", Lcm: "lcm",
-    ScriptedJoints: "scripted", ReplayJoints: "replay", MeshcatJointSliders: "meshcat", LcmJoints: "lcm",
-}  # fmt: skip
-PoseDevice = Scripted | Replay | Relative | MeshcatSliders | Lcm
-JointDevice = ScriptedJoints | ReplayJoints | MeshcatJointSliders | LcmJoints
+# The device kinds live in godobject_drake.device_kinds, each registered once; their names here
+# are the scenario's (``sc.Scripted``, ``sc.Lcm``, ...).
+POSE_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "pose")
+JOINT_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "joint")
+SPACE_NAMES = {"pose": "pose", "joint": "joint-space"}
 HAPTIC_MODES = ("none", "impedance", "admittance")
 
 
@@ -374,6 +222,18 @@ class Haptic:
     device_damping: float = 2.0
     hand_frequency_hz: float = 10.0
     passivity_damping: float = 0.0
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.mode not in HAPTIC_MODES:
+            raise ValueError(f"mode: {self.mode!r}; choose one of {HAPTIC_MODES}")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"rate_hz: {self.rate_hz!r} Hz must be > 0")
+        if self.passivity_damping and self.mode != "impedance":
+            raise ValueError(
+                f"passivity_damping: {self.passivity_damping} N·s/m acts on an impedance device's handle; "
+                f"with haptic.mode {self.mode!r} there is none: set haptic.mode: impedance, or 0"
+            )
 
 
 SIMULATION_MODES = ("god_object", "position")
@@ -508,7 +368,7 @@ class Scenario:
         Which geometry touches, and SAP's relaxation time.
     god_object : Rigid | Articulated | Deformable
         The tool (YAML tag ``!Rigid``, ``!Articulated`` or ``!Deformable``).
-    device : PoseDevice | JointDevice
+    device : a registered device kind (:mod:`~godobject_drake.device_kinds`)
         The device, by YAML tag: ``!Scripted``, ``!Replay``, ``!Relative``, ``!MeshcatSliders``,
         ``!Lcm`` (pose devices, for rigid and deformable tools) or ``!ScriptedJoints``,
         ``!ReplayJoints``, ``!MeshcatJointSliders``, ``!LcmJoints`` (joint devices, for
@@ -534,7 +394,7 @@ class Scenario:
     directives: list[ModelDirective] = dataclasses.field(default_factory=list)
     contact: Contact = dataclasses.field(default_factory=Contact)
     god_object: Rigid | Articulated | Deformable = dataclasses.field(default_factory=Rigid)
-    device: PoseDevice | JointDevice = dataclasses.field(default_factory=Scripted)
+    device: device_union() = dataclasses.field(default_factory=Scripted)
     workspace: Workspace = dataclasses.field(default_factory=Workspace)
     feedback: FeedbackGains = dataclasses.field(default_factory=FeedbackGains)
     haptic: Haptic = dataclasses.field(default_factory=Haptic)
@@ -680,31 +540,30 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
         _fail(where, "simulation.mode", f"{sim.mode!r}; choose one of {SIMULATION_MODES}")
     if not (math.isfinite(sim.realtime_rate) and sim.realtime_rate >= 0):
         _fail(where, "simulation.realtime_rate", f"{sim.realtime_rate!r} must be ≥ 0 (0: as fast as it can)")
-    if s.haptic.mode not in HAPTIC_MODES:
-        _fail(where, "haptic.mode", f"{s.haptic.mode!r}; choose one of {HAPTIC_MODES}")
-    if not (math.isfinite(s.haptic.rate_hz) and s.haptic.rate_hz > 0):
-        _fail(where, "haptic.rate_hz", f"{s.haptic.rate_hz!r} Hz must be > 0")
-    if s.haptic.passivity_damping and s.haptic.mode != "impedance":
+    try:
+        s.haptic.check()
+    except ValueError as e:
+        raise ScenarioError(f"{where}: haptic.{e}") from None
+    device = s.device
+    try:
+        device_kind = kind_of(device)
+    except ValueError as e:
+        raise ScenarioError(f"{where}: {e}") from None
+    try:
+        device.check()
+    except ValueError as e:
+        raise ScenarioError(f"{where}: device.{e}") from None
+    kind = s.kind
+    space = s.god_object.DEVICE_SPACE
+    if device_kind.space != space:
+        tags = ", ".join(k.tag for k in DEVICE_KINDS.values() if k.space == space)
         _fail(
             where,
-            "haptic.passivity_damping",
-            f"{s.haptic.passivity_damping} N·s/m acts on an impedance device's handle; with haptic.mode "
-            f"{s.haptic.mode!r} there is none: set haptic.mode: impedance, or 0",
+            "device",
+            f"a{'n' if kind[0] in 'aeiou' else ''} {kind} god-object needs a {SPACE_NAMES[space]} device "
+            f"({tags}); got !{type(device).__name__}",
         )
-    device = s.device
-    if not (math.isfinite(device.rate_hz) and device.rate_hz > 0):
-        _fail(where, "device.rate_hz", f"{device.rate_hz!r} Hz must be > 0")
-    if isinstance(device, _PoseDevice) and device.interpolation not in INTERPOLATIONS:
-        _fail(where, "device.interpolation", f"{device.interpolation!r}; choose one of {INTERPOLATIONS}")
-    kind = s.kind
     if kind == "articulated":
-        if not isinstance(device, JOINT_DEVICES):
-            _fail(
-                where,
-                "device",
-                f"an articulated god-object needs a joint-space device (!ScriptedJoints, !ReplayJoints, "
-                f"!MeshcatJointSliders, !LcmJoints); got !{type(device).__name__}",
-            )
         if s.haptic.mode != "none" or s.feedback != FeedbackGains():
             _fail(
                 where,
@@ -719,29 +578,21 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             _fail(where, "god_object", "an articulated god-object needs model and device_joints")
         if not (isinstance(god.check_every, int) and god.check_every >= 1):
             _fail(where, "god_object.check_every", f"{god.check_every!r} must be an integer ≥ 1")
-    elif not isinstance(device, POSE_DEVICES):
+    if device_kind.space == "pose" and device.changed_aids() and s.haptic.mode != "none":
+        field = device.changed_aids()[0]
         _fail(
             where,
-            "device",
-            f"a {kind} god-object needs a pose device (!Scripted, !Replay, !Relative, !MeshcatSliders, "
-            f"!Lcm); got !{type(device).__name__}",
+            f"device.{field}",
+            f"{getattr(device, field)!r} is for a device that cannot feel the god-object; with haptic.mode "
+            f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
         )
-    if isinstance(device, _PoseDevice):
-        _check_aids(s, device, where)
-    if isinstance(device, Lcm | LcmJoints):
-        if not (isinstance(device.timeout_periods, int) and device.timeout_periods >= 1):
-            _fail(where, "device.timeout_periods", f"{device.timeout_periods!r}: give an integer ≥ 1, e.g. 5")
-        if isinstance(device, Lcm) and device.noise_m:
-            _fail(where, "device.noise_m", "a real device's samples are its own; leave it 0")
-        if isinstance(device, Lcm) and s.haptic.mode != "none":
-            _fail(
-                where,
-                "haptic.mode",
-                f"{s.haptic.mode!r} simulates a haptic device; with !Lcm the real device is the haptic one "
-                "and the feedback wrench goes to it on device.feedback_channel: set haptic.mode: none",
-            )
-        if isinstance(device, LcmJoints) and len(device.start) != len(device.channels):
-            _fail(where, "device.start", f"{device.start} needs one value per channel {device.channels}")
+    if device_kind.renders_feedback and s.haptic.mode != "none":
+        _fail(
+            where,
+            "haptic.mode",
+            f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
+            "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
+        )
     if kind == "deformable" and s.god_object.shell not in SHELL_MODELS:
         _fail(where, "god_object.shell", f"{s.god_object.shell!r}; choose one of {SHELL_MODELS}")
     vis = s.visualization
@@ -770,40 +621,6 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     far = s.metrics.impossible_pose_distance_m
     if not (math.isfinite(far) and far > 0):
         _fail(where, "metrics.impossible_pose_distance_m", f"{far!r} m must be > 0 (e.g. 0.005)")
-
-
-INCREMENT_DEVICES = (Relative, MeshcatSliders)
-
-
-def _check_aids(s: Scenario, device: _PoseDevice, where: str) -> None:
-    defaults = _PoseDevice()
-    changed = [
-        f for f in ("tether_m", "tether_angle_rad", "cd_ratio", "cd_onset_m")
-        if getattr(device, f) != getattr(defaults, f)
-    ]  # fmt: skip
-    if not changed:
-        return
-    field = changed[0]
-    value = getattr(device, field)
-    if not isinstance(device, INCREMENT_DEVICES):
-        _fail(
-            where,
-            f"device.{field}",
-            f"{value!r} re-indexes a device's increments; !{type(device).__name__} reports absolute "
-            "poses, which cannot be re-indexed (the target would leave the device). Use !Relative or "
-            f"!MeshcatSliders (--device relative or meshcat), or remove {field}",
-        )
-    if s.haptic.mode != "none":
-        _fail(
-            where,
-            f"device.{field}",
-            f"{value!r} is for a device that cannot feel the god-object; with haptic.mode "
-            f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
-        )
-    try:
-        device.aids()
-    except ValueError as e:
-        _fail(where, "device", str(e))
 
 
 def replace(scenario: Scenario, **changes) -> Scenario:

@@ -23,12 +23,13 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.building import Station, is_real_time
+from godobject_drake.building import Station
 from godobject_drake.coupling import TERMS_LAYOUT
+from godobject_drake.device_kinds import kind_of
 from godobject_drake.metrics import SceneMetrics
 from godobject_drake.recording import save_recording
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
-from godobject_drake.scenario import DEVICE_NAMES, Scenario
+from godobject_drake.scenario import Scenario
 
 
 @dataclasses.dataclass
@@ -157,7 +158,7 @@ def simulate(
             "or pass build_station(..., meshcat=start_meshcat(port=0))"
         )
     live = station.live or scenario.visualization.serve
-    on_wall_clock = live or is_real_time(station.device)
+    on_wall_clock = live or kind_of(scenario.device).real_time
     rate = 1.0 if on_wall_clock else (sim.realtime_rate if realtime_rate is None else realtime_rate)
     plant, god = station.plant, station.god_object
     h = plant.time_step()
@@ -377,7 +378,7 @@ def configuration(scenario: Scenario, station: Station) -> dict:
     out = {
         "contact": scenario.contact.geometry,
         "contact_approximation": scenario.plant.discrete_contact_approximation,
-        "device": DEVICE_NAMES[type(scenario.device)],
+        "device": kind_of(scenario.device).name,
         "device_rate_hz": scenario.device.rate_hz,
         "omega_n_rad_s": god.gains.omega_n,
         "omega_n_rot_rad_s": god.gains.omega_r,

@@ -1,0 +1,543 @@
+"""The device kinds: each a scenario dataclass registered once, with all a kind decides.
+
+A device kind is two things: its runtime system (:mod:`~godobject_drake.devices`,
+:mod:`~godobject_drake.live`, :mod:`~godobject_drake.lcm_device`, or a module of one's own) and
+its config here, a dataclass whose fields are the YAML keys under ``device: !Tag``. The
+:func:`device_kind` decorator registers the config in :data:`DEVICE_KINDS` with what the rest of
+the library asks of a kind:
+
+- its name on the command line (``--device NAME``) and in the metrics (``device``);
+- its space: ``pose`` (rigid and deformable tools) or ``joint`` (articulated tools);
+- whether it is driven from the browser (``live``: Meshcat is served, the run goes at real
+  time), lives on the wall clock otherwise (``real_time``: a real device), reports increments
+  (the pseudo-haptic aids apply), reads a log (``--device NAME`` needs ``--device-log``) or
+  renders the feedback wrench itself (a real haptic device: no simulated one may stand in
+  between).
+
+and the config's methods say the rest: :meth:`make` builds the runtime system (the factory),
+:meth:`check` refuses bad values naming the field, the value and the fix, ``start_pose`` (pose
+kinds) says where the target starts, and :meth:`stand_in` what ``analyze`` runs instead of a
+kind that needs a browser or a driver (a kind that needs one and has none says so).
+
+Adding a device kind is therefore one dataclass with ``@device_kind(...)`` (in this file or one
+of one's own) and its runtime class; the scenario's ``device`` field, the command line's
+``--device`` choices, the metrics and ``analyze`` pick it up from the registry
+(docs/design.md "Adding a device kind").
+
+This module must not use ``from __future__ import annotations``: ``yaml_load_typed`` reads the
+field types at run time.
+"""
+
+import dataclasses
+import functools
+import math
+import operator
+import sys
+from typing import ClassVar
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from godobject_drake.devices import (
+    INTERPOLATIONS,
+    JointPath,
+    JointWaypoint,
+    RelativeAids,
+    RelativeDevice,
+    ReplayDevice,
+    ReplayJointDevice,
+    SampleGuard,
+    ScriptedDevice,
+    ScriptedJointDevice,
+    Waypoint,
+    load_device_path,
+    load_joint_path,
+)
+
+SPACES = ("pose", "joint")
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceKind:
+    """What the library knows of a registered device kind (:func:`device_kind`)."""
+
+    config: type
+    name: str
+    space: str
+    live: bool = False
+    real_time: bool = False
+    increments: bool = False
+    needs_log: bool = False
+    renders_feedback: bool = False
+
+    @property
+    def tag(self) -> str:
+        """The YAML tag: ``!`` and the config class's name."""
+        return f"!{self.config.__name__}"
+
+
+DEVICE_KINDS: dict[type, DeviceKind] = {}
+
+
+def device_kind(
+    name: str,
+    *,
+    space: str,
+    live: bool = False,
+    real_time: bool = False,
+    increments: bool = False,
+    needs_log: bool = False,
+    renders_feedback: bool = False,
+):
+    """Register a device config dataclass as a kind (module docstring); returns the class.
+
+    ``name`` is unique within its ``space``; registering a kind makes the scenario's ``device``
+    field accept its YAML tag."""
+    if space not in SPACES:
+        raise ValueError(f"device kind {name!r}: space={space!r}; choose one of {SPACES}")
+
+    def register(cls):
+        if not dataclasses.is_dataclass(cls):
+            raise TypeError(f"device kind {name!r}: {cls.__name__} must be a dataclass")
+        for other in DEVICE_KINDS.values():
+            if other.config.__name__ == cls.__name__ and other.config is not cls:
+                raise ValueError(f"device kind {name!r}: the YAML tag !{cls.__name__} is taken")
+            if other.name == name and other.space == space and other.config is not cls:
+                raise ValueError(
+                    f"device kind {name!r} ({space}) is registered already, as !{other.config.__name__}"
+                )
+        DEVICE_KINDS[cls] = DeviceKind(
+            cls, name, space, live, real_time, increments, needs_log, renders_feedback
+        )
+        _retype_scenario()
+        return cls
+
+    return register
+
+
+def kind_of(config) -> DeviceKind:
+    """The registered kind of a device config; an unknown one is refused, naming the known ones."""
+    kind = DEVICE_KINDS.get(type(config))
+    if kind is None:
+        known = ", ".join(k.tag for k in DEVICE_KINDS.values())
+        raise ValueError(
+            f"device: {type(config).__name__} is not a registered device kind; the known kinds are {known} "
+            "(register one with godobject_drake.device_kinds.device_kind)"
+        )
+    return kind
+
+
+def kinds_in(space: str) -> dict[str, type]:
+    """The registered kinds of a space, by name: ``{"scripted": Scripted, ...}``."""
+    return {k.name: k.config for k in DEVICE_KINDS.values() if k.space == space}
+
+
+def device_union():
+    """Every registered config class as one union: the type of the scenario's ``device`` field."""
+    return functools.reduce(operator.or_, DEVICE_KINDS)
+
+
+def _retype_scenario() -> None:
+    """A kind registered after the scenario module was imported: its ``device`` field learns the tag."""
+    scenario = sys.modules.get("godobject_drake.scenario")
+    if scenario is not None and hasattr(scenario, "Scenario"):
+        scenario.Scenario.__dataclass_fields__["device"].type = device_union()
+
+
+class DeviceConfig:
+    """The methods every device config has (a kind overrides what it needs)."""
+
+    rate_hz: float
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"`` (the scenario prefixes ``device.``)."""
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"rate_hz: {self.rate_hz!r} Hz must be > 0")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        """The runtime system (not yet added to a builder)."""
+        raise NotImplementedError(f"{type(self).__name__}.make")
+
+    def stand_in(self):
+        """What ``analyze`` runs instead of this device: ``self`` for a device that needs nothing
+        outside the process; a kind that needs a browser or a driver returns a scripted device
+        standing at its start, or raises saying it has none."""
+        if kind_of(self).live or kind_of(self).real_time:
+            raise ValueError(
+                f"device: !{type(self).__name__} needs a browser or a driver and has no stand-in for "
+                "analyze; give the scenario a !Scripted or !ScriptedJoints device to analyse"
+            )
+        return self
+
+
+# -- pose devices ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _PoseDevice(DeviceConfig):
+    """What every pose device has: its rate, latency, interpolation, noise and sample guard;
+    and, for the increment devices (``!Relative``, ``!MeshcatSliders``) only, the pseudo-haptic
+    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.RelativeAids`):
+    ``tether_m`` (m) and ``tether_angle_rad`` (rad), ``.inf`` for none; ``cd_ratio`` (the
+    control/display ratio at the force cap, 1 for none) and ``cd_onset_m`` (m, where it starts
+    to grow)."""
+
+    rate_hz: float = 60.0
+    latency_s: float = 0.0
+    interpolation: str = "hold"
+    noise_m: float = 0.0
+    guard: SampleGuard = dataclasses.field(default_factory=SampleGuard)
+    tether_m: float = math.inf
+    tether_angle_rad: float = math.inf
+    cd_ratio: float = 1.0
+    cd_onset_m: float = 0.005
+
+    AIDS: ClassVar[tuple[str, ...]] = ("tether_m", "tether_angle_rad", "cd_ratio", "cd_onset_m")
+
+    def aids(self) -> RelativeAids:
+        return RelativeAids(self.tether_m, self.tether_angle_rad, self.cd_ratio, self.cd_onset_m)
+
+    def changed_aids(self) -> list[str]:
+        """The aid fields set away from their defaults."""
+        return [f for f in self.AIDS if getattr(self, f) != getattr(_PoseDevice, f)]
+
+    def check(self) -> None:
+        super().check()
+        if self.interpolation not in INTERPOLATIONS:
+            raise ValueError(f"interpolation: {self.interpolation!r}; choose one of {INTERPOLATIONS}")
+        changed = self.changed_aids()
+        if changed and not kind_of(self).increments:
+            field = changed[0]
+            raise ValueError(
+                f"{field}: {getattr(self, field)!r} re-indexes a device's increments; !{type(self).__name__} "
+                "reports absolute poses, which cannot be re-indexed (the target would leave the device). "
+                f"Use !Relative or !MeshcatSliders (--device relative or meshcat), or remove {field}"
+            )
+        if changed:
+            try:
+                self.aids()  # RelativeAids checks its own values
+            except ValueError as e:
+                raise ValueError(f"{changed[0]}: {e}") from None
+
+    def sampling(self) -> dict:
+        """The runtime device's sampling options."""
+        return dict(period_s=self.period_s, latency_s=self.latency_s, interpolation=self.interpolation,
+                    guard=self.guard)  # fmt: skip
+
+    def start_pose(self) -> RigidTransform:
+        """Where the target starts (m, world frame): ``start_xyz``, ``start_rpy_deg`` unless the
+        kind's path or log says otherwise."""
+        rpy = RollPitchYaw(np.radians(self.start_rpy_deg))
+        return RigidTransform(rpy, np.asarray(self.start_xyz, dtype=float))
+
+    def stand_in(self):
+        if not (kind_of(self).live or kind_of(self).real_time):
+            return self
+        return Scripted(  # no browser, no driver: a scripted device standing at the start
+            rate_hz=self.rate_hz,
+            waypoints=[Waypoint(t=0.0, xyz=list(self.start_xyz), rpy_deg=list(self.start_rpy_deg),
+                                grasp=self.grasp)],
+        )  # fmt: skip
+
+
+@device_kind("scripted", space="pose")
+@dataclasses.dataclass
+class Scripted(_PoseDevice):
+    """A scripted path: waypoints, linear in position, slerp in orientation.
+
+    Attributes
+    ----------
+    path : str
+        A YAML file of ``waypoints`` (t, xyz, rpy_deg, grasp); or give them inline.
+    waypoints : list[Waypoint]
+        Inline waypoints (when ``path`` is empty).
+    rate_hz, latency_s, interpolation, noise_m, guard :
+        The device's sampling: rate (Hz), latency (s), ``hold`` or ``linear`` between
+        samples, Gaussian noise on each position sample (m, seeded by the scenario's
+        ``random_seed``), what to do with bad samples.
+    """
+
+    path: str = ""
+    waypoints: list[Waypoint] = dataclasses.field(default_factory=list)
+
+    def check(self) -> None:
+        super().check()
+        if self.path and self.waypoints:
+            raise ValueError("path: give a scripted path as path or as waypoints, not both")
+
+    def path_waypoints(self) -> list[Waypoint]:
+        self.check()
+        return load_device_path(self.path).waypoints if self.path else self.waypoints
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        return ScriptedDevice(self.path_waypoints(), noise_m=self.noise_m, seed=seed, **self.sampling())
+
+    def start_pose(self) -> RigidTransform:
+        p, q, _ = ScriptedDevice(self.path_waypoints()).path_sample(0.0)
+        return RigidTransform(Quaternion(q), p)
+
+
+@device_kind("replay", space="pose", needs_log=True)
+@dataclasses.dataclass
+class Replay(_PoseDevice):
+    """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``)."""
+
+    log: str = ""
+
+    def check(self) -> None:
+        super().check()
+        if not self.log:
+            raise ValueError("log: !Replay needs log: FILE.csv (README 'Device log format')")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        self.check()
+        return ReplayDevice(self.log, noise_m=self.noise_m, seed=seed, **self.sampling())
+
+    def start_pose(self) -> RigidTransform:
+        log = ReplayDevice(self.log).log
+        return RigidTransform(Quaternion(log.q[0]), log.p[0])
+
+
+@device_kind("relative", space="pose", increments=True, needs_log=True)
+@dataclasses.dataclass
+class Relative(_PoseDevice):
+    """Increments with a clutch, the paper's mouse (CSV ``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
+
+    ``start_xyz`` (m) and ``start_rpy_deg`` (degrees) are where the target starts.
+    """
+
+    log: str = ""
+    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def check(self) -> None:
+        super().check()
+        if not self.log:
+            raise ValueError("log: !Relative needs log: FILE.csv (README 'Relative device')")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        self.check()
+        return RelativeDevice(self.log, self.start_pose(), noise_m=self.noise_m, seed=seed, **self.sampling(),
+                              aids=self.aids())  # fmt: skip
+
+
+@device_kind("meshcat", space="pose", live=True, real_time=True, increments=True)
+@dataclasses.dataclass
+class MeshcatSliders(_PoseDevice):
+    """Driven live from the browser: pose sliders and keys, a gamepad, Grasp and Stop buttons.
+
+    ``grasp``: empty for the Grasp button (it takes the nearest free body), or a body the
+    device always holds. The sliders span the scenario's ``workspace``; the target starts at
+    ``start_xyz`` (m), ``start_rpy_deg`` (degrees).
+    """
+
+    grasp: str = ""
+    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def check(self) -> None:
+        super().check()
+        if self.noise_m:
+            raise ValueError("noise_m: a live device's samples are the user's own; leave it 0")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        from godobject_drake.live import MeshcatDevice
+
+        if meshcat is None or workspace is None:
+            raise ValueError("device: !MeshcatSliders needs the scene's Meshcat and workspace")
+        self.check()
+        box = (workspace.lower_m, workspace.upper_m)
+        return MeshcatDevice(meshcat, self.start_pose(), box, grasp=self.grasp or None, **self.sampling(),
+                             aids=self.aids())  # fmt: skip
+
+
+@device_kind("lcm", space="pose", real_time=True, renders_feedback=True)
+@dataclasses.dataclass
+class Lcm(_PoseDevice):
+    """A real device whose driver publishes pose samples over LCM (README "Real devices over LCM").
+
+    Attributes
+    ----------
+    url : str
+        Drake's LCM URL; empty: Drake's default (UDP multicast on this network). ``memq://``
+        stays in the process (tests).
+    channel, feedback_channel : str
+        The ``lcmt_robot_state`` samples in; the ``lcmt_force_torque`` feedback wrench out,
+        published at ``rate_hz``.
+    timeout_periods : int
+        Samples without a message after which the device holds at rest (a driver unplugged).
+    start_xyz, start_rpy_deg :
+        Where the device stands until its first message (m, degrees).
+    grasp : str
+        A body the device always holds (a deformable probe's core); empty: the messages'
+        ``grasp=`` entries decide.
+    rate_hz, latency_s, interpolation, guard :
+        The rate the driver is expected to publish at, and the sampling as for any device
+        (``noise_m`` must stay 0: the samples are the device's own).
+    """
+
+    url: str = ""
+    grasp: str = ""
+    channel: str = "GODOBJECT_DEVICE_POSE"
+    feedback_channel: str = "GODOBJECT_FEEDBACK"
+    timeout_periods: int = 5
+    start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def check(self) -> None:
+        super().check()
+        _check_timeout(self.timeout_periods)
+        if self.noise_m:
+            raise ValueError("noise_m: a real device's samples are its own; leave it 0")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        from godobject_drake.lcm_device import LcmDevice, make_lcm
+
+        return LcmDevice(
+            make_lcm(self.url), self.start_pose(), self.channel, self.timeout_periods, self.period_s,
+            self.latency_s, self.guard, self.interpolation, self.feedback_channel, self.grasp,
+        )  # fmt: skip
+
+
+def _check_timeout(timeout_periods) -> None:
+    if not (isinstance(timeout_periods, int) and timeout_periods >= 1):
+        raise ValueError(f"timeout_periods: {timeout_periods!r}: give an integer ≥ 1, e.g. 5")
+
+
+# -- joint devices -----------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _JointDevice(DeviceConfig):
+    """What every joint-space device has.
+
+    Attributes
+    ----------
+    channels : list[str]
+        The interface's channels (rad or m each), in the order it reports them.
+    mix : list[list[float]]
+        Rows: the tool's device joints; columns: channels (``q_device = mix · channels``);
+        empty: identity.
+    limits : list[list[float]]
+        Each channel's ``[lower, upper]``: the live sliders' range.
+    rate_hz, latency_s : float
+        Sampling rate (Hz) and latency (s).
+    """
+
+    channels: list[str] = dataclasses.field(default_factory=list)
+    mix: list[list[float]] = dataclasses.field(default_factory=list)
+    limits: list[list[float]] = dataclasses.field(default_factory=list)
+    rate_hz: float = 60.0
+    latency_s: float = 0.0
+
+    def sampling(self) -> dict:
+        mix = np.array(self.mix, dtype=float) if self.mix else None
+        return dict(mix=mix, period_s=self.period_s, latency_s=self.latency_s)
+
+    def start_values(self) -> list[float]:
+        """The channels' values at t = 0."""
+        return [float(v) for v in self.make().channel_values(0.0)]
+
+    def stand_in(self):
+        if not (kind_of(self).live or kind_of(self).real_time):
+            return self
+        start = dict(zip(self.channels, self.start or [0.0] * len(self.channels), strict=True))
+        return ScriptedJoints(
+            channels=list(self.channels), mix=self.mix, limits=self.limits, rate_hz=self.rate_hz,
+            waypoints=[JointWaypoint(0.0, start)],
+        )  # fmt: skip
+
+
+@device_kind("scripted", space="joint")
+@dataclasses.dataclass
+class ScriptedJoints(_JointDevice):
+    """A scripted joint-space path (``path`` YAML with ``channels`` and ``waypoints``, or inline)."""
+
+    path: str = ""
+    waypoints: list[JointWaypoint] = dataclasses.field(default_factory=list)
+
+    def check(self) -> None:
+        super().check()
+        if self.path and self.waypoints:
+            raise ValueError("path: give a joint path as path or as waypoints, not both")
+
+    def joint_path(self) -> JointPath:
+        self.check()
+        path = load_joint_path(self.path) if self.path else JointPath(self.channels, self.waypoints)
+        if self.channels and list(path.channels) != list(self.channels):
+            raise ValueError(f"channels: {self.channels} differ from the path's channels {path.channels}")
+        return path
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        return ScriptedJointDevice(self.joint_path(), **self.sampling())
+
+
+@device_kind("replay", space="joint", needs_log=True)
+@dataclasses.dataclass
+class ReplayJoints(_JointDevice):
+    """A joint-space device log replayed (CSV ``t,<channels>``)."""
+
+    log: str = ""
+
+    def check(self) -> None:
+        super().check()
+        if not self.log:
+            raise ValueError("log: !ReplayJoints needs log: FILE.csv (header t,<channels>)")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        self.check()
+        return ReplayJointDevice(self.log, self.channels, **self.sampling())
+
+
+@device_kind("meshcat", space="joint", live=True, real_time=True)
+@dataclasses.dataclass
+class MeshcatJointSliders(_JointDevice):
+    """Joint channels driven live from the browser, one slider and key pair each; ``start``: values."""
+
+    start: list[float] = dataclasses.field(default_factory=list)
+
+    def check(self) -> None:
+        super().check()
+        if len(self.limits) != len(self.channels):
+            raise ValueError(f"limits: {self.limits}: give one [lower, upper] per channel {self.channels}")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        from godobject_drake.live import MeshcatJointDevice
+
+        if meshcat is None:
+            raise ValueError("device: !MeshcatJointSliders needs the scene's Meshcat")
+        limits = [tuple(lim) for lim in self.limits]
+        return MeshcatJointDevice(meshcat, self.channels, limits, self.start, **self.sampling())
+
+
+@device_kind("lcm", space="joint", real_time=True)
+@dataclasses.dataclass
+class LcmJoints(_JointDevice):
+    """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,
+    ``joint_name`` = ``channels``). ``url``, ``channel``, ``timeout_periods`` as for :class:`Lcm`;
+    ``start``: the channel values until the first message."""
+
+    url: str = ""
+    channel: str = "GODOBJECT_DEVICE_JOINTS"
+    timeout_periods: int = 5
+    start: list[float] = dataclasses.field(default_factory=list)
+
+    def check(self) -> None:
+        super().check()
+        _check_timeout(self.timeout_periods)
+        if len(self.start) != len(self.channels):
+            raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")
+
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+        from godobject_drake.lcm_device import LcmJointDevice, make_lcm
+
+        s = self.sampling()
+        return LcmJointDevice(
+            make_lcm(self.url), self.channels, self.start, self.channel, self.timeout_periods, s["mix"],
+            self.period_s, self.latency_s,
+        )  # fmt: skip
