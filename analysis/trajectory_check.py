@@ -107,18 +107,30 @@ def compare(before: Path, after: Path, names: list[str]) -> int:
     for name in names:
         a, b = np.load(before / f"{name}.npz"), np.load(after / f"{name}.npz")
         problems = []
-        for key in sorted(set(a.files) | set(b.files)):
+        ma, mb = (
+            {
+                str(k): v
+                for k, v in zip(z["metric_names"], z["metric_values"], strict=True)
+                if k not in WALL_CLOCK_KEYS
+            }
+            for z in (a, b)
+        )
+        if set(ma) != set(mb):
+            problems.append(f"metric keys differ: {sorted(set(ma) ^ set(mb))}")
+        differ = [
+            k
+            for k in set(ma) & set(mb)
+            if np.float64(ma[k]).view(np.uint64) != np.float64(mb[k]).view(np.uint64)
+        ]
+        if differ:
+            problems.append(f"metrics differ: {', '.join(sorted(differ))}")
+        for key in sorted((set(a.files) | set(b.files)) - {"metric_names", "metric_values"}):
             if key not in a.files or key not in b.files:
                 problems.append(f"{key} only in {'before' if key in a.files else 'after'}")
                 continue
             x, y = a[key], b[key]
             if x.shape != y.shape:
                 problems.append(f"{key}: shape {x.shape} -> {y.shape}")
-            elif key == "metric_values":
-                keep = ~np.isin(a["metric_names"], WALL_CLOCK_KEYS)
-                if not np.array_equal(x[keep].view(np.uint64), y[keep].view(np.uint64)):
-                    names = a["metric_names"][keep][x[keep].view(np.uint64) != y[keep].view(np.uint64)]
-                    problems.append(f"metrics differ: {', '.join(names)}")
             elif x.dtype.kind == "f" and not np.array_equal(x.view(np.uint64), y.view(np.uint64)):
                 rows = np.nonzero((x.view(np.uint64) != y.view(np.uint64)).reshape(len(x), -1).any(axis=1))[0]
                 problems.append(

@@ -230,11 +230,7 @@ def _contact_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     budget = scenario.metrics.penetration_budget_m
     out["penetration_budget_m"] = budget
     kind = station.god_object.kind
-    reason = None
-    if kind == "articulated":
-        reason = "articulated tool: its coupling has no force cap, so no worst-case pull to predict from"
-    elif kind == "deformable":
-        reason = "deformable tool: the core has no collision geometry; its shell deforms instead"
+    reason = station.god_object.no_prediction_reason or None
     pairs = (
         []
         if reason
@@ -432,7 +428,7 @@ def _push_in(station, out: dict):
 def _verify_penetration(station, scenario, out: dict) -> Check | None:
     """Hold the target 5 cm inside the nearest fixed obstacle; the body settles where the
     spring's pull equals the contacts' push, ``δ = F/(n k)`` with ``F = K (5 cm − δ)``."""
-    if station.god_object.kind != "rigid" or not out.get("contact_pairs"):
+    if not station.god_object.predicts_penetration or not out.get("contact_pairs"):
         return None
     push = _push_in(station, out)
     if push is None:
@@ -473,13 +469,13 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
     """Bisect a scale ``c`` on both bandwidths (``omega_n``, ``omega_n_rot``) in the user's
     scene: the held body is grasped at its start, pulled 3 cm away from the nearest obstacle
     and turned by 10°; stable if its error decays. Predicted: the smallest ``limit/(ω h)``."""
-    if station.god_object.kind == "articulated" or not out.get("explicit"):
+    if station.god_object.device_space == "joint" or not out.get("explicit"):
         return None
     body = _held_body(station)
     rows = [r for r in out["explicit"] if r["body"] == body.name]
     predicted = min(r["margin"] for r in rows)
     binding = min(rows, key=lambda r: r["margin"])["axis"]
-    near = _nearest_fixed_obstacle(station, body) if station.god_object.kind == "rigid" else None
+    near = _nearest_fixed_obstacle(station, body) if station.god_object.predicts_penetration else None
     away = -near[1] if near else np.array([0.0, 0.0, 1.0])
     X0 = _start_pose(station, body)
     X1 = RigidTransform(X0.rotation().multiply(RotationMatrix.MakeXRotation(np.radians(10.0))),
@@ -543,7 +539,7 @@ def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> C
     """The articulated tool's explicit limit in Drake: the device holds the worst configuration
     of the check, then steps every channel by 0.02; a scale ``c`` on both bandwidths is stable
     if the tool's joint speeds decay. Predicted: the joint-space model's largest scale."""
-    if station.god_object.kind != "articulated" or not out.get("explicit"):
+    if station.god_object.device_space != "joint" or not out.get("explicit"):
         return None
     row = out["explicit"][0]
     predicted = row["bandwidth_scale_max"]
@@ -613,7 +609,7 @@ def _verify_device_boundary(station, scenario, out: dict, rel_tol: float) -> Che
     grasped at its start, the hand's target 5 cm inside the nearest fixed obstacle, γd as the
     scenario has it; stable if the handle's motion per step decays once the push has settled.
     The model: the pipeline on that obstacle's ``n k`` with the hand on the handle."""
-    if out.get("device") is None or station.god_object.kind != "rigid":
+    if out.get("device") is None or not station.god_object.predicts_penetration:
         return None
     push = _push_in(station, out)
     if push is None:
@@ -718,12 +714,13 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     station = _quiet_build(s)
     out: dict = {
         "scene": s.name,
-        "kind": s.kind,
+        "kind": station.god_object.kind,
         "time_step_s": s.time_step,
         "quick": quick,
         "verify": verify,
     }
-    if s.kind == "articulated":
+    joint_space = station.god_object.device_space == "joint"
+    if joint_space:
         cfg = s.god_object
         out["coupling"] = cfg.coupling
         checks = _articulated_checks(station, out, s.simulation.duration_s, cfg.check_every)
@@ -732,7 +729,7 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
         out["gains"] = {"omega_n": g.omega_n, "zeta": g.zeta, "omega_n_rot": g.omega_r, "zeta_rot": g.zeta_r}
         checks = _pose_tool_checks(station, out)
     checks += _contact_checks(station, s, out)
-    if s.kind != "articulated":
+    if not joint_space:
         checks += _device_checks(station, s, out)
     else:
         checks.append(Check("device", "haptic loop", "device", "info", None, None, "",

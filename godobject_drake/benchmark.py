@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from godobject_drake import scenario as sc
 from godobject_drake.coupling import CouplingGainError
 from godobject_drake.scenario import Scenario, scenario_from_yaml, scenario_to_yaml
 
@@ -86,17 +87,18 @@ def describe(scenario: Scenario, short: bool = False) -> str:
     """``h=1ms proxies sap``, ``h=1ms cartesian``, ``h=10ms fem``, with ``dev=250Hz`` off 60 Hz."""
     parts = [f"h={scenario.time_step * 1e3:g}ms"]
     if not short:
-        if scenario.kind == "rigid":
-            parts += [scenario.contact.geometry, scenario.plant.discrete_contact_approximation]
-        elif scenario.kind == "articulated":
-            parts.append(scenario.god_object.coupling)
+        god = scenario.god_object
+        if isinstance(god, sc.Articulated):
+            parts.append(god.coupling)
+        elif isinstance(god, sc.Deformable):
+            parts.append(god.shell)
         else:
-            parts.append(scenario.god_object.shell)
+            parts += [scenario.contact.geometry, scenario.plant.discrete_contact_approximation]
     if scenario.device.rate_hz != 60.0:
         parts.append(f"dev={scenario.device.rate_hz:g}Hz")
     if scenario.bricks:
         parts.append(f"bricks={scenario.bricks}")
-    if not scenario.sleep.enabled and scenario.kind == "rigid":
+    if not scenario.sleep.enabled and isinstance(scenario.god_object, sc.Rigid):
         parts.append("awake")
     return " ".join(parts)
 
@@ -105,12 +107,11 @@ def case_config(scenario: Scenario, case: Case) -> dict:
     """What a case varies, as a flat dict for reports: scene, time_step, duration, device_rate,
     and per kind contact and approximation (rigid), coupling (articulated; the MuJoCo mode for a
     MuJoCo case), shell (deformable), engine, repeats; None where it does not apply."""
-    kind, god = scenario.kind, scenario.god_object
+    god = scenario.god_object
     mujoco = case.engine == "mujoco"
-    rigid = kind == "rigid" and not mujoco
-    coupling = (
-        god.coupling if kind == "articulated" else (case.mujoco_mode if case.engine == "mujoco" else None)
-    )
+    bricks = isinstance(god, sc.Rigid)  # the brick scene: contact settings, brick count, sleep
+    rigid = bricks and not mujoco
+    coupling = god.coupling if isinstance(god, sc.Articulated) else (case.mujoco_mode if mujoco else None)
     return {
         "scene": scenario.name,
         "time_step": scenario.time_step,
@@ -119,11 +120,11 @@ def case_config(scenario: Scenario, case: Case) -> dict:
         "contact": scenario.contact.geometry if rigid else None,
         "approximation": scenario.plant.discrete_contact_approximation if rigid else None,
         "coupling": coupling,
-        "shell": god.shell if kind == "deformable" else None,
+        "shell": god.shell if isinstance(god, sc.Deformable) else None,
         "engine": case.engine,
         "repeats": case.repeats,
-        "bricks": max(scenario.bricks, 8) if kind == "rigid" else None,
-        "sleep": None if kind != "rigid" else (case.mujoco_sleep if mujoco else scenario.sleep.enabled),
+        "bricks": max(scenario.bricks, 8) if bricks else None,
+        "sleep": None if not bricks else (case.mujoco_sleep if mujoco else scenario.sleep.enabled),
         "mujoco_timeconst_s": case.mujoco_timeconst_s if mujoco else None,
         "mujoco_cone": case.mujoco_cone if mujoco else None,
     }
@@ -134,9 +135,9 @@ def god_object_body(scenario: Scenario) -> str:
     grasps, an articulated tool's tip body, a deformable probe's core."""
     from godobject_drake.building import make_device
 
-    if scenario.kind == "articulated":
+    if isinstance(scenario.god_object, sc.Articulated):
         return scenario.god_object.tip_body
-    if scenario.kind == "deformable":
+    if isinstance(scenario.god_object, sc.Deformable):
         return scenario.god_object.name
     names = sorted(make_device(scenario.device).grasp_names())
     if not names:
@@ -187,7 +188,7 @@ def run_case(case: Case) -> dict:
         q_WG=q,
         energy_j=energy,
     )
-    if scenario.kind == "rigid":
+    if isinstance(scenario.god_object, sc.Rigid):
         stride = max(1, round(SAMPLE_DT_S / scenario.time_step))
         out.update(engine_neutral_errors(scenario, first.states[::stride]))
     return out

@@ -365,7 +365,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
         new.start_xyz = X0.translation().tolist()
         new.start_rpy_deg = [math.degrees(a) for a in _rpy(X0)]
     if hasattr(new, "grasp"):  # a device that holds a body keeps a deformable tool's core
-        new.grasp = s.god_object.name if s.kind == "deformable" else ""
+        new.grasp = getattr(s.god_object, "name", "")  # a deformable tool's core is always held
     if DEVICE_KINDS[cls].live or DEVICE_KINDS[cls].real_time:
         if hasattr(new, "noise_m"):
             new.noise_m = 0.0  # the samples are the user's or the device's own

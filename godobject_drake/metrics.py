@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import BodyIndex
 
 from godobject_drake.coupling import GraspableBody, graspable_bodies
 from godobject_drake.scenes import is_proxy
@@ -599,72 +598,27 @@ class SceneMetrics:
     """
 
     def __init__(self, station):
-        from godobject_drake.deformable import obstacle_geometries
-
-        god, plant, scene_graph, diagram = (
-            station.god_object,
-            station.plant,
-            station.scene_graph,
-            station.diagram,
-        )
-        self.kind = god.kind
-        self.capped = 0
+        god, plant = station.god_object, station.plant
         from godobject_drake.devices import RelativeDevice
 
         reversals = device_reversals(god.source) if isinstance(god.source, RelativeDevice) else None
         self._sep = SeparationMetrics(
             plant.time_step(), station.scenario.metrics.impossible_pose_distance_m, reversals
         )
-        if god.kind == "rigid":
-            self._acc = RigidMetrics(TrueShapeMetrics(plant, scene_graph, diagram))
-        elif god.kind == "articulated":
-            config = station.scenario.god_object
-            tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
-            self._acc = ToolMetrics(diagram, plant, scene_graph, god.tool, tip, config.pivot_body or None)
-        else:
-            self._acc = ShellMetrics(
-                diagram, plant, god.shell, obstacle_geometries(scene_graph, god.shell, plant)
-            )
+        self._acc = god.new_metrics(station)  # the god-object kind's own fold
 
     def update(self, data: dict) -> None:
-        from godobject_drake.coupling import TERMS_LAYOUT
-
         if not data or len(data["state"]) == 0:
             return
         finite = np.all(np.concatenate([np.isfinite(d) for d in data.values()], axis=1), axis=1)
         rows = {name: d[finite] for name, d in data.items()}
-        states = rows["state"]
-        if self.kind == "rigid":
-            terms = rows["terms"]
-            held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
-            self._acc.update(states, held, terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:])
-            self.capped += int(np.sum(data["terms"][:, TERMS_LAYOUT["capped"]] > 0.5))
-            p_WT, p_WG = (data["terms"][:, TERMS_LAYOUT[name]][:, 4:] for name in ("pose_WT", "pose_WG"))
-        elif self.kind == "articulated":
-            self._acc.update(states, rows["q_device"])
-            p_WT, p_WG = self._acc.take_tips(len(data["state"]), finite)
-        else:
-            self._acc.update(states, rows["vertex_positions"], rows["rest_positions"], rows["pose_WC"],
-                             rows["pose_WT"])  # fmt: skip
-            p_WT, p_WG = data["pose_WT"][:, 4:], data["pose_WC"][:, 4:]
+        p_WT, p_WG = self._acc.fold(rows, data, finite)
         # every row, so that row k is at t = k h (a non-finite row gives a NaN, never the maximum)
         separation = np.linalg.norm(p_WT - p_WG, axis=1)
         self._sep.update(np.where(np.isfinite(separation), separation, 0.0), p_WG)
 
     def result(self) -> dict:
-        out = self._acc.result()
-        sep = self._sep.result()
-        if self.kind == "rigid":
-            return {**out, "coupling_capped_steps": self.capped, **sep}
-        if self.kind == "articulated":
-            return {
-                "max_penetration_m": out["max_penetration_m"],
-                "rms_tracking_error_m": out["tip_tracking_rms_m"],
-                "max_other_body_speed_mps": None,
-                **out,
-                **sep,
-            }
-        return {"max_other_body_speed_mps": None, **out, **sep}
+        return {**self._acc.result(), **self._sep.result()}
 
 
 def scene_metrics(station, data: dict) -> dict:

@@ -113,6 +113,9 @@ class Rigid:
 
     DEVICE_SPACE: ClassVar[str] = "pose"
 
+    def check(self, scenario: "Scenario") -> None:
+        """Nothing beyond its gains, which the builder checks against the plant's step."""
+
 
 ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
 
@@ -159,6 +162,21 @@ class Articulated:
 
     DEVICE_SPACE: ClassVar[str] = "joint"
 
+    def check(self, scenario: "Scenario") -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"`` (fields from the scenario's top)."""
+        if scenario.haptic.mode != "none" or scenario.feedback != FeedbackGains():
+            raise ValueError(
+                "haptic/feedback: the joint-space devices here are non-haptic: leave haptic.mode none and "
+                "the feedback gains zero (ArticulatedFeedback computes Eq. 8/9 wrenches for a device of "
+                "your own)"
+            )
+        if self.coupling not in ARTICULATED_COUPLINGS:
+            raise ValueError(f"god_object.coupling: {self.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")
+        if not self.model or not self.device_joints:
+            raise ValueError("god_object: an articulated god-object needs model and device_joints")
+        if not (isinstance(self.check_every, int) and self.check_every >= 1):
+            raise ValueError(f"god_object.check_every: {self.check_every!r} must be an integer ≥ 1")
+
 
 @dataclasses.dataclass
 class Deformable:
@@ -185,6 +203,11 @@ class Deformable:
     gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
 
     DEVICE_SPACE: ClassVar[str] = "pose"
+
+    def check(self, scenario: "Scenario") -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.shell not in SHELL_MODELS:
+            raise ValueError(f"god_object.shell: {self.shell!r}; choose one of {SHELL_MODELS}")
 
 
 # The device kinds live in godobject_drake.device_kinds, each registered once; their names here
@@ -563,21 +586,10 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"a{'n' if kind[0] in 'aeiou' else ''} {kind} god-object needs a {SPACE_NAMES[space]} device "
             f"({tags}); got !{type(device).__name__}",
         )
-    if kind == "articulated":
-        if s.haptic.mode != "none" or s.feedback != FeedbackGains():
-            _fail(
-                where,
-                "haptic/feedback",
-                "the joint-space devices here are non-haptic: leave haptic.mode none and the feedback "
-                "gains zero (ArticulatedFeedback computes Eq. 8/9 wrenches for a device of your own)",
-            )
-        god = s.god_object
-        if god.coupling not in ARTICULATED_COUPLINGS:
-            _fail(where, "god_object.coupling", f"{god.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")
-        if not god.model or not god.device_joints:
-            _fail(where, "god_object", "an articulated god-object needs model and device_joints")
-        if not (isinstance(god.check_every, int) and god.check_every >= 1):
-            _fail(where, "god_object.check_every", f"{god.check_every!r} must be an integer ≥ 1")
+    try:
+        s.god_object.check(s)
+    except ValueError as e:
+        raise ScenarioError(f"{where}: {e}") from None
     if device_kind.space == "pose" and device.changed_aids() and s.haptic.mode != "none":
         field = device.changed_aids()[0]
         _fail(
@@ -593,8 +605,6 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
             "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
         )
-    if kind == "deformable" and s.god_object.shell not in SHELL_MODELS:
-        _fail(where, "god_object.shell", f"{s.god_object.shell!r}; choose one of {SHELL_MODELS}")
     vis = s.visualization
     if not vis.host.strip():
         _fail(where, "visualization.host", f"{vis.host!r}: give localhost (this machine only) or an address")

@@ -387,15 +387,7 @@ def configuration(scenario: Scenario, station: Station) -> dict:
         "sleep": station.sleeper is not None,
         "free_bodies": len(station.plant.GetFloatingBaseBodies()),
     }
-    if scenario.kind == "articulated":
-        out["coupling"] = god.coupling
-        out["imposed_joints"] = list(god.imposed_joints)
-    else:
-        out["haptic"] = scenario.haptic.mode
-    if scenario.kind == "deformable":
-        out["shell"] = god.shell
-        out["shell_vertices"] = station.god_object.shell.vertex_count
-        out["youngs_modulus_pa"] = god.spec.youngs_modulus_pa
+    out.update(station.god_object.configuration(scenario, station))  # the kind's own keys
     return out
 
 

@@ -1,0 +1,155 @@
+"""The articulated god-object kind: a tree model whose joints a joint-space device drives (paper Eq. 4–9).
+
+:func:`add_articulated` adds the coupling (Cartesian per body, or joint-space PD, explicit or
+SAP's implicit actuators) and its feedback; :class:`ArticulatedGodObject` is what it added: it
+logs the device's joint values, draws the device's tool as a wireframe, measures the tool's tip
+and trocar, locks and sets the imposed joints (the paper's jaws) before each step, and keeps
+resting bodies awake (its bodies are not free bodies the sleep manager could watch).
+"""
+
+import dataclasses
+from typing import ClassVar
+
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import BodyIndex
+from pydrake.systems.framework import DiagramBuilder
+
+from godobject_drake import scenario as sc
+from godobject_drake.articulated import ArticulatedFeedback, add_articulated_god_object
+from godobject_drake.devices import JointDevice
+from godobject_drake.god_objects.base import GodObject
+from godobject_drake.scenes import SceneParts, exclude_self_collisions
+
+
+@dataclasses.dataclass
+class ArticulatedGodObject(GodObject):
+    """An articulated god-object (:func:`add_articulated`)."""
+
+    kind: ClassVar[str] = "articulated"
+    device_space: ClassVar[str] = "joint"
+    sleeps_others: ClassVar[bool] = False
+    no_prediction_reason: ClassVar[str] = (
+        "articulated tool: its coupling has no force cap, so no worst-case pull to predict from"
+    )
+
+    @property
+    def tool(self):
+        """The :class:`~godobject_drake.articulated.ArticulatedTool`."""
+        return self.coupling.tool
+
+    @classmethod
+    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
+        from godobject_drake.building import add_plant
+
+        scene = add_plant(builder, scenario)
+        god = add_articulated(
+            builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,
+            connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
+        )  # fmt: skip
+        return scene, god
+
+    def logged_ports(self, plant):
+        return {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}
+
+    def add_drawing(self, builder, meshcat, scene, scenario) -> None:
+        from godobject_drake.recording import ToolGhostVisualizer
+
+        period = scenario.visualization.publish_period_s
+        ghost = builder.AddNamedSystem(
+            "device_tool_ghost", ToolGhostVisualizer(meshcat, self.tool, scene.scene_graph, period)
+        )
+        builder.Connect(self.source.GetOutputPort("q_device"), ghost.GetInputPort("q_device"))
+
+    def new_metrics(self, station):
+        return _ToolFold(station, self)
+
+    def configuration(self, scenario, station) -> dict:
+        return {
+            "coupling": scenario.god_object.coupling,
+            "imposed_joints": list(scenario.god_object.imposed_joints),
+        }
+
+    def prepare(self, plant_context) -> None:
+        """Lock the imposed joints (SAP then holds them where they are set)."""
+        self.coupling.lock_imposed(plant_context)
+
+    def before_step(self, plant: MultibodyPlant):
+        """The imposed joints are set to the device's values (all of them in position mode)."""
+        coupling = self.coupling
+        everything = self.mode == "position"
+        if not (everything or coupling.tool.imposed):
+            return None
+
+        def impose_joints(plant_context, root_context):
+            coupling.impose(plant_context, coupling.GetMyContextFromRoot(root_context), everything)
+
+        return impose_joints
+
+
+class _ToolFold:
+    """The articulated kind's metrics (:class:`~godobject_drake.metrics.ToolMetrics`)."""
+
+    def __init__(self, station, god):
+        from godobject_drake.metrics import ToolMetrics
+
+        plant, config = station.plant, station.scenario.god_object
+        tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
+        self._acc = ToolMetrics(station.diagram, plant, station.scene_graph, god.tool, tip,
+                                config.pivot_body or None)  # fmt: skip
+
+    def fold(self, rows: dict, data: dict, finite):
+        self._acc.update(rows["state"], rows["q_device"])
+        return self._acc.take_tips(len(data["state"]), finite)
+
+    def result(self) -> dict:
+        out = self._acc.result()
+        return {
+            "max_penetration_m": out["max_penetration_m"],
+            "rms_tracking_error_m": out["tip_tracking_rms_m"],
+            "max_other_body_speed_mps": None,
+            **out,
+        }
+
+
+def add_articulated(
+    builder: DiagramBuilder,
+    scene: SceneParts,
+    config: "sc.Articulated",
+    device: JointDevice,
+    *,
+    duration_s: float,
+    connect_forces: bool = True,
+    check_gains: bool = True,
+) -> ArticulatedGodObject:
+    """An articulated god-object from its scenario config: the tool starts where the device is.
+
+    Calls :func:`~godobject_drake.articulated.add_articulated_god_object` (checked at every
+    ``config.check_every``-th device sample up to ``duration_s``), adds an
+    :class:`~godobject_drake.articulated.ArticulatedFeedback` named ``feedback`` (zero gains:
+    the joint-space devices here are non-haptic) and connects the device to both.
+    """
+    plant = scene.plant
+    if not config.self_collisions:
+        exclude_self_collisions(plant, scene.scene_graph, config.model)
+    q_home = device.sample(0.0)
+    coupling = add_articulated_god_object(
+        builder, plant, config.model, config.device_joints, coupling=config.coupling, gains=config.gains,
+        device_period_s=device.period_s, q_reference=q_home, imposed_joints=tuple(config.imposed_joints),
+        q_check=device.samples(duration_s)[:: config.check_every], connect_forces=connect_forces,
+        check_gains=check_gains,
+    )  # fmt: skip
+    tool = coupling.tool
+    q = plant.GetDefaultPositions()
+    q[tool.q_device] = q_home
+    plant.SetDefaultPositions(q)  # the tool starts where the interface is
+    feedback = builder.AddNamedSystem("feedback", ArticulatedFeedback(tool))
+    for name in ("q_device", "v_device"):
+        builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
+    builder.Connect(device.GetOutputPort("q_device"), feedback.GetInputPort("q_device"))
+    builder.Connect(coupling.GetOutputPort("targets"), feedback.GetInputPort("targets"))
+    builder.Connect(plant.get_body_poses_output_port(), feedback.GetInputPort("body_poses"))
+    builder.Connect(
+        plant.get_body_spatial_velocities_output_port(), feedback.GetInputPort("body_spatial_velocities")
+    )
+    mode = "god_object" if connect_forces else "position"
+    return ArticulatedGodObject(coupling, feedback, source=device, device=device, mode=mode)

@@ -1,0 +1,148 @@
+"""The deformable god-object kind: a rigid core (a god-object) carrying a deformable shell (paper Fig. 4).
+
+:func:`add_deformable` adds the shell's observer and a rigid coupling on the core, its gains and
+gravity compensation scaled by core and shell; :class:`DeformableGodObject` logs and draws the
+shell, measures its deformation and the core's penetration, and in position mode imposes the core
+and carries the shell with it.
+"""
+
+import dataclasses
+from typing import ClassVar
+
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.framework import DiagramBuilder
+
+from godobject_drake import scenario as sc
+from godobject_drake.coupling import CouplingGains
+from godobject_drake.deformable import add_deformable_god_object
+from godobject_drake.devices import DeviceSource
+from godobject_drake.feedback import FeedbackGains
+from godobject_drake.god_objects.rigid import RigidGodObject, add_god_object, impose_target
+
+
+@dataclasses.dataclass
+class DeformableGodObject(RigidGodObject):
+    """A deformable god-object (:func:`add_deformable`): the rigid coupling on the core, and
+
+    Attributes
+    ----------
+    shell, observer :
+        The shell and its :class:`~godobject_drake.deformable.ShellObserver`.
+    """
+
+    shell: object = None
+    observer: object = None
+
+    kind: ClassVar[str] = "deformable"
+    predicts_penetration: ClassVar[bool] = False
+    no_prediction_reason: ClassVar[str] = (
+        "deformable tool: the core has no collision geometry; its shell deforms instead"
+    )
+
+    @classmethod
+    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
+        from godobject_drake.building import add_plant, first_pose
+
+        config = scenario.god_object
+        if check_gains:
+            config.gains.check(scenario.time_step)  # before meshing anything
+        X_WC = first_pose(device)  # the probe starts at the device
+        shells = {}
+
+        def add_shell(plant, scene_graph):
+            shells["shell"] = add_deformable_god_object(
+                plant, scene_graph, config.shell, config.spec, X_WC, config.name
+            )
+
+        scene = add_plant(builder, scenario, before_finalize=add_shell)
+        god = add_deformable(
+            builder, scene.plant, shells["shell"], device, config.gains, scenario.feedback,
+            haptic=scenario.haptic, connect_forces=scenario.simulation.mode == "god_object",
+            check_gains=check_gains,
+        )  # fmt: skip
+        return scene, god
+
+    def logged_ports(self, plant):
+        ports = {"state": plant.get_state_output_port(), "pose_WT": self.coupling.GetOutputPort("pose_WT")}
+        for name in ("vertex_positions", "rest_positions", "pose_WC"):
+            ports[name] = self.observer.GetOutputPort(name)
+        return ports
+
+    def add_drawing(self, builder, meshcat, scene, scenario) -> None:
+        from godobject_drake.recording import ShellVisualizer
+
+        period = scenario.visualization.publish_period_s
+        drawing = builder.AddNamedSystem("shell_visualizer", ShellVisualizer(meshcat, self.shell, period))
+        builder.Connect(
+            self.observer.GetOutputPort("vertex_positions"), drawing.GetInputPort("vertex_positions")
+        )
+        builder.Connect(self.observer.GetOutputPort("pose_WC"), drawing.GetInputPort("pose_WC"))
+        builder.Connect(self.coupling.GetOutputPort("pose_WT"), drawing.GetInputPort("pose_WT"))
+
+    def new_metrics(self, station):
+        return _ShellFold(station, self)
+
+    def predict_penetration(self, scene, penetration_allowance: float = 1e-3):
+        return None
+
+    def configuration(self, scenario, station) -> dict:
+        config = scenario.god_object
+        return {
+            **super().configuration(scenario, station),
+            "shell": config.shell,
+            "shell_vertices": self.shell.vertex_count,
+            "youngs_modulus_pa": config.spec.youngs_modulus_pa,
+        }
+
+    def _impose(self, plant, plant_context, coupling_context) -> None:
+        self.shell.impose_core(
+            plant, plant_context, lambda: impose_target(plant, plant_context, self.coupling, coupling_context)
+        )
+
+
+class _ShellFold:
+    """The deformable kind's metrics (:class:`~godobject_drake.metrics.ShellMetrics`)."""
+
+    def __init__(self, station, god):
+        from godobject_drake.deformable import obstacle_geometries
+        from godobject_drake.metrics import ShellMetrics
+
+        plant, scene_graph = station.plant, station.scene_graph
+        self._acc = ShellMetrics(
+            station.diagram, plant, god.shell, obstacle_geometries(scene_graph, god.shell, plant)
+        )
+
+    def fold(self, rows: dict, data: dict, finite):
+        self._acc.update(rows["state"], rows["vertex_positions"], rows["rest_positions"], rows["pose_WC"],
+                         rows["pose_WT"])  # fmt: skip
+        return data["pose_WT"][:, 4:], data["pose_WC"][:, 4:]
+
+    def result(self) -> dict:
+        return {"max_other_body_speed_mps": None, **self._acc.result()}
+
+
+def add_deformable(
+    builder: DiagramBuilder,
+    plant: MultibodyPlant,
+    shell,
+    device: DeviceSource,
+    gains: CouplingGains,
+    feedback_gains: FeedbackGains | None = None,
+    *,
+    haptic: "sc.Haptic | None" = None,
+    connect_forces: bool = True,
+    check_gains: bool = True,
+) -> DeformableGodObject:
+    """A deformable god-object: its shell's observer, and :func:`add_god_object` on its core,
+    with gains and gravity compensation scaled by core + shell (``carried``).
+
+    ``shell`` comes from :func:`~godobject_drake.deformable.add_deformable_god_object`,
+    called before ``plant.Finalize()`` (:func:`add_plant`'s ``before_finalize``).
+    """
+    observer = shell.connect(builder, plant)
+    god = add_god_object(
+        builder, plant, device, gains, feedback_gains, haptic=haptic, connect_forces=connect_forces,
+        carried={shell.grasp_name: shell.shell_inertia()}, check_gains=check_gains,
+    )  # fmt: skip
+    parts = {f.name: getattr(god, f.name) for f in dataclasses.fields(god)}
+    return DeformableGodObject(**parts, shell=shell, observer=observer)

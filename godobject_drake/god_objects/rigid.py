@@ -1,0 +1,356 @@
+"""The rigid god-object kind: free rigid bodies a pose device grasps (paper Eq. 2).
+
+:func:`add_god_object` adds and wires the coupling, the feedback port and any simulated haptic
+device; :class:`RigidGodObject` is what it added, and answers everything the library asks of
+the kind: its loggers and metrics, its drawing (the target ghost and spring), the worst static
+penetration its capped pull can cause (:func:`predict_penetration`), and the position baseline's
+per-step imposition.
+"""
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.geometry import Role
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialVelocity
+from pydrake.multibody.plant import ContactModel, MultibodyPlant
+from pydrake.multibody.tree import BodyIndex
+from pydrake.systems.framework import DiagramBuilder
+
+from godobject_drake import scenario as sc
+from godobject_drake.coupling import CouplingGains, GodObjectCoupling
+from godobject_drake.devices import DeviceSource
+from godobject_drake.feedback import FeedbackGains, FeedbackPort
+from godobject_drake.god_objects.base import GodObject
+from godobject_drake.haptic import (
+    AdmittanceDevice,
+    HandImpedance,
+    HapticDevice,
+    PassivityController,
+    SimulatedHand,
+)
+
+
+class PenetrationBudgetWarning(UserWarning):
+    """A god-object's capped pull can push it deeper into an obstacle than the scene's budget."""
+
+
+@dataclasses.dataclass
+class RigidGodObject(GodObject):
+    """A rigid god-object (:func:`add_god_object`): the coupling holds one free body at a time."""
+
+    kind: ClassVar[str] = "rigid"
+    predicts_penetration: ClassVar[bool] = True
+
+    @classmethod
+    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
+        from godobject_drake.building import add_plant
+
+        scene = add_plant(builder, scenario)
+        config = scenario.god_object
+        god = add_god_object(
+            builder, scene.plant, device, config.gains, scenario.feedback, haptic=scenario.haptic,
+            connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
+            **coupling_options(config),
+        )  # fmt: skip
+        return scene, god
+
+    def logged_ports(self, plant):
+        return {**super().logged_ports(plant), "terms": self.coupling.GetOutputPort("terms")}
+
+    def add_drawing(self, builder, meshcat, scene, scenario) -> None:
+        from godobject_drake.recording import GodObjectVisualizer
+
+        period = scenario.visualization.publish_period_s
+        ghost = builder.AddNamedSystem(
+            "god_object_visualizer",
+            GodObjectVisualizer(
+                meshcat, scene.plant, scene.scene_graph, period,
+                max_stretch_m=self.coupling.max_stretch_m if scenario.visualization.force_cue else None,
+            ),
+        )  # fmt: skip
+        for name in ("pose_WT", "pose_WG", "held_body"):
+            builder.Connect(self.coupling.GetOutputPort(name), ghost.GetInputPort(name))
+
+    def new_metrics(self, station):
+        return _RigidFold(station)
+
+    def predict_penetration(self, scene, penetration_allowance: float = 1e-3):
+        return predict_penetration(scene, self, penetration_allowance)
+
+    def configuration(self, scenario, station) -> dict:
+        return {"haptic": scenario.haptic.mode}
+
+    def before_step(self, plant: MultibodyPlant):
+        """The position baseline sets the held body to its target every step (paper Fig. 5)."""
+        if self.mode != "position":
+            return None
+        coupling = self.coupling
+
+        def impose(plant_context, root_context):
+            self._impose(plant, plant_context, coupling.GetMyContextFromRoot(root_context))
+
+        return impose
+
+    def _impose(self, plant, plant_context, coupling_context) -> None:
+        impose_target(plant, plant_context, self.coupling, coupling_context)
+
+
+class _RigidFold:
+    """The rigid kind's metrics: true-shape penetration and tracking of the held body, capped steps."""
+
+    def __init__(self, station):
+        from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
+
+        self._acc = RigidMetrics(TrueShapeMetrics(station.plant, station.scene_graph, station.diagram))
+        self.capped = 0
+
+    def fold(self, rows: dict, data: dict, finite):
+        from godobject_drake.coupling import TERMS_LAYOUT
+
+        terms = rows["terms"]
+        held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
+        self._acc.update(rows["state"], held, terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:])
+        self.capped += int(np.sum(data["terms"][:, TERMS_LAYOUT["capped"]] > 0.5))
+        return (data["terms"][:, TERMS_LAYOUT[name]][:, 4:] for name in ("pose_WT", "pose_WG"))
+
+    def result(self) -> dict:
+        return {**self._acc.result(), "coupling_capped_steps": self.capped}
+
+
+def hand_on_handle(haptic: "sc.Haptic") -> HandImpedance:
+    """The simulated user: critically damped at ``hand_frequency_hz`` on the handle's mass."""
+    w = 2 * math.pi * haptic.hand_frequency_hz
+    return HandImpedance(k=haptic.device_mass_kg * w**2, b=2 * haptic.device_mass_kg * w)
+
+
+def add_god_object(
+    builder: DiagramBuilder,
+    plant: MultibodyPlant,
+    device: DeviceSource,
+    gains: CouplingGains,
+    feedback_gains: FeedbackGains | None = None,
+    *,
+    haptic: "sc.Haptic | None" = None,
+    connect_forces: bool = True,
+    name: str = "coupling",
+    **coupling_options,
+) -> "RigidGodObject":
+    """Make the plant's free bodies god-objects of ``device``: one call, after ``plant.Finalize()``.
+
+    Adds and wires a :class:`~godobject_drake.coupling.GodObjectCoupling` named ``name``
+    (plant state in; its wrench into the plant's ``applied_generalized_force``) and a
+    :class:`~godobject_drake.feedback.FeedbackPort` named ``feedback`` with
+    ``feedback_gains`` (zero: a non-haptic device; any gains work, its ``F_Do_W`` output is
+    there to read or to send to a device). ``device`` must already be in ``builder``; every
+    grasp name it can report is checked here. ``haptic`` (a :class:`~godobject_drake.scenario.Haptic`)
+    puts a simulated haptic device between ``device`` and the coupling:
+
+    - ``impedance``: a simulated hand pushes a 3-axis :class:`~godobject_drake.haptic.HapticDevice`
+      along the device's path; its pose is the target and the feedback force (optionally
+      through a :class:`~godobject_drake.haptic.PassivityController`) acts on its handle;
+    - ``admittance``: the hand pulls an :class:`~godobject_drake.haptic.AdmittanceDevice`'s
+      handle with the coupling's own stiffness and damping; the sensed wrench drives the
+      god-object, the handle follows it.
+
+    ``connect_forces=False`` leaves the plant's force inputs alone (the position baseline).
+    ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
+    ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
+    """
+    feedback_gains = feedback_gains or FeedbackGains()
+    haptic = haptic or sc.Haptic()
+    coupling = builder.AddNamedSystem(
+        name, GodObjectCoupling(plant, gains, device_period_s=device.period_s, **coupling_options)
+    )
+    coupling.validate_grasp_names(device.grasp_names())
+    builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
+    device.follow(builder, coupling)  # pseudo-haptic aids read T and G
+    feedback = builder.AddNamedSystem("feedback", FeedbackPort(feedback_gains))
+    god = RigidGodObject(coupling, feedback, source=device, device=device)
+    period = 1.0 / haptic.rate_hz
+    p0, q0, _ = device.samples(0.0)[0][1]
+    if haptic.mode == "impedance":
+        handle = builder.AddNamedSystem(
+            "haptic_device",
+            HapticDevice(haptic.device_mass_kg, haptic.device_damping, period, axes="xyz",
+                         X_WD_home=RigidTransform(p0)),
+        )  # fmt: skip
+        hand = builder.AddNamedSystem("hand", SimulatedHand(hand_on_handle(haptic), p0))
+        builder.Connect(device.GetOutputPort("X_WD"), hand.GetInputPort("X_WH"))
+        builder.Connect(device.GetOutputPort("V_WD"), hand.GetInputPort("V_WH"))
+        builder.Connect(handle.GetOutputPort("device_state"), hand.GetInputPort("device_state"))
+        builder.Connect(hand.GetOutputPort("human_force"), handle.GetInputPort("human_force"))
+        builder.Connect(hand.GetOutputPort("q_WD"), handle.GetInputPort("q_WD"))
+        builder.Connect(device.GetOutputPort("grasp"), handle.GetInputPort("grasp_in"))
+        force = feedback.GetOutputPort("F_Do_W")
+        if haptic.passivity_damping > 0.0:
+            pc = builder.AddNamedSystem("passivity", PassivityController(period, haptic.passivity_damping))
+            builder.Connect(force, pc.GetInputPort("F_in"))
+            builder.Connect(handle.GetOutputPort("X_WD"), pc.GetInputPort("X_WD"))
+            force = pc.GetOutputPort("F_out")
+            god.passivity = pc
+        builder.Connect(force, handle.GetInputPort("F_Do_W"))
+        god.haptic = god.device = handle
+        god.hand = hand
+    elif haptic.mode == "admittance":
+        names = sorted(device.grasp_names())
+        if not names:
+            raise ValueError(
+                "haptic mode admittance sizes the hand on the first body the device grasps; it grasps none"
+            )
+        body = coupling.body_for_grasp(names[0])
+        hand = HandImpedance.matching(coupling.gains, body.mass, float(np.trace(body.I_Bcm_B)) / 3.0)
+        adm = builder.AddNamedSystem(
+            "admittance_device", AdmittanceDevice(hand, period, RigidTransform(Quaternion(q0), p0))
+        )
+        builder.Connect(device.GetOutputPort("X_WD"), adm.GetInputPort("X_WH"))
+        builder.Connect(device.GetOutputPort("V_WD"), adm.GetInputPort("V_WH"))
+        builder.Connect(device.GetOutputPort("grasp"), adm.GetInputPort("grasp_in"))
+        for port in ("pose_WG", "V_WG"):
+            builder.Connect(coupling.GetOutputPort(port), adm.GetInputPort(port))
+        builder.Connect(adm.GetOutputPort("F_device_W"), coupling.GetInputPort("F_device_W"))
+        god.haptic = god.device = adm
+    for port in ("X_WD", "V_WD", "grasp"):
+        builder.Connect(god.device.GetOutputPort(port), coupling.GetInputPort(port))
+    if connect_forces:
+        builder.Connect(
+            coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
+        )
+    else:
+        god.mode = "position"
+    builder.Connect(god.device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
+    for port in ("pose_WT", "V_WT", "pose_WG", "V_WG"):
+        builder.Connect(coupling.GetOutputPort(port), feedback.GetInputPort(port))
+    god.publisher = device.connect_feedback(builder, feedback.GetOutputPort("F_Do_W"), coupling.bodies)
+    return god
+
+
+def coupling_options(config: "sc.Rigid") -> dict:
+    """A :class:`~godobject_drake.scenario.Rigid` config's options for :func:`add_god_object`."""
+    return dict(
+        graspable=config.graspable or None,
+        gravity_compensation=config.gravity_compensation,
+        max_stretch_m=config.max_stretch_m,
+        max_twist_rad=config.max_twist_rad,
+        grasp_reach_m=config.grasp_reach_m,
+    )
+
+
+def impose_target(plant, plant_context, coupling, coupling_context) -> None:
+    """Position baseline: set the held body to the target's pose and velocity (paper Fig. 5)."""
+    held = int(coupling.GetOutputPort("held_body").Eval(coupling_context)[0])
+    if held < 0:
+        return
+    pose_WT = coupling.GetOutputPort("pose_WT").Eval(coupling_context)
+    V_WT = coupling.GetOutputPort("V_WT").Eval(coupling_context)
+    body = plant.get_body(BodyIndex(held))
+    p_BoBcm_B = coupling.bodies[body.scoped_name().get_full()].p_BoBcm_B
+    X_WG = RigidTransform(Quaternion(pose_WT[:4] / np.linalg.norm(pose_WT[:4])), pose_WT[4:])
+    X_WB = X_WG.multiply(RigidTransform(-p_BoBcm_B))
+    p_GB_W = X_WB.translation() - pose_WT[4:]
+    plant.SetFreeBodyPose(plant_context, body, X_WB)
+    plant.SetFreeBodySpatialVelocity(
+        plant_context, body, SpatialVelocity(V_WT[:3], V_WT[3:] + np.cross(V_WT[:3], p_GB_W))
+    )
+
+
+# -- what the god-object's pull can do to contact ----------------------------------------------------------
+
+
+def predict_penetration(scene, god: RigidGodObject, penetration_allowance: float = 1e-3):
+    """The deepest static penetration a held body's capped pull can cause, or None.
+
+    For each body the coupling may hold and each rigid obstacle geometry its own geometry
+    is not filtered against: ``depth = F_cap / k``, with ``F_cap`` the coupling's force cap
+    (``m ωn² · max_stretch_m``, what a target far inside the obstacle pulls with) and ``k``
+    the pair's point-contact stiffness as SAP combines it: harmonically,
+    ``k = k_A k_B / (k_A + k_B)``, one contact point (the deepest case; a face resting on
+    several proxies shares the force). A geometry without ``point_contact_stiffness`` has
+    Drake's default, ``2 m_max g / penetration_allowance`` (m_max the heaviest body).
+    Returns ``(depth_m, body, obstacle, force_n, stiffness_n_m)`` for the deepest pair, or
+    None where there is nothing to predict: an articulated tool (no force cap), a
+    deformable core (no collision geometry: its shell deforms instead), hydroelastic
+    contact (its pressure depends on the contact area).
+    """
+    pairs = penetration_pairs(
+        scene.plant, scene.scene_graph, god.coupling, penetration_allowance, softest=True
+    )
+    if not pairs:
+        return None
+    best = max(pairs, key=lambda pair: pair.depth_m)
+    return best.depth_m, best.body, best.obstacle, best.force_n, best.stiffness_n_m
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactPair:
+    """A held body's geometry against an obstacle geometry it can touch (point contact)."""
+
+    body: str
+    body_index: int
+    geometry: str
+    obstacle: str
+    obstacle_anchored: bool  # welded to the world (a fixed obstacle), not another free body
+    force_n: float  # the coupling's force cap on the body (N)
+    stiffness_n_m: float  # the pair's combined point-contact stiffness (N/m)
+
+    @property
+    def depth_m(self) -> float:
+        """Static penetration under the capped pull, one contact point (m)."""
+        return self.force_n / self.stiffness_n_m
+
+
+def penetration_pairs(
+    plant, scene_graph, coupling, penetration_allowance: float = 1e-3, softest: bool = False
+) -> list[ContactPair]:
+    """Every (held body geometry, obstacle geometry) pair that can touch, with the coupling's
+    force cap on the body and the pair's combined stiffness (:func:`predict_penetration`);
+    empty without point contact. ``softest``: only, for each held geometry, the softest obstacle
+    it can touch (the deepest pair, found by trying obstacles from the softest up: what the
+    prediction needs, without the bodies × geometries² loop that took 18 s for 128 bricks)."""
+    if plant.get_contact_model() != ContactModel.kPoint:
+        return []
+    inspector = scene_graph.model_inspector()
+    masses = [plant.get_body(BodyIndex(i)).default_mass() for i in range(plant.num_bodies())]
+    m_max = max([m for m in masses if math.isfinite(m)] or [0.0])
+    g = float(np.linalg.norm(plant.gravity_field().gravity_vector()))
+    default_k = 2.0 * m_max * g / penetration_allowance
+    ids = [
+        g_id
+        for g_id in inspector.GetAllGeometryIds(Role.kProximity)
+        if not inspector.IsDeformableGeometry(g_id)
+    ]
+    world = inspector.world_frame_id()
+    welded = plant.GetBodiesWeldedTo(plant.world_body())  # the world body included
+    anchored = {plant.GetBodyFrameIdOrThrow(b.index()) for b in welded} | {world}
+    stiffness = {b: _stiffness(inspector, b, default_k) for b in ids}
+    if softest:
+        ids = sorted(ids, key=lambda b: stiffness[b])
+    pairs = []
+    for body in {b.index: b for b in coupling.bodies.values()}.values():
+        force, _ = coupling.force_caps(body)
+        frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
+        for a in inspector.GetGeometries(frame, Role.kProximity):
+            ka = stiffness[a]
+            for b in ids:
+                if inspector.GetFrameId(b) == frame or inspector.CollisionFiltered(a, b):
+                    continue
+                kb = stiffness[b]
+                k = ka * kb / (ka + kb)
+                if k > 0:
+                    pairs.append(ContactPair(
+                        body.name, body.index, inspector.GetName(a), inspector.GetName(b),
+                        inspector.GetFrameId(b) in anchored, force, k,
+                    ))  # fmt: skip
+                    if softest:
+                        break
+    return pairs
+
+
+def _stiffness(inspector, geometry_id, default: float) -> float:
+    props = inspector.GetProximityProperties(geometry_id)
+    if props is not None and props.HasProperty("material", "point_contact_stiffness"):
+        return float(props.GetProperty("material", "point_contact_stiffness"))
+    return default
