@@ -10,15 +10,15 @@ coupling for the grasper; shell model for the probe; device rate) on the
 scene's own device path. Each configuration runs ``--repeats`` times (≥ 3);
 its cost is the median wall time per simulated second (min–max shown), its
 error is measured against the scene's reference run (finest h,
-highest-fidelity contact; ``godobject_drake.benchmark.compare``): RMS pose
+highest-fidelity contact; ``godobject_drake.studies.benchmark.compare``): RMS pose
 error of the god-object, max penetration, energy error. The brick scene is
-also rebuilt in MuJoCo (``godobject_drake.mujoco_peer``, the ``bench`` extra)
+also rebuilt in MuJoCo (``godobject_drake.studies.mujoco_peer``, the ``bench`` extra)
 on the same path.
 
 Writes ``report.md`` (tables, recommended configuration per error budget,
 where the time goes in the brick scene), one Pareto figure per scene and
 ``results.json`` into ``--out``. Runs go through
-``godobject_drake.sweep.run_tasks``: local processes (default one worker, so
+``godobject_drake.studies.sweep.run_tasks``: local processes (default one worker, so
 timings do not share a core) or a Dask cluster (``--scheduler``).
 """
 
@@ -40,9 +40,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from godobject_drake import benchmark as bm
 from godobject_drake.scenario import replace, shipped_scenario
-from godobject_drake.sweep import run_tasks
+from godobject_drake.studies import benchmark as bm
+from godobject_drake.studies.sweep import run_tasks
 
 SCENES = ("lego", "laparoscopy", "deformable_probe")
 # Error budgets (m of RMS god-object pose error against the reference), spanning what each

@@ -9,15 +9,18 @@ Describe a scene once in a scenario file, build it with one call, run it::
     print(result.metrics["max_penetration_m"])
 
 or compose a diagram of one's own from the parts (README "Compose your own
-diagram"). One module per role:
+diagram"). The runtime, what runs in a scene, is one module per role:
 
-- :mod:`~godobject_drake.devices`, :mod:`~godobject_drake.live`: device sources (scripted,
-  replayed, relative, from the browser) and their sample guard;
+- :mod:`~godobject_drake.device_kinds`: the device kinds, each a scenario config registered once;
+- :mod:`~godobject_drake.devices`, :mod:`~godobject_drake.live`, :mod:`~godobject_drake.lcm_device`:
+  device sources (scripted, replayed, relative, from the browser, over LCM) and their sample guard;
+- :mod:`~godobject_drake.god_objects`: the god-object kinds (rigid, articulated, deformable), one
+  class each with its builder;
 - :mod:`~godobject_drake.coupling`: the PD coupling (paper Eq. 2) and its gains;
 - :mod:`~godobject_drake.feedback`: the feedback port (Eq. 8);
 - :mod:`~godobject_drake.haptic`: simulated haptic devices, the user's hand, the passivity controller;
-- :mod:`~godobject_drake.articulated`, :mod:`~godobject_drake.deformable`: articulated and
-  deformable god-objects;
+- :mod:`~godobject_drake.articulated`, :mod:`~godobject_drake.deformable`: the articulated
+  coupling and tool, the deformable shell;
 - :mod:`~godobject_drake.scenario`: the typed scenario a YAML file loads into;
 - :mod:`~godobject_drake.scenes`: model loading and contact settings;
 - :mod:`~godobject_drake.building`: a scenario into a diagram, and the one-call helpers;
@@ -27,11 +30,11 @@ diagram"). One module per role:
   Meshcat drawing and recordings;
 - :mod:`~godobject_drake.cli`: ``python -m godobject_drake run SCENARIO.yaml``;
 - :mod:`~godobject_drake.spatial`, :mod:`~godobject_drake.limits`: quaternion math, the
-  explicit stability limits;
-- :mod:`~godobject_drake.stability`, :mod:`~godobject_drake.validation`: python-control
-  analysis and its Drake checks;
-- :mod:`~godobject_drake.benchmark`, :mod:`~godobject_drake.sweep`,
-  :mod:`~godobject_drake.mujoco_peer`: the speed-against-error report's runs.
+  explicit stability limits.
+
+The studies of a scene are apart, in :mod:`godobject_drake.studies`: python-control analysis
+(``stability``) and its Drake checks (``validation``), ``analyze``, and the speed-against-error
+report's runs (``benchmark``, ``sweep``, ``mujoco_peer``).
 
 The names above are imported lazily, so ``import godobject_drake`` stays cheap.
 """

@@ -243,7 +243,7 @@ def build_station(
     """Build any scenario into a diagram (module docstring); ``meshcat`` None makes the one
     the scenario asks for (:func:`make_meshcat`). ``check_gains=False`` builds gains past
     the explicit limit instead of refusing them: for stability analysis only
-    (:mod:`godobject_drake.analyze` simulates them to find the limit)."""
+    (:mod:`godobject_drake.studies.analyze` simulates them to find the limit)."""
     sc.check_scenario(scenario)
     meshcat = meshcat or make_meshcat(scenario)
     builder = DiagramBuilder()

@@ -485,7 +485,7 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
 
 def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``analyze``: write the report; exit 1 if a check fails, 2 for bad input."""
-    from godobject_drake.analyze import analyze, verdict_table, write_report
+    from godobject_drake.studies.analyze import analyze, verdict_table, write_report
 
     try:
         s = apply_arguments(sc.load_scenario(args.scenario), args)

@@ -319,7 +319,7 @@ class GodObjectCoupling(LeafSystem):
     check_gains : bool
         Refuse gains past the explicit limit (:meth:`CouplingGains.check`).
         Only the stability analysis turns this off, to cross the limit on
-        purpose (``godobject_drake.validation``).
+        purpose (``godobject_drake.studies.validation``).
     carried : dict[str, SpatialInertia] | None
         Inertia (about Bo, in B) that a body carries without the plant
         attaching it rigidly, by body name: a deformable god-object's shell

@@ -3,7 +3,7 @@
 What the coupling and the articulated coupling check when they are built:
 Drake's discrete plant applies a LeafSystem's force explicitly, so a coupled
 body is integrated by symplectic Euler (docs/theory.md §1). The full
-python-control models of the loop are in :mod:`godobject_drake.stability`,
+python-control models of the loop are in :mod:`godobject_drake.studies.stability`,
 which re-exports them.
 """
 

@@ -24,7 +24,7 @@ from godobject_drake.devices import JointDevice
 from godobject_drake.feedback import FeedbackGains
 from godobject_drake.scenes import add_scene_from_directives, exclude_self_collisions
 from godobject_drake.spatial import rotation_error
-from godobject_drake.stability import bisect
+from godobject_drake.studies.stability import bisect
 
 LAPAROSCOPY = "package://godobject_models/laparoscopy/laparoscopy.dmd.yaml"
 ARM = "package://godobject_models/arm/arm.dmd.yaml"

@@ -9,8 +9,8 @@ from conftest import add_free_boxes, load_script
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.benchmark import compare, make_case, rigid_energy, run_case, summarize_cost
 from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.studies.benchmark import compare, make_case, rigid_energy, run_case, summarize_cost
 
 
 def lego_case(time_step, duration, **kw):
@@ -153,7 +153,7 @@ def test_the_peer_places_extra_bricks_where_drake_does():
     pytest.importorskip("mujoco")
     from godobject_drake.building import add_plant
     from godobject_drake.coupling import graspable_bodies
-    from godobject_drake.mujoco_peer import brick_names, brick_positions
+    from godobject_drake.studies.mujoco_peer import brick_names, brick_positions
 
     s = replace(shipped_scenario("lego"), bricks=70)
     plant = add_plant(DiagramBuilder(), s).plant

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from conftest import REPO, build_scene, lego_run, scenario
 
-from godobject_drake import stability as st
-from godobject_drake import validation as va
 from godobject_drake.coupling import graspable_bodies
 from godobject_drake.devices import IncrementLog, ScriptedDevice, load_device_path, write_increment_log
 from godobject_drake.scenario import ScenarioError
 from godobject_drake.spatial import rotation_error
+from godobject_drake.studies import stability as st
+from godobject_drake.studies import validation as va
 
 DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)
 SOFT = {"k_w": 2000.0, "tau_w": 1e-3}

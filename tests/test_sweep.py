@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from godobject_drake.benchmark import make_case, run_case
 from godobject_drake.coupling import explicit_limit_omega_h
 from godobject_drake.scenario import replace, shipped_scenario
-from godobject_drake.sweep import run_tasks
+from godobject_drake.studies.benchmark import make_case, run_case
+from godobject_drake.studies.sweep import run_tasks
 
 ZETAS = [0.0, 0.5, 0.7, 1.0, 2.0]
 

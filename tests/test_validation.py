@@ -6,8 +6,8 @@ import control as ct
 import numpy as np
 import pytest
 
-from godobject_drake import stability as st
-from godobject_drake import validation as va
+from godobject_drake.studies import stability as st
+from godobject_drake.studies import validation as va
 
 BRICK_MASS = 0.0023
 DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)

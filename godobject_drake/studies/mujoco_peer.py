@@ -1,6 +1,6 @@
 """The brick scene rebuilt in MuJoCo, dragged the two ways MuJoCo users drag objects.
 
-    python -m godobject_drake.mujoco_peer [--mode weld|perturb] [--time-step 0.001] [--duration 8.5]
+    python -m godobject_drake.studies.mujoco_peer [--mode weld|perturb] [--time-step 0.001] [--duration 8.5]
 
 A peer of the brick scene (``diagrams/lego.yaml``) for a speed-versus-error benchmark: the same
 8 free 2x4 bricks on the same baseplate and wall (``models/lego/``), the same
@@ -113,7 +113,6 @@ import math
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -121,16 +120,17 @@ try:
     import mujoco
 except ImportError as e:  # an optional extra, never a runtime dependency of godobject_drake
     raise ImportError(
-        "godobject_drake.mujoco_peer needs MuJoCo, which godobject_drake does not install. "
+        "godobject_drake.studies.mujoco_peer needs MuJoCo, which godobject_drake does not install. "
         "Install the benchmark extra: pip install -e .[bench]  (mujoco, mujoco-core and mujoco-studio 4.0.0)"
     ) from e
 
 from godobject_drake.devices import ScriptedDevice, load_device_path
+from godobject_drake.scenes import MODELS_DIR
 from godobject_drake.spatial import quat_conjugate, quat_multiply, quat_to_rotation
 
 MODES = ("weld", "perturb")
 
-DEVICE_PATH = Path(__file__).resolve().parent.parent / "models" / "lego" / "default_path.yaml"
+DEVICE_PATH = MODELS_DIR / "lego" / "default_path.yaml"
 BODY_NAMES = [f"brick_{i}" for i in range(8)]
 CONES = ("elliptic", "pyramidal")
 

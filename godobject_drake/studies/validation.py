@@ -1,4 +1,4 @@
-"""Drake simulations that check :mod:`godobject_drake.stability`'s predictions.
+"""Drake simulations that check :mod:`godobject_drake.studies.stability`'s predictions.
 
 Each function runs the real loop — ``GodObjectCoupling`` on a SAP
 MultibodyPlant, ``FeedbackPort``, ``HapticDevice`` — in the configuration a
@@ -31,7 +31,7 @@ from godobject_drake.devices import ScriptedDevice, Waypoint
 from godobject_drake.feedback import FeedbackGains, FeedbackPort
 from godobject_drake.haptic import HapticDevice, PassivityController
 from godobject_drake.scenes import SceneParts, add_scene_from_directives, set_contact_material
-from godobject_drake.stability import (
+from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
     Pipeline,
@@ -163,7 +163,8 @@ class HapticScenario:
     passivity_max_damping: float = 0.0
 
     def pipeline(self, mass: float) -> Pipeline:
-        """The analysis model of this scenario (:func:`~godobject_drake.stability.pipeline_impedance`)."""
+        """The analysis model of this scenario
+        (:func:`~godobject_drake.studies.stability.pipeline_impedance`)."""
         body = BodyLoop.by_bandwidth(
             mass, self.omega_n, self.zeta, self.time_step, k_w=self.k_w, b_w=self.k_w * self.tau_w
         )
@@ -324,11 +325,11 @@ def drake_device_k_max(
 
 def drake_k_crit_case(case: tuple) -> float:
     """:func:`drake_k_crit` of one ``(mass, zeta, time_step, guess)`` tuple, for
-    :func:`godobject_drake.sweep.run_tasks`."""
+    :func:`godobject_drake.studies.sweep.run_tasks`."""
     return drake_k_crit(*case)
 
 
 def drake_device_k_max_case(case: tuple) -> float:
     """:func:`drake_device_k_max` of one ``(scenario, guess, duration)`` tuple, for
-    :func:`godobject_drake.sweep.run_tasks`."""
+    :func:`godobject_drake.studies.sweep.run_tasks`."""
     return drake_device_k_max(*case)

@@ -6,7 +6,7 @@ simulation loop and, from the first run, the god-object's pose and the
 scene's mechanical energy every ``SAMPLE_DT_S``. A :class:`Case` carries its
 scenario as YAML text, so it pickles for local worker processes and Dask.
 :func:`compare` measures a run against a reference run of the same scene.
-The MuJoCo peer of the brick scene (:mod:`godobject_drake.mujoco_peer`,
+The MuJoCo peer of the brick scene (:mod:`godobject_drake.studies.mujoco_peer`,
 optional extra) returns the same trajectory fields, so both engines are
 measured the same way.
 """
@@ -45,7 +45,7 @@ class Case:
         duration, device rate and ``bricks``) with ``mujoco_mode`` ``weld`` or ``perturb``.
     mujoco_timeconst_s, mujoco_cone, mujoco_sleep :
         The peer's contact ``solref`` time constant (None: MuJoCo's 0.02 s), friction cone and
-        sleeping islands (:func:`~godobject_drake.mujoco_peer.scene_xml`).
+        sleeping islands (:func:`~godobject_drake.studies.mujoco_peer.scene_xml`).
     """
 
     label: str
@@ -339,7 +339,7 @@ def summarize_cost(walls: list[float]) -> dict:
 
 
 def _run_mujoco(scenario: Scenario, case: Case) -> dict:
-    from godobject_drake import mujoco_peer
+    from godobject_drake.studies import mujoco_peer
 
     r = mujoco_peer.run_mujoco(
         duration_s=scenario.simulation.duration_s,

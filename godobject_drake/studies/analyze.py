@@ -1,6 +1,6 @@
 """The stability and passivity report of any scenario: ``python -m godobject_drake analyze``.
 
-:func:`analyze` reads the models of :mod:`godobject_drake.stability` off a built scene (each
+:func:`analyze` reads the models of :mod:`godobject_drake.studies.stability` off a built scene (each
 god-object body's mass and inertia, the plant's step, the coupling's gains and caps, the
 contact stiffness of every pair the held body can touch, the haptic device's rate, mass and
 damping and the feedback gains) and returns one :class:`Check` per question, each with a
@@ -43,7 +43,7 @@ from godobject_drake.coupling import CouplingGains, CouplingGainWarning, graspab
 from godobject_drake.devices import JointWaypoint, Waypoint
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.simulation import simulate
-from godobject_drake.stability import (
+from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
     Pipeline,
@@ -60,7 +60,7 @@ from godobject_drake.stability import (
     passivity_check,
     pipeline_impedance,
 )
-from godobject_drake.validation import is_growing
+from godobject_drake.studies.validation import is_growing
 
 WARN_FRACTION = 0.8  # a number past 80 % of its limit (less than 25 % margin) warns
 PUSH_IN_M = 0.05  # the verification holds the target this far inside the nearest obstacle
