@@ -31,6 +31,15 @@ def device_names() -> tuple[str, ...]:
     return tuple(dict.fromkeys(k.name for k in DEVICE_KINDS.values()))
 
 
+def device_help() -> str:
+    """``--device``'s help: each registered kind's name and summary (pose and joint kinds alike)."""
+    summaries: dict[str, list[str]] = {}
+    for k in DEVICE_KINDS.values():
+        if k.summary not in summaries.setdefault(k.name, []):
+            summaries[k.name].append(k.summary)
+    return "; ".join(f"{name}: {' / '.join(texts)}" for name, texts in summaries.items())
+
+
 # (flag, argparse options, help, the scenario field it sets)
 COMMON_FLAGS = (
     (
@@ -44,14 +53,14 @@ COMMON_FLAGS = (
     (
         "--device",
         dict(choices=device_names),
-        "scripted: the scenario's path; replay: a CSV log; relative: a CSV of increments with a clutch "
-        "(the paper's mouse); meshcat: live from the browser; lcm: a real device's driver over LCM",
+        device_help,
         "device",
     ),
     (
         "--lcm-url",
         dict(),
-        "with --device lcm: Drake's LCM URL (default Drake's: UDP multicast; memq:// stays in the process)",
+        "a device read over LCM: Drake's LCM URL (default Drake's: UDP multicast; memq:// stays in the "
+        "process)",
         "device.url",
     ),
     (
@@ -177,15 +186,16 @@ HAPTIC_FLAGS = (
         "haptic.passivity_damping",
     ),
 )
+# The god-object kinds' own flags, by scenario config (a kind without flags needs no entry).
 KIND_FLAGS = {
-    "rigid": HAPTIC_FLAGS,
-    "articulated": (
+    sc.Rigid: HAPTIC_FLAGS,
+    sc.Articulated: (
         ("--coupling", dict(choices=sc.ARTICULATED_COUPLINGS), "coupling of the tool", "god_object.coupling"),
         ("--jaws", dict(choices=("imposed", "simulated")),
          "imposed: the scenario's imposed joints (the paper's jaws); simulated: couple them like the rest",
          "god_object.imposed_joints"),
     ),
-    "deformable": (
+    sc.Deformable: (
         *HAPTIC_FLAGS,
         ("--shell", dict(choices=SHELL_MODELS), "shell model", "god_object.shell"),
         ("--youngs-modulus", dict(type=float), "shell's Young's modulus E (Pa)",
@@ -206,15 +216,17 @@ FLAG_KINDS = {
 }
 
 
-def add_arguments(parser: argparse.ArgumentParser, kinds=("rigid", "articulated", "deformable")) -> None:
-    """The flags: the common ones, and those of the god-object ``kinds``; each help names its field."""
+def add_arguments(parser: argparse.ArgumentParser, kinds=None) -> None:
+    """The flags: the common ones, and those of the god-object ``kinds`` (scenario config classes;
+    None: every kind's); each help names its field."""
     seen = set()
-    for flags in (COMMON_FLAGS, *(KIND_FLAGS[k] for k in kinds)):
+    for flags in (COMMON_FLAGS, *(KIND_FLAGS.get(k, ()) for k in (kinds or KIND_FLAGS))):
         for flag, options, text, field in flags:
             if flag not in seen:
                 seen.add(flag)
-                if callable(options.get("choices")):
+                if callable(options.get("choices")):  # the device kinds, read from the registry now
                     options = {**options, "choices": options["choices"]()}
+                text = text() if callable(text) else text
                 parser.add_argument(flag, help=f"{text} [{field}]" if field else text, **options)
 
 
@@ -313,8 +325,9 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         if _given(args, name):
             setattr(s.feedback, field, getattr(args, name))
     for flag, owners in FLAG_KINDS.items():
-        if _given(args, flag[2:].replace("-", "_")) and kind not in owners:
-            refuse(flag, f"applies to {' and '.join(owners)} god-objects; this scenario's is {kind}")
+        if _given(args, flag[2:].replace("-", "_")) and type(s.god_object) not in owners:
+            names = " and ".join(o.__name__.lower() for o in owners)
+            refuse(flag, f"applies to {names} god-objects; this scenario's is {kind}")
     if _given(args, "contact"):
         s.contact.geometry = args.contact
         s.plant.contact_model = "point" if args.contact == "proxies" else "hydroelastic_with_fallback"
@@ -452,7 +465,7 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
         path, parser = args.scenario, run
     else:
         path = Path(scenario)
-        kinds = (sc.load_scenario(path).kind,)
+        kinds = (type(sc.load_scenario(path).god_object),)
         parser = argparse.ArgumentParser(
             description=description, formatter_class=argparse.RawDescriptionHelpFormatter
         )

@@ -70,6 +70,7 @@ class DeviceKind:
     increments: bool = False
     needs_log: bool = False
     renders_feedback: bool = False
+    summary: str = ""  # a few words for --device's help
 
     @property
     def tag(self) -> str:
@@ -89,6 +90,7 @@ def device_kind(
     increments: bool = False,
     needs_log: bool = False,
     renders_feedback: bool = False,
+    summary: str = "",
 ):
     """Register a device config dataclass as a kind (module docstring); returns the class.
 
@@ -108,8 +110,9 @@ def device_kind(
                     f"device kind {name!r} ({space}) is registered already, as !{other.config.__name__}"
                 )
         DEVICE_KINDS[cls] = DeviceKind(
-            cls, name, space, live, real_time, increments, needs_log, renders_feedback
-        )
+            cls, name, space, live, real_time, increments, needs_log, renders_feedback,
+            summary or cls.__doc__.strip().splitlines()[0],
+        )  # fmt: skip
         _retype_scenario()
         return cls
 
@@ -245,7 +248,7 @@ class _PoseDevice(DeviceConfig):
         )  # fmt: skip
 
 
-@device_kind("scripted", space="pose")
+@device_kind("scripted", space="pose", summary="the scenario's path")
 @dataclasses.dataclass
 class Scripted(_PoseDevice):
     """A scripted path: waypoints, linear in position, slerp in orientation.
@@ -282,7 +285,7 @@ class Scripted(_PoseDevice):
         return RigidTransform(Quaternion(q), p)
 
 
-@device_kind("replay", space="pose", needs_log=True)
+@device_kind("replay", space="pose", needs_log=True, summary="a CSV log")
 @dataclasses.dataclass
 class Replay(_PoseDevice):
     """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``)."""
@@ -303,7 +306,13 @@ class Replay(_PoseDevice):
         return RigidTransform(Quaternion(log.q[0]), log.p[0])
 
 
-@device_kind("relative", space="pose", increments=True, needs_log=True)
+@device_kind(
+    "relative",
+    space="pose",
+    increments=True,
+    needs_log=True,
+    summary="a CSV of increments with a clutch (the paper's mouse)",
+)
 @dataclasses.dataclass
 class Relative(_PoseDevice):
     """Increments with a clutch, the paper's mouse (CSV ``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
@@ -326,7 +335,9 @@ class Relative(_PoseDevice):
                               aids=self.aids())  # fmt: skip
 
 
-@device_kind("meshcat", space="pose", live=True, real_time=True, increments=True)
+@device_kind(
+    "meshcat", space="pose", live=True, real_time=True, increments=True, summary="live from the browser"
+)
 @dataclasses.dataclass
 class MeshcatSliders(_PoseDevice):
     """Driven live from the browser: pose sliders and keys, a gamepad, Grasp and Stop buttons.
@@ -356,7 +367,9 @@ class MeshcatSliders(_PoseDevice):
                              aids=self.aids())  # fmt: skip
 
 
-@device_kind("lcm", space="pose", real_time=True, renders_feedback=True)
+@device_kind(
+    "lcm", space="pose", real_time=True, renders_feedback=True, summary="a real device's driver over LCM"
+)
 @dataclasses.dataclass
 class Lcm(_PoseDevice):
     """A real device whose driver publishes pose samples over LCM (README "Real devices over LCM").
@@ -453,7 +466,7 @@ class _JointDevice(DeviceConfig):
         )  # fmt: skip
 
 
-@device_kind("scripted", space="joint")
+@device_kind("scripted", space="joint", summary="the scenario's path")
 @dataclasses.dataclass
 class ScriptedJoints(_JointDevice):
     """A scripted joint-space path (``path`` YAML with ``channels`` and ``waypoints``, or inline)."""
@@ -477,7 +490,7 @@ class ScriptedJoints(_JointDevice):
         return ScriptedJointDevice(self.joint_path(), **self.sampling())
 
 
-@device_kind("replay", space="joint", needs_log=True)
+@device_kind("replay", space="joint", needs_log=True, summary="a CSV log")
 @dataclasses.dataclass
 class ReplayJoints(_JointDevice):
     """A joint-space device log replayed (CSV ``t,<channels>``)."""
@@ -494,7 +507,7 @@ class ReplayJoints(_JointDevice):
         return ReplayJointDevice(self.log, self.channels, **self.sampling())
 
 
-@device_kind("meshcat", space="joint", live=True, real_time=True)
+@device_kind("meshcat", space="joint", live=True, real_time=True, summary="live from the browser")
 @dataclasses.dataclass
 class MeshcatJointSliders(_JointDevice):
     """Joint channels driven live from the browser, one slider and key pair each; ``start``: values."""
@@ -515,7 +528,7 @@ class MeshcatJointSliders(_JointDevice):
         return MeshcatJointDevice(meshcat, self.channels, limits, self.start, **self.sampling())
 
 
-@device_kind("lcm", space="joint", real_time=True)
+@device_kind("lcm", space="joint", real_time=True, summary="a real device's driver over LCM")
 @dataclasses.dataclass
 class LcmJoints(_JointDevice):
     """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,

@@ -240,6 +240,7 @@ def install_safeguards(
     project_quaternions: bool = True,
     mode: str = "god_object",
     sleeper=None,
+    wiring_checked: bool = False,
 ) -> Safeguards:
     """Check ``simulator``'s diagram's wiring, then watch the run (module docstring).
 
@@ -262,10 +263,14 @@ def install_safeguards(
         the position baseline sets the body instead); see :func:`check_wiring`.
     sleeper : SleepManager | None
         Checked every ``sleeper.every`` plant steps (:mod:`godobject_drake.sleeping`).
+    wiring_checked : bool
+        The diagram's wiring was checked already (a built station's was, when it was built:
+        :func:`~godobject_drake.building.finish`), so it is not checked twice.
     """
     diagram = simulator.get_system()
     plant = plant or find_plant(diagram)
-    check_wiring(diagram, mode=mode)
+    if not wiring_checked:
+        check_wiring(diagram, mode=mode)
     stop = None
     if meshcat is not None:
         from godobject_drake.live import add_stop_button, stop_requested

@@ -137,6 +137,7 @@ def add_god_object(
     haptic: "sc.Haptic | None" = None,
     connect_forces: bool = True,
     name: str = "coupling",
+    check_gains: bool = True,
     **coupling_options,
 ) -> "RigidGodObject":
     """Make the plant's free bodies god-objects of ``device``: one call, after ``plant.Finalize()``.
@@ -157,13 +158,17 @@ def add_god_object(
       god-object, the handle follows it.
 
     ``connect_forces=False`` leaves the plant's force inputs alone (the position baseline).
+    ``check_gains=False`` builds gains past the explicit limit (stability analysis only).
     ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
     ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
     """
     feedback_gains = feedback_gains or FeedbackGains()
     haptic = haptic or sc.Haptic()
     coupling = builder.AddNamedSystem(
-        name, GodObjectCoupling(plant, gains, device_period_s=device.period_s, **coupling_options)
+        name,
+        GodObjectCoupling(
+            plant, gains, device_period_s=device.period_s, check_gains=check_gains, **coupling_options
+        ),
     )
     coupling.validate_grasp_names(device.grasp_names())
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
