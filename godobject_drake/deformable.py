@@ -5,7 +5,7 @@ The core C is a free rigid body: coupled to the device like any rigid
 god-object, simulated, neither drawn nor colliding. The shell is drawn and
 collides; it is held to the core, so the device controls the rigid motion
 and the simulation the deformation. Two shell models share one interface
-(:class:`DeformableGodObject`), picked by name in :data:`SHELL_MODELS`:
+(:class:`Shell`), picked by name in :data:`SHELL_MODELS`:
 
 ``fem``
     Drake's FEM ``DeformableModel``: a tetrahedral ball of radius R (Drake
@@ -191,7 +191,7 @@ def _contact_properties(friction: float, stiffness: float | None = None) -> Prox
     return props
 
 
-class DeformableGodObject:
+class Shell:
     """A rigid core C (a god-object body) carrying a deformable shell.
 
     Built by :func:`add_deformable_god_object` before ``Finalize()``;
@@ -266,7 +266,7 @@ class DeformableGodObject:
         set_core()
 
 
-class FemShell(DeformableGodObject):
+class FemShell(Shell):
     """The shell as a Drake FEM deformable body fixed to the core inside rc."""
 
     model = "fem"
@@ -312,7 +312,7 @@ class FemShell(DeformableGodObject):
         return observer
 
 
-class MassSpringShell(DeformableGodObject):
+class MassSpringShell(Shell):
     """The paper's shell: surface nodes on zero-length springs to the core, edge springs between."""
 
     model = "mass_spring"
@@ -405,7 +405,7 @@ def add_deformable_god_object(
     spec: ShellSpec | None = None,
     X_WC: RigidTransform | None = None,
     name: str = "probe",
-) -> DeformableGodObject:
+) -> Shell:
     """Add a core and its shell (``shell`` ∈ :data:`SHELL_MODELS`) before ``Finalize()``.
 
     ``X_WC`` is the core's initial pose (the shell starts at rest around it).
@@ -434,7 +434,7 @@ class ShellObserver(LeafSystem):
     ``[x0 y0 z0 x1 ...]``; ``pose_WC`` the core pose ``[qw qx qy qz x y z]``.
     """
 
-    def __init__(self, shell: DeformableGodObject, plant: MultibodyPlant):
+    def __init__(self, shell: Shell, plant: MultibodyPlant):
         super().__init__()
         self._shell = shell
         self._core = int(shell.core.index())
@@ -470,7 +470,7 @@ class ShellObserver(LeafSystem):
         output.SetFromVector(np.concatenate([q.wxyz(), X_WC.translation()]))
 
 
-def obstacle_geometries(scene_graph: SceneGraph, shell: DeformableGodObject, plant: MultibodyPlant):
+def obstacle_geometries(scene_graph: SceneGraph, shell: Shell, plant: MultibodyPlant):
     """Rigid proximity geometries that are not part of the deformable god-object."""
     inspector = scene_graph.model_inspector()
     own = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(shell.instance)}

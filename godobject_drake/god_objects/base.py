@@ -7,11 +7,18 @@ studies call these and never compare a kind's name (docs/design.md "Adding a god
 """
 
 import dataclasses
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, System
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
+
+if TYPE_CHECKING:
+    from godobject_drake.articulated import ArticulatedCoupling, ArticulatedFeedback
+    from godobject_drake.coupling import GodObjectCoupling
+    from godobject_drake.devices import DeviceSource, JointDevice
+    from godobject_drake.feedback import FeedbackPort
+    from godobject_drake.haptic import AdmittanceDevice, HapticDevice, PassivityController, SimulatedHand
 
 
 @dataclasses.dataclass
@@ -39,14 +46,14 @@ class GodObject:
         ``god_object`` or ``position`` (the coupling's forces are not connected).
     """
 
-    coupling: object
-    feedback: object
-    source: object
-    device: object
-    haptic: object = None
-    hand: object = None
-    passivity: object = None
-    publisher: object = None
+    coupling: "GodObjectCoupling | ArticulatedCoupling"
+    feedback: "FeedbackPort | ArticulatedFeedback"
+    source: "DeviceSource | JointDevice"
+    device: System
+    haptic: "HapticDevice | AdmittanceDevice | None" = None
+    hand: "SimulatedHand | None" = None
+    passivity: "PassivityController | None" = None
+    publisher: System | None = None
     mode: str = "god_object"
 
     # -- what a kind says of itself (class attributes) -----------------------------------------------

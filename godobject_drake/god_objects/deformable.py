@@ -7,7 +7,7 @@ and carries the shell with it.
 """
 
 import dataclasses
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
@@ -18,6 +18,9 @@ from godobject_drake.deformable import add_deformable_god_object
 from godobject_drake.devices import DeviceSource
 from godobject_drake.feedback import FeedbackGains
 from godobject_drake.god_objects.rigid import RigidGodObject, add_god_object, impose_target
+
+if TYPE_CHECKING:
+    from godobject_drake.deformable import Shell, ShellObserver
 
 
 @dataclasses.dataclass
@@ -30,8 +33,8 @@ class DeformableGodObject(RigidGodObject):
         The shell and its :class:`~godobject_drake.deformable.ShellObserver`.
     """
 
-    shell: object = None
-    observer: object = None
+    shell: "Shell | None" = None
+    observer: "ShellObserver | None" = None
 
     kind: ClassVar[str] = "deformable"
     predicts_penetration: ClassVar[bool] = False
