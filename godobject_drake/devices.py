@@ -467,6 +467,11 @@ class DeviceSource(LeafSystem):
         """The device's counts in ``context`` (its own): the metrics' ``device_*`` keys."""
         return self.status_dict(self.GetOutputPort("device_status").Eval(context))
 
+    def reversals(self, min_travel_m: float) -> list[tuple[float, np.ndarray]] | None:
+        """Where the device turns back, ``(t, direction)``, for the reversal-latency metrics; None
+        where it cannot be known before the run (a device that does not report increments)."""
+        return None
+
     def follow(self, builder, coupling) -> None:
         """Pseudo-haptic aids read where the coupling puts T and G: wire ``pose_WT`` and ``pose_WG``
         and grow the control/display ratio to the coupling's force-cap stretch. Without aids: nothing."""
@@ -798,6 +803,30 @@ class RelativeDevice(DeviceSource):
             return self._p0, self._q0, self.log.grasp[0]
         return self._p[k], self._q[k], self.log.grasp[k]
 
+    def reversals(self, min_travel_m: float) -> list[tuple[float, np.ndarray]]:
+        """``(t, d)`` for each log row whose increment points more than 90° from the last non-zero
+        one and that starts a return of at least ``min_travel_m`` along ``d`` (so a jitter is not a
+        reversal); ``t`` is the device sample that reports it."""
+        log, period, latency = self.log, self.period_s, self.latency_s
+        moving = [k for k in range(len(log.t)) if not log.clutch[k] and np.linalg.norm(log.dp[k]) > 0.0]
+        out, last = [], None
+        for i, k in enumerate(moving):
+            dp = log.dp[k]
+            if last is not None and float(dp @ last) < 0.0:
+                d = dp / np.linalg.norm(dp)
+                travel = 0.0
+                for j in moving[i:]:
+                    step = float(log.dp[j] @ d)
+                    if step < 0.0:
+                        break
+                    travel += step
+                if travel < min_travel_m:
+                    continue  # a jitter: the motion it interrupts goes on
+                t = math.ceil((log.t[k] + latency) / period - 1e-9) * period
+                out.append((t, d))
+            last = dp
+        return out
+
 
 def rotation_from_vector(r) -> np.ndarray:
     """The rotation matrix ``exp([r]×)`` of a rotation vector ``r`` (rad)."""
@@ -886,6 +915,10 @@ class JointDevice(LeafSystem):
     def status(self, context) -> dict:
         """The device's counts for the metrics (none for a joint device that cannot fail)."""
         return {}
+
+    def reversals(self, min_travel_m: float) -> None:
+        """Not measured for joint devices (:meth:`DeviceSource.reversals`)."""
+        return None
 
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._state).get_value()

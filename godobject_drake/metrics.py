@@ -561,29 +561,8 @@ class SeparationMetrics:
 
 
 def device_reversals(device, min_travel_m: float = 2 * REVERSAL_MOVE_M) -> list[tuple[float, np.ndarray]]:
-    """Where a :class:`~godobject_drake.devices.RelativeDevice` turns back: ``(t, d)`` for each
-    log row whose increment points more than 90° from the last non-zero one and that starts a
-    return of at least ``min_travel_m`` along ``d`` (so a jitter is not a reversal); ``t`` is
-    the device sample that reports it."""
-    log, period, latency = device.log, device.period_s, device.latency_s
-    moving = [k for k in range(len(log.t)) if not log.clutch[k] and np.linalg.norm(log.dp[k]) > 0.0]
-    out, last = [], None
-    for i, k in enumerate(moving):
-        dp = log.dp[k]
-        if last is not None and float(dp @ last) < 0.0:
-            d = dp / np.linalg.norm(dp)
-            travel = 0.0
-            for j in moving[i:]:
-                step = float(log.dp[j] @ d)
-                if step < 0.0:
-                    break
-                travel += step
-            if travel < min_travel_m:
-                continue  # a jitter: the motion it interrupts goes on
-            t = math.ceil((log.t[k] + latency) / period - 1e-9) * period
-            out.append((t, d))
-        last = dp
-    return out
+    """Where an increment device turns back (:meth:`~godobject_drake.devices.RelativeDevice.reversals`)."""
+    return device.reversals(min_travel_m)
 
 
 class SceneMetrics:
@@ -599,9 +578,7 @@ class SceneMetrics:
 
     def __init__(self, station):
         god, plant = station.god_object, station.plant
-        from godobject_drake.devices import RelativeDevice
-
-        reversals = device_reversals(god.source) if isinstance(god.source, RelativeDevice) else None
+        reversals = god.source.reversals(2 * REVERSAL_MOVE_M)  # None: a device that does not say
         self._sep = SeparationMetrics(
             plant.time_step(), station.scenario.metrics.impossible_pose_distance_m, reversals
         )
