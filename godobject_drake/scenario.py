@@ -82,6 +82,14 @@ class Contact:
     geometry: str = "proxies"
     relaxation_time_s: float | None = None
 
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.geometry not in CONTACT_GEOMETRIES:
+            raise ValueError(f"geometry: {self.geometry!r}; choose one of {CONTACT_GEOMETRIES}")
+        tau = self.relaxation_time_s
+        if tau is not None and not (math.isfinite(tau) and tau >= 0):
+            raise ValueError(f"relaxation_time_s: {tau!r} s must be ≥ 0 (None: the time step)")
+
 
 @dataclasses.dataclass
 class Rigid:
@@ -287,6 +295,15 @@ class Simulation:
     check_period_s: float = 0.05
     max_speed: float = 1000.0
 
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if not (math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise ValueError(f"duration_s: {self.duration_s!r} s must be > 0")
+        if self.mode not in SIMULATION_MODES:
+            raise ValueError(f"mode: {self.mode!r}; choose one of {SIMULATION_MODES}")
+        if not (math.isfinite(self.realtime_rate) and self.realtime_rate >= 0):
+            raise ValueError(f"realtime_rate: {self.realtime_rate!r} must be ≥ 0 (0: as fast as it can)")
+
 
 @dataclasses.dataclass
 class Workspace:
@@ -294,6 +311,12 @@ class Workspace:
 
     lower_m: list[float] = dataclasses.field(default_factory=lambda: [-0.1, -0.1, 0.0])
     upper_m: list[float] = dataclasses.field(default_factory=lambda: [0.1, 0.1, 0.1])
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        for attribute in ("lower_m", "upper_m"):
+            if len(getattr(self, attribute)) != 3:
+                raise ValueError(f"{attribute}: needs 3 values (x, y, z in m)")
 
 
 @dataclasses.dataclass
@@ -335,6 +358,13 @@ class Visualization:
     camera: Camera | None = None
     force_cue: bool = True
 
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if not self.host.strip():
+            raise ValueError(f"host: {self.host!r}: give localhost (this machine only) or an address")
+        if self.port is not None and not (isinstance(self.port, int) and 0 <= self.port <= 65535):
+            raise ValueError(f"port: {self.port!r} must be a TCP port, 0 to 65535 (None: Drake's)")
+
 
 @dataclasses.dataclass
 class Recording:
@@ -348,6 +378,13 @@ class Recording:
     file: str = ""
     frames_per_second: float = 64.0
     max_duration_s: float = 300.0
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if not (self.max_duration_s > 0):
+            raise ValueError(
+                f"max_duration_s: {self.max_duration_s!r} s must be > 0 (it caps the recording's size)"
+            )
 
 
 @dataclasses.dataclass
@@ -369,6 +406,16 @@ class Metrics:
     penetration_budget_m: float = 1e-3
     checkpoint_period_s: float = 10.0
     impossible_pose_distance_m: float = 0.005
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if not (self.checkpoint_period_s > 0):
+            raise ValueError(f"checkpoint_period_s: {self.checkpoint_period_s!r} s must be > 0")
+        if not (self.penetration_budget_m > 0):
+            raise ValueError(f"penetration_budget_m: {self.penetration_budget_m!r} m must be > 0")
+        far = self.impossible_pose_distance_m
+        if not (math.isfinite(far) and far > 0):
+            raise ValueError(f"impossible_pose_distance_m: {far!r} m must be > 0 (e.g. 0.005)")
 
 
 @dataclasses.dataclass
@@ -533,8 +580,16 @@ def _fail(where: str, field: str, message: str):
     raise ScenarioError(f"{where}: {field}: {message}")
 
 
+# The scenario's parts that check themselves, in the order a user reads them.
+SELF_CHECKED = ("contact", "simulation", "haptic", "device", "god_object", "workspace", "visualization",
+                "recording", "metrics")  # fmt: skip
+
+
 def check_scenario(s: Scenario, where: str = "scenario") -> None:
-    """Raise :class:`ScenarioError` naming the field, its value and the fix; no value is clamped."""
+    """Raise :class:`ScenarioError` naming the field, its value and the fix; no value is clamped.
+
+    Each part checks itself (its ``check()``); this adds Drake's plant settings and the rules that
+    span two parts."""
     h = s.plant.time_step
     if not (isinstance(h, float | int) and math.isfinite(h) and h > 0):
         _fail(where, "plant.time_step", f"{h!r} s; SAP is discrete: give a step h > 0 (e.g. 0.001)")
@@ -545,39 +600,34 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"{s.plant.discrete_contact_approximation!r}; use sap, lagged or similar (the god-object's "
             "joint modes and deformable shells need sap)",
         )
-    if s.contact.geometry not in CONTACT_GEOMETRIES:
-        _fail(where, "contact.geometry", f"{s.contact.geometry!r}; choose one of {CONTACT_GEOMETRIES}")
+    try:
+        device_kind = kind_of(s.device)
+    except ValueError as e:
+        raise ScenarioError(f"{where}: {e}") from None
+    for part in SELF_CHECKED:
+        try:
+            getattr(s, part).check(s) if part == "god_object" else getattr(s, part).check()
+        except ValueError as e:
+            prefix = "" if part == "god_object" else f"{part}."  # a god-object names its own fields
+            raise ScenarioError(f"{where}: {prefix}{e}") from None
+    try:
+        s.sleep.check()
+    except ValueError as e:
+        _fail(where, "sleep", str(e))
+    if not (isinstance(s.bricks, int) and s.bricks >= 0):
+        _fail(where, "bricks", f"{s.bricks!r}: give a whole number of bricks, or 0 for the directives' own")
+    _check_across(s, device_kind, where)
+
+
+def _check_across(s: Scenario, device_kind, where: str) -> None:
+    """The rules between two parts: contact and plant, device and tool, device and haptic chain."""
     if s.contact.geometry == "hydroelastic" and s.plant.contact_model == "point":
         _fail(
             where,
             "contact.geometry",
             "hydroelastic needs plant.contact_model hydroelastic or hydroelastic_with_fallback (it is point)",
         )
-    tau = s.contact.relaxation_time_s
-    if tau is not None and not (math.isfinite(tau) and tau >= 0):
-        _fail(where, "contact.relaxation_time_s", f"{tau!r} s must be ≥ 0 (None: the time step)")
-    sim = s.simulation
-    if not (math.isfinite(sim.duration_s) and sim.duration_s > 0):
-        _fail(where, "simulation.duration_s", f"{sim.duration_s!r} s must be > 0")
-    if sim.mode not in SIMULATION_MODES:
-        _fail(where, "simulation.mode", f"{sim.mode!r}; choose one of {SIMULATION_MODES}")
-    if not (math.isfinite(sim.realtime_rate) and sim.realtime_rate >= 0):
-        _fail(where, "simulation.realtime_rate", f"{sim.realtime_rate!r} must be ≥ 0 (0: as fast as it can)")
-    try:
-        s.haptic.check()
-    except ValueError as e:
-        raise ScenarioError(f"{where}: haptic.{e}") from None
-    device = s.device
-    try:
-        device_kind = kind_of(device)
-    except ValueError as e:
-        raise ScenarioError(f"{where}: {e}") from None
-    try:
-        device.check()
-    except ValueError as e:
-        raise ScenarioError(f"{where}: device.{e}") from None
-    kind = s.kind
-    space = s.god_object.DEVICE_SPACE
+    device, kind, space = s.device, s.kind, s.god_object.DEVICE_SPACE
     if device_kind.space != space:
         tags = ", ".join(k.tag for k in DEVICE_KINDS.values() if k.space == space)
         _fail(
@@ -586,10 +636,6 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"a{'n' if kind[0] in 'aeiou' else ''} {kind} god-object needs a {SPACE_NAMES[space]} device "
             f"({tags}); got !{type(device).__name__}",
         )
-    try:
-        s.god_object.check(s)
-    except ValueError as e:
-        raise ScenarioError(f"{where}: {e}") from None
     if device_kind.space == "pose" and device.changed_aids() and s.haptic.mode != "none":
         field = device.changed_aids()[0]
         _fail(
@@ -605,32 +651,6 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
             "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
         )
-    vis = s.visualization
-    if not vis.host.strip():
-        _fail(where, "visualization.host", f"{vis.host!r}: give localhost (this machine only) or an address")
-    if vis.port is not None and not (isinstance(vis.port, int) and 0 <= vis.port <= 65535):
-        _fail(where, "visualization.port", f"{vis.port!r} must be a TCP port, 0 to 65535 (None: Drake's)")
-    for attribute in ("lower_m", "upper_m"):
-        if len(getattr(s.workspace, attribute)) != 3:
-            _fail(where, f"workspace.{attribute}", "needs 3 values (x, y, z in m)")
-    every = s.metrics.checkpoint_period_s
-    if not (every > 0):
-        _fail(where, "metrics.checkpoint_period_s", f"{every!r} s must be > 0")
-    cap = s.recording.max_duration_s
-    if not (cap > 0):
-        _fail(where, "recording.max_duration_s", f"{cap!r} s must be > 0 (it caps the recording's size)")
-    budget = s.metrics.penetration_budget_m
-    if not (budget > 0):
-        _fail(where, "metrics.penetration_budget_m", f"{budget!r} m must be > 0")
-    if not (isinstance(s.bricks, int) and s.bricks >= 0):
-        _fail(where, "bricks", f"{s.bricks!r}: give a whole number of bricks, or 0 for the directives' own")
-    try:
-        s.sleep.check()
-    except ValueError as e:
-        _fail(where, "sleep", str(e))
-    far = s.metrics.impossible_pose_distance_m
-    if not (math.isfinite(far) and far > 0):
-        _fail(where, "metrics.impossible_pose_distance_m", f"{far!r} m must be > 0 (e.g. 0.005)")
 
 
 def replace(scenario: Scenario, **changes) -> Scenario:
