@@ -10,7 +10,9 @@ import argparse
 import copy
 import dataclasses
 import math
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -21,6 +23,7 @@ from godobject_drake.deformable import SHELL_MODELS, ShellSpecError
 from godobject_drake.device_kinds import DEVICE_KINDS, kind_of, kinds_in
 from godobject_drake.devices import INTERPOLATIONS
 from godobject_drake.metrics import format_table, write_metrics
+from godobject_drake.outputs import OutputError
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted
 
@@ -400,12 +403,27 @@ def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
     its last ones."""
     from godobject_drake.simulation import simulate
 
+    for field, output in (
+        ("metrics.file", scenario.metrics.file),
+        ("recording.file", scenario.recording.file),
+    ):
+        if output and not Path(output).resolve().parent.is_dir():
+            raise sc.ScenarioError(
+                f"{field}: {output}: the folder {Path(output).resolve().parent} does not exist; create it "
+                "or write elsewhere"
+            )
     meshcat = make_meshcat(scenario)
     station = (build or build_station)(scenario, meshcat)
     path = scenario.metrics.file
+    failed = []
 
     def checkpoint(metrics):
-        write_metrics(path, metrics)
+        try:
+            write_metrics(path, metrics)
+        except OutputError as e:  # the run goes on; the last complete file stays, said once
+            if not failed:
+                print(f"checkpoint not written: {e}", file=sys.stderr)
+            failed.append(e)
 
     return simulate(
         station, progress=progress, keep_logs=False, checkpoint=checkpoint if path else None,
@@ -413,12 +431,26 @@ def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
     )  # fmt: skip
 
 
-def report(results: list[dict], metrics_path: str | Path | None) -> None:
-    """Print the metrics table; write the JSON (one run: an object; several: a list)."""
+def report(results: list[dict], metrics_path: str | Path | None) -> bool:
+    """Print the metrics table; write the JSON (one run: an object; several: a list). Returns
+    False, saying why on stderr, if the file could not be written (the last complete one stays)."""
     print(format_table(results))
     if metrics_path:
-        write_metrics(metrics_path, results[0] if len(results) == 1 else results)
+        try:
+            write_metrics(metrics_path, results[0] if len(results) == 1 else results)
+        except OutputError as e:
+            print(f"metrics not written: {e}", file=sys.stderr)
+            return False
         print(f"metrics written to {metrics_path}")
+    return True
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM: the command line ends the run as Ctrl-C does (partial metrics, a whole recording)."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
 
 
 USER_ERRORS = (
@@ -471,7 +503,12 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
         )
         add_arguments(parser, kinds)
         args = parser.parse_args(argv)
-    interrupted = False
+    interrupted = None
+    previous = (
+        signal.signal(signal.SIGTERM, _terminate)
+        if threading.current_thread() is threading.main_thread()
+        else None
+    )
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
@@ -479,18 +516,27 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
             result = run_scenario(s, build, progress=not args.no_progress)
     except USER_ERRORS as e:
         parser.error(str(e))
-    except RunInterrupted as e:  # Ctrl-C: what the run produced is written, marked partial
-        result, interrupted = e.result, True
+    except RunInterrupted as e:  # Ctrl-C or SIGTERM: what the run produced is written, marked partial
+        result, interrupted = e.result, e.__cause__ or e
+    except KeyboardInterrupt as e:  # before the run started: nothing to write
+        print("interrupted before the run started", file=sys.stderr)
+        return 143 if isinstance(e, Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     metrics = result.metrics
-    report([metrics], s.metrics.file or None)
-    if s.recording.file:
+    written = report([metrics], s.metrics.file or None)
+    if s.recording.file and "recording_error" not in metrics:
         print(f"recording written to {s.recording.file}")
-    if interrupted:
+    if interrupted is not None:
+        by = "SIGTERM" if isinstance(interrupted, Terminated) else "Ctrl-C"
         print(
-            f"interrupted at t = {metrics['sim_time_s']:.3f} s: the metrics above are partial",
+            f"interrupted ({by}) at t = {metrics['sim_time_s']:.3f} s: the metrics above are partial",
             file=sys.stderr,
         )
-        return 130
+        return 143 if by == "SIGTERM" else 130
+    if not written or "recording_error" in metrics:
+        return 1
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
         input("Meshcat is still serving the scene; press Enter to exit.")
     return 1 if metrics["diverged"] or "metrics_error" in metrics else 0

@@ -482,6 +482,11 @@ class DeviceSource(LeafSystem):
         for port in ("pose_WT", "pose_WG"):
             builder.Connect(coupling.GetOutputPort(port), self.GetInputPort(port))
 
+    def zero_feedback(self, t: float) -> bool:
+        """The run stops at time ``t`` (s): a device that renders the feedback itself is sent a zero
+        wrench, so it is never left pushing; returns whether one was sent (False: nothing to send)."""
+        return False
+
     def connect_feedback(self, builder, F_Do_W_port, grasp_names) -> "LeafSystem | None":
         """Wire the feedback wrench ``F_Do_W`` to a device that renders it itself (a real haptic
         device: its kind's class overrides this) and tell it the bodies it may grasp; other
@@ -919,6 +924,10 @@ class JointDevice(LeafSystem):
     def reversals(self, min_travel_m: float) -> None:
         """Not measured for joint devices (:meth:`DeviceSource.reversals`)."""
         return None
+
+    def zero_feedback(self, t: float) -> bool:
+        """The joint devices here render no feedback (:meth:`DeviceSource.zero_feedback`)."""
+        return False
 
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._state).get_value()

@@ -231,6 +231,15 @@ class LcmDevice(DeviceSource):
     def status(self, context) -> dict:
         return {**super().status(context), **self.lcm_status()}
 
+    def zero_feedback(self, t: float) -> bool:
+        """Publish a zero ``lcmt_force_torque`` on the feedback channel, stamped ``t``: whatever
+        stopped the run (its end, Stop, a divergence, an error, a signal), the device's last
+        feedback message asks for no force."""
+        message = lcmt_force_torque()
+        message.timestamp = round(t * 1e6)
+        self.lcm.Publish(self.feedback_channel, message.encode())
+        return True
+
     def connect_feedback(self, builder, F_Do_W_port, grasp_names):
         """The real device renders the feedback: publish it; a message naming another body than
         ``grasp_names`` is refused (counted)."""

@@ -12,7 +12,6 @@ measures every other pair of shapes (:class:`TrueShapeMetrics`).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 
@@ -312,9 +311,13 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def write_metrics(path: str | Path, metrics: dict) -> None:
-    """Write metrics as JSON (NaN-free: ``None`` where undefined)."""
-    Path(path).write_text(json.dumps(metrics, indent=2, sort_keys=False) + "\n")
+def write_metrics(path: str | Path, metrics: dict | list) -> None:
+    """Write metrics as strict JSON, all at once (:mod:`godobject_drake.outputs`): a non-finite
+    value is ``null`` and listed under ``non_finite``; a failed write raises
+    :class:`~godobject_drake.outputs.OutputError` and leaves the previous file."""
+    from godobject_drake.outputs import dumps_metrics, write_atomically
+
+    write_atomically(path, dumps_metrics(metrics))
 
 
 class ToolMetrics:

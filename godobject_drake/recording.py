@@ -368,6 +368,6 @@ def save_recording(meshcat: Meshcat, path: str | Path) -> int:
     """Stop and publish the recording, write Meshcat's self-contained HTML; return its size (bytes)."""
     meshcat.StopRecording()
     meshcat.PublishRecording()
-    html = meshcat.StaticHtml()
-    Path(path).write_text(html)
-    return len(html.encode())
+    from godobject_drake.outputs import write_atomically
+
+    return write_atomically(path, meshcat.StaticHtml())  # all at once: never half a page

@@ -219,7 +219,7 @@ def simulate(
             **(station.sleeper.result() if station.sleeper is not None else {}),
         }
 
-    diagnosis, interrupted = None, False
+    diagnosis, interrupted = None, None
     n_steps = round(duration / h)
     fold_every = max(guard.every, round((REAL_TIME_FOLD_PERIOD_S if rate > 0 else FOLD_PERIOD_S) / h))
     bar = _progress(n_steps, progress)
@@ -250,25 +250,28 @@ def simulate(
         diagnosis = guard.diagnosis
     except RuntimeError as e:
         diagnosis = f"Drake stopped at t={root.get_time():.4f} s: {e}"
-    except KeyboardInterrupt:
-        interrupted = True
+    except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM through the command line's handler
+        interrupted = e
     finally:
         bar.close()
+        zeroed = god.source.zero_feedback(root.get_time())  # never left pushing, whatever stopped it
 
-    partial = interrupted or root.get_time() < n_steps * h - 0.5 * h
+    partial = interrupted is not None or root.get_time() < n_steps * h - 0.5 * h
     metrics = common(wall, folding, diagnosis, partial)
     if lag is not None:
         metrics.update(lag.result())
     if guard.stopped:
         metrics["stopped_by_user"] = True
-    if interrupted:
+    if interrupted is not None:
         metrics["interrupted"] = True
+    if zeroed:
+        metrics["feedback_zeroed_at_s"] = root.get_time()
     if record:  # before the last metrics: a metric that fails must not lose the recording
         try:
             metrics["recording_bytes"] = save_recording(meshcat, record)
             metrics["recording_s"] = min(root.get_time(), scenario.recording.max_duration_s)
-        except OSError as e:
-            metrics["recording_error"] = f"{record}: {e}"
+        except OSError as e:  # outputs.OutputError names the file and keeps the last complete one
+            metrics["recording_error"] = str(e)
     t0 = time.perf_counter()
     fold()
     metrics["metrics_time_s"] = folding + time.perf_counter() - t0
@@ -278,8 +281,8 @@ def simulate(
     except Exception as e:
         metrics.setdefault("metrics_error", f"{type(e).__name__}: {e}")
     result = RunResult(metrics, station, simulator, guard, logs.kept())
-    if interrupted:
-        raise RunInterrupted(result)
+    if interrupted is not None:
+        raise RunInterrupted(result) from interrupted
     return result
 
 

@@ -139,6 +139,23 @@ def test_ctrl_c_leaves_the_metrics_so_far_marked_partial(tmp_path):
     assert "the metrics above are partial" in err and "max_penetration_m" in out
 
 
+def test_sigterm_ends_the_run_as_ctrl_c_does(tmp_path):
+    """SIGTERM (a scheduler's or a service manager's stop) gives exit 143, the metrics so far marked
+    partial and a whole recording, where it used to lose the run."""
+    proc = cli(tmp_path, "--record", "r.html")
+    wait_for(tmp_path / "m.json", timeout_s=60.0)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, (out, err)
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["partial"] is True and m["interrupted"] is True and 0.0 < m["sim_time_s"] < 60.0
+    assert "interrupted (SIGTERM)" in err and "recording written to" in out
+    html = (tmp_path / "r.html").read_text()
+    assert html.rstrip().endswith("</html>")
+    frames = _frames(tmp_path / "r.html")  # the recording covers the run up to the signal
+    assert max(frames) >= 0.9 * m["sim_time_s"] * 64 and m["recording_s"] == m["sim_time_s"]
+
+
 def test_a_killed_run_leaves_its_last_checkpoint(tmp_path):
     """Even SIGKILL, which nothing can catch, leaves the metrics of the last checkpoint (every
     ``metrics.checkpoint_period_s`` of wall time: 10 s by default, 0.3 s here)."""

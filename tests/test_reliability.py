@@ -1,0 +1,142 @@
+"""Nothing lost and nothing left pushing (issue 30): outputs written whole, strict JSON, a full disk,
+and a real device's feedback zeroed whatever stops the run."""
+
+import json
+import math
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+from conftest import build_scene
+from drake import lcmt_force_torque
+
+from godobject_drake.lcm_device import FEEDBACK_CHANNEL
+from godobject_drake.metrics import write_metrics
+from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
+from godobject_drake.simulation import simulate
+
+
+def test_a_reader_never_sees_half_a_metrics_file(tmp_path):
+    """A reader polling the metrics while they are rewritten (as the checkpoints do) parses every
+    read: a file is replaced whole, never truncated and refilled (the old write_text gave ~4 %
+    unparseable reads)."""
+    path = tmp_path / "m.json"
+    big = {f"key_{i}": float(i) for i in range(20000)}  # ~0.5 MB, written 150 times
+    write_metrics(path, big)
+    done, bad, reads = threading.Event(), [], [0]
+
+    def read():
+        while not done.is_set():
+            try:
+                json.loads(path.read_text())
+            except (json.JSONDecodeError, FileNotFoundError) as e:
+                bad.append(type(e).__name__)
+            reads[0] += 1
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    for k in range(150):
+        write_metrics(path, {**big, "k": k})
+    done.set()
+    reader.join()
+    assert reads[0] > 10 and bad == []
+    assert json.loads(path.read_text())["k"] == 149
+    assert [p.name for p in tmp_path.iterdir()] == ["m.json"]  # no temporary file left
+
+
+def test_metrics_are_strict_json_with_the_non_finite_values_named(tmp_path):
+    path = tmp_path / "m.json"
+    write_metrics(path, {"a": 1.0, "b": math.nan, "c": {"d": [0.5, math.inf]}, "e": -math.inf, "f": None})
+
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    m = json.loads(path.read_text(), parse_constant=refuse)  # what a strict reader (JavaScript) accepts
+    assert m["a"] == 1.0 and m["b"] is None and m["c"]["d"] == [0.5, None] and m["e"] is None
+    assert m["non_finite"] == {"b": "nan", "c.d[1]": "inf", "e": "-inf"}
+    assert "non_finite" not in json.loads(dumps_metrics({"a": 1.0}))  # only when there is one
+
+
+FULL_DISK = r"""
+import resource, signal, sys
+from pathlib import Path
+from godobject_drake.outputs import OutputError, write_atomically
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead
+resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))  # files past 100 kB cannot be written
+path = Path(sys.argv[1])
+write_atomically(path, "small and complete")
+try:
+    write_atomically(path, "x" * 300_000)
+except OutputError as e:
+    print(e)
+"""
+
+
+def test_a_full_disk_keeps_the_last_complete_file_and_says_so(tmp_path):
+    """A write the file system refuses (here a file-size limit, as a full disk does: the kernel's
+    EFBIG and ENOSPC are the same failure to ``write``) leaves the previous file whole, removes
+    its temporary file, and names the file, its size, the cause and the fix."""
+    path = tmp_path / "m.json"
+    out = subprocess.run(
+        [sys.executable, "-c", FULL_DISK, str(path)], capture_output=True, text=True, check=True
+    )
+    assert path.read_text() == "small and complete"
+    assert [p.name for p in tmp_path.iterdir()] == ["m.json"]
+    message = out.stdout
+    assert f"could not write {path} (300000 bytes)" in message and "File too large" in message, message
+    assert (
+        "the previous version is kept" in message and "Free space on that disk or write elsewhere" in message
+    )
+    with pytest.raises(OutputError, match=r"could not write .*no_such_folder/m\.json .*nothing was written"):
+        write_atomically(tmp_path / "no_such_folder" / "m.json", "{}")
+
+
+def _lcm_scene(*flags):
+    station = build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--kd", "20", *flags)
+    received = []
+    station.device.lcm.Subscribe(FEEDBACK_CHANNEL, lambda raw: received.append(lcmt_force_torque.decode(raw)))
+    return station, received
+
+
+def test_a_real_device_gets_a_zero_wrench_when_the_run_ends():
+    station, received = _lcm_scene("--duration", "0.2")
+    start = station.device.samples(0.0)[0][1][0]
+    lcm = station.device.lcm
+    from test_lcm import POSE_CHANNEL, Q, pose_message  # the driver's messages, as test_lcm sends them
+
+    lcm.Publish(POSE_CHANNEL, pose_message(1, start, Q, "*").encode())  # grasp the nearest brick
+
+    def lift(metrics):  # after the first check period (50 ms): the driver lifts its target 1 cm
+        if not lifted:
+            lcm.Publish(POSE_CHANNEL, pose_message(2, start + np.array([0.0, 0.0, 0.01]), Q).encode())
+            lifted.append(metrics["sim_time_s"])
+
+    lifted = []
+    m = simulate(station, progress=False, checkpoint=lift, checkpoint_period_s=0.0).metrics
+    station.device.lcm.HandleSubscriptions(0)
+    pushing = [msg for msg in received[:-1] if abs(msg.fz) > 1e-3]
+    assert pushing, "the scene never pushed: the test would prove nothing"
+    last = received[-1]
+    assert (last.fx, last.fy, last.fz, last.tx, last.ty, last.tz) == (0.0,) * 6
+    assert last.timestamp == round(0.2 * 1e6) and m["feedback_zeroed_at_s"] == pytest.approx(0.2)
+
+
+def test_a_real_device_gets_a_zero_wrench_when_the_run_fails():
+    """An exception in the middle of the run (here from the checkpoint callback) still zeroes it."""
+    station, received = _lcm_scene("--duration", "0.5")
+
+    def fail(metrics):
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match="No space left"):
+        simulate(station, progress=False, checkpoint=fail, checkpoint_period_s=0.0)
+    station.device.lcm.HandleSubscriptions(0)
+    last = received[-1]
+    assert (last.fx, last.fy, last.fz) == (0.0, 0.0, 0.0) and 0 < last.timestamp < 0.5e6
+
+
+def test_devices_that_render_no_feedback_send_nothing():
+    m = simulate(build_scene("lego", "--duration", "0.05"), progress=False).metrics
+    assert "feedback_zeroed_at_s" not in m
