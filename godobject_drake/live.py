@@ -116,6 +116,7 @@ class MeshcatDevice(DeviceSource):
         self._pad_pressed = False
         self._last_t = 0.0
         self._commanded = self._shown = None
+        self.clamped = 0  # slider poses held back to the workspace
         if grasp is None:
             meshcat.AddButton(GRASP_BUTTON, "Space")
         add_stop_button(meshcat)
@@ -140,7 +141,7 @@ class MeshcatDevice(DeviceSource):
         and a slider the user moves takes over.
         """
         dt, self._last_t = max(t - self._last_t, 0.0), t
-        sliders = self.sliders.get_output_port().Eval(self._sliders_context)
+        sliders = self._held_to_workspace(self.sliders.get_output_port().Eval(self._sliders_context))
         if self._commanded is None or self._shown is None or not sliders.IsNearlyEqualTo(self._shown, 1e-12):
             self._commanded = sliders  # the user moved a slider or pressed a key
         pad = self.meshcat.GetGamepad()
@@ -163,6 +164,24 @@ class MeshcatDevice(DeviceSource):
         else:
             self._shown = sliders
         return self._commanded
+
+    def _held_to_workspace(self, X: RigidTransform) -> RigidTransform:
+        """The sliders' pose held to the workspace on the server: any page on this machine can send
+        a slider value, and Meshcat does not bound it. A pose outside (or not finite) is moved to
+        the nearest point inside, counted (``device_clamped_samples``), and shown on the sliders."""
+        p = X.translation()
+        held = np.clip(np.nan_to_num(p, nan=0.0), self._lo, self._hi)
+        if np.array_equal(held, p):
+            return X
+        self.clamped += 1
+        finite = np.all(np.isfinite(X.rotation().matrix()))
+        R = X.rotation() if finite or self._commanded is None else self._commanded.rotation()
+        X = RigidTransform(R, held)
+        self.sliders.SetPose(X)
+        return X
+
+    def status(self, context) -> dict:
+        return {**super().status(context), "device_clamped_samples": self.clamped}
 
     def grasp_names(self, duration_s: float | None = None) -> set[str]:
         """A live device names no body in advance (``"*"`` picks the nearest)."""
@@ -218,7 +237,20 @@ class MeshcatJointDevice(JointDevice):
             step = steps[i] if steps else (hi - lo) / 200.0
             meshcat.AddSlider(name, lo, hi, step, x0, keys[i][0], keys[i][1])
         add_stop_button(meshcat)
+        self._limits = np.array(limits, float).reshape(-1, 2)
+        self.clamped = 0  # channel values held back to their range
         super().__init__(self._read, channels, mix, period_s, latency_s)
 
     def _read(self, t: float) -> np.ndarray:
-        return np.array([self.meshcat.GetSliderValue(name) for name in self._names])
+        """The sliders' values, each held to its range on the server (any page on this machine can
+        send a value, and Meshcat does not bound it): counted, and shown back on the slider."""
+        values = np.array([self.meshcat.GetSliderValue(name) for name in self._names])
+        lo, hi = self._limits[:, 0], self._limits[:, 1]
+        held = np.clip(np.where(np.isnan(values), lo, values), lo, hi)
+        for i in np.nonzero(held != values)[0]:
+            self.clamped += 1
+            self.meshcat.SetSliderValue(self._names[i], float(held[i]))
+        return held
+
+    def status(self, context) -> dict:
+        return {"device_clamped_samples": self.clamped}

@@ -103,6 +103,41 @@ def test_live_joint_device_reads_its_sliders(meshcat):
         MeshcatJointDevice(meshcat, ["yaw"], [(-0.6, 0.6)], [0.9])
 
 
+def slide(meshcat, name, value):
+    """What any page on this machine can send: a slider value, unbounded (Meshcat keeps it as sent)."""
+    meshcat._InjectWebsocketMessage(msgpack.packb({"type": "slider", "name": name, "value": value}))
+
+
+def test_a_slider_value_past_the_workspace_is_held_to_it_on_the_server(meshcat):
+    """A page sent x = 1000 m (it moved the target 1 km away before): the device holds it to the
+    workspace's 0.2 m, counts it, and puts the slider back where the target is."""
+    meshcat.Delete()
+    meshcat.DeleteAddedControls()
+    # 0.1 s between samples, so the sample guard's 10 m/s lets the held move (0.21 m) through
+    device = MeshcatDevice(meshcat, RigidTransform([0, 0, 0.05]), WORKSPACE, period_s=0.1)
+    sim = Simulator(device)
+    advance(device, sim, 0.05)
+    slide(meshcat, "x", 1000.0)
+    slide(meshcat, "z", -3.0)
+    assert meshcat.GetSliderValue("x") == 1000.0  # Meshcat itself does not bound it
+    X, _ = advance(device, sim, 0.15)
+    np.testing.assert_array_equal(X.translation(), [0.2, 0.0, 0.0])  # the workspace's corner
+    assert meshcat.GetSliderValue("x") == 0.2 and meshcat.GetSliderValue("z") == 0.0
+    assert device.status(device.GetMyContextFromRoot(sim.get_context()))["device_clamped_samples"] == 1
+    advance(device, sim, 0.25)  # held: nothing more to count
+    assert device.clamped == 1
+
+
+def test_a_joint_slider_value_past_its_range_is_held_to_it(meshcat):
+    meshcat.Delete()
+    meshcat.DeleteAddedControls()
+    device = MeshcatJointDevice(meshcat, ["yaw", "insertion"], [(-0.6, 0.6), (0.0, 0.15)], [0.0, 0.05])
+    slide(meshcat, "device insertion", 1e6)
+    slide(meshcat, "device yaw", float("nan"))
+    np.testing.assert_array_equal(device.channel_values(0.0), [-0.6, 0.15])
+    assert device.clamped == 2 and meshcat.GetSliderValue("device insertion") == 0.15
+
+
 def test_live_workspace_must_contain_the_start(meshcat):
     with pytest.raises(ValueError, match=r"workspace .* must be a box containing the start point \[0\.5"):
         MeshcatDevice(meshcat, RigidTransform([0.5, 0, 0]), WORKSPACE)
