@@ -15,6 +15,7 @@ one screen each.
 """
 
 import dataclasses
+import logging
 import math
 import warnings
 
@@ -62,14 +63,55 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
         if before_finalize is not None:
             before_finalize(plant, scene_graph)
 
-    return add_scene_plant(
-        builder,
-        scenario.plant,
-        scenario.directives,
-        scenario.contact.geometry,
-        scenario.contact.relaxation_time_s,
-        before,
-    )
+    with _DrakeWarnings() as drake_warnings:
+        scene = add_scene_plant(
+            builder,
+            scenario.plant,
+            scenario.directives,
+            scenario.contact.geometry,
+            scenario.contact.relaxation_time_s,
+            before,
+        )
+    for message in drake_warnings.messages:
+        if "mass > 0" in message or "mass <= 0" in message:  # Drake then gives the body 1 kg, silently
+            raise sc.ScenarioError(
+                f"a model declares a body with no positive mass; Drake replaced its inertia ({message}). "
+                "Give the body <inertial><mass> > 0 in its model file, or weld it (add_weld) if it should "
+                "not move"
+            )
+    check_free_bodies(scene.plant)
+    return scene
+
+
+class _DrakeWarnings(logging.Handler):
+    """Drake's log warnings while a block runs (pydrake sends its log to Python's ``drake`` logger)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+    def __enter__(self):
+        logging.getLogger("drake").addHandler(self)
+        return self
+
+    def __exit__(self, *exc):
+        logging.getLogger("drake").removeHandler(self)
+
+
+def check_free_bodies(plant: MultibodyPlant) -> None:
+    """Refuse a free body without a positive, finite mass: Drake only logs a warning, and the body
+    then has no dynamics the coupling or contact could act on."""
+    for body in plant.GetFloatingBaseBodies():
+        body = plant.get_body(body)
+        mass = body.default_mass()
+        if not (math.isfinite(mass) and mass > 0):
+            raise sc.ScenarioError(
+                f"{body.scoped_name().get_full()}: a free body with mass {mass!r} kg; give it "
+                "<inertial><mass> > 0 in its model file, or weld it (add_weld) if it should not move"
+            )
 
 
 # -- devices ---------------------------------------------------------------------------------------------

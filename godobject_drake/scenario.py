@@ -223,6 +223,11 @@ class Deformable:
 POSE_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "pose")
 JOINT_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "joint")
 SPACE_NAMES = {"pose": "pose", "joint": "joint-space"}
+# Limits on values that would make a run's output useless or the run never end.
+MIN_TIME_STEP_S = 1e-5
+MAX_DURATION_S = 1e6
+MAX_FRAMES_PER_SECOND = 1000.0
+MAX_BRICKS = 512
 HAPTIC_MODES = ("none", "impedance", "admittance")
 
 
@@ -297,8 +302,11 @@ class Simulation:
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if not (math.isfinite(self.duration_s) and self.duration_s > 0):
-            raise ValueError(f"duration_s: {self.duration_s!r} s must be > 0")
+        if not (math.isfinite(self.duration_s) and 0 < self.duration_s <= MAX_DURATION_S):
+            raise ValueError(
+                f"duration_s: {self.duration_s!r} s must be > 0 and at most {MAX_DURATION_S:g} s (11.6 days); "
+                "a longer session is several runs"
+            )
         if self.mode not in SIMULATION_MODES:
             raise ValueError(f"mode: {self.mode!r}; choose one of {SIMULATION_MODES}")
         if not (math.isfinite(self.realtime_rate) and self.realtime_rate >= 0):
@@ -360,6 +368,11 @@ class Visualization:
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        period = self.publish_period_s
+        if not (math.isfinite(period) and period > 0):
+            raise ValueError(
+                f"publish_period_s: {period!r} s must be > 0 (e.g. {1 / 64:g}: 64 frames a second)"
+            )
         if not self.host.strip():
             raise ValueError(f"host: {self.host!r}: give localhost (this machine only) or an address")
         if self.port is not None and not (isinstance(self.port, int) and 0 <= self.port <= 65535):
@@ -381,6 +394,12 @@ class Recording:
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        fps = self.frames_per_second
+        if not (math.isfinite(fps) and 0 < fps <= MAX_FRAMES_PER_SECOND):
+            raise ValueError(
+                f"frames_per_second: {fps!r} must be in (0, {MAX_FRAMES_PER_SECOND:g}] (a browser shows 60; "
+                "the default 64 gives a frame every 1/64 s)"
+            )
         if not (self.max_duration_s > 0):
             raise ValueError(
                 f"max_duration_s: {self.max_duration_s!r} s must be > 0 (it caps the recording's size)"
@@ -593,6 +612,13 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     h = s.plant.time_step
     if not (isinstance(h, float | int) and math.isfinite(h) and h > 0):
         _fail(where, "plant.time_step", f"{h!r} s; SAP is discrete: give a step h > 0 (e.g. 0.001)")
+    if h < MIN_TIME_STEP_S:
+        _fail(
+            where,
+            "plant.time_step",
+            f"{h!r} s is under {MIN_TIME_STEP_S:g} s: a simulated second would take {1 / h:.3g} steps. "
+            "Give h ≥ 1e-05 (the shipped scenes use 0.001)",
+        )
     if s.plant.discrete_contact_approximation not in ("sap", "lagged", "similar"):
         _fail(
             where,
@@ -614,8 +640,13 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
         s.sleep.check()
     except ValueError as e:
         _fail(where, "sleep", str(e))
-    if not (isinstance(s.bricks, int) and s.bricks >= 0):
-        _fail(where, "bricks", f"{s.bricks!r}: give a whole number of bricks, or 0 for the directives' own")
+    if not (isinstance(s.bricks, int) and 0 <= s.bricks <= MAX_BRICKS):
+        _fail(
+            where,
+            "bricks",
+            f"{s.bricks!r}: give a whole number of bricks up to {MAX_BRICKS} (the grid's 54 places a layer; "
+            "the scale study goes to 128), or 0 for the directives' own",
+        )
     _check_across(s, device_kind, where)
 
 

@@ -9,12 +9,14 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import build_scene
+from conftest import REPO, assert_refused, build_scene, own_scene_files
 from drake import lcmt_force_torque
 
+from godobject_drake.building import build_station
 from godobject_drake.lcm_device import FEEDBACK_CHANNEL
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
+from godobject_drake.scenario import ScenarioError, load_scenario
 from godobject_drake.simulation import simulate
 
 
@@ -140,3 +142,39 @@ def test_a_real_device_gets_a_zero_wrench_when_the_run_fails():
 def test_devices_that_render_no_feedback_send_nothing():
     m = simulate(build_scene("lego", "--duration", "0.05"), progress=False).metrics
     assert "feedback_zeroed_at_s" not in m
+
+
+LEGO = REPO / "diagrams" / "lego.yaml"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "value", "limit", "fix"),
+    [
+        ("recording: {frames_per_second: 0.0}", r"second: 0\.0", r"in \(0, 1000\]", r"default 64"),
+        ("recording: {frames_per_second: .nan}", r"second: nan", r"in \(0, 1000\]", r"default 64"),
+        ("visualization: {publish_period_s: 0.0}", r"period_s: 0\.0 s", r"must be > 0", r"e\.g\. 0\.015625"),
+        ("visualization: {publish_period_s: .nan}", r"period_s: nan s", r"must be > 0", r"64 frames"),
+        ("plant: {time_step: 1.0e-12}", r"time_step: 1e-12 s", r"under 1e-05 s", r"Give h ≥ 1e-05"),
+        ("simulation: {duration_s: 1.0e+300}", r"duration_s: 1e\+300 s", r"at most 1e\+06", r"several runs"),
+        ("bricks: 100000", r"bricks: 100000", r"up to 512", r"or 0 for the directives' own"),
+    ],
+)  # fmt: skip
+def test_values_that_would_make_the_output_useless_or_the_run_endless_are_refused(
+    overrides, value, limit, fix
+):
+    """Each was accepted before: a one-frame recording or frame −2147483648, a drawing every 0 s, a
+    step of 1 ps, a run of 1e300 s, 100 000 bricks to build."""
+    assert_refused(lambda: load_scenario(LEGO, overrides), ScenarioError, value=value, limit=limit, fix=fix)
+
+
+def test_a_free_body_without_mass_is_refused_naming_it(tmp_path):
+    """Drake only logs a warning for it and gives the body 1 kg; the README's own scene with the
+    cube's mass set to 0 is refused, Drake's message (file and line) inside ours."""
+    own_scene_files(tmp_path)
+    sdf = tmp_path / "cube_post.sdf"
+    sdf.write_text(sdf.read_text().replace("<mass>0.2</mass>", "<mass>0</mass>"))
+    assert_refused(
+        lambda: build_station(load_scenario(tmp_path / "cube_post.yaml")), ScenarioError,
+        value=r"cube_post\.sdf:26: .*'mass > 0' failed", limit=r"no positive mass",
+        fix=r"<inertial><mass> > 0 in its model file, or weld it \(add_weld\)",
+    )  # fmt: skip
