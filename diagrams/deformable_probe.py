@@ -28,7 +28,8 @@ def build(scenario, meshcat=None):
     builder = DiagramBuilder()
     device = builder.AddNamedSystem(
         "device", building.make_device(scenario.device, seed=scenario.random_seed, meshcat=meshcat,
-                                       workspace=scenario.workspace),
+                                       workspace=scenario.workspace,
+                                       duration_s=scenario.simulation.duration_s),  # a log: what it reaches
     )  # fmt: skip
     probe = scenario.god_object
     probe.gains.check(scenario.time_step)  # before meshing anything

@@ -25,7 +25,10 @@ SCENARIO = Path(__file__).with_suffix(".yaml")
 def build(scenario, meshcat=None):
     """The wiring: interface → coupling (kinematic copy of the tool) → plant; plant → feedback."""
     builder = DiagramBuilder()
-    device = builder.AddNamedSystem("device", building.make_device(scenario.device, meshcat=meshcat))
+    device = builder.AddNamedSystem(
+        "device",
+        building.make_device(scenario.device, meshcat=meshcat, duration_s=scenario.simulation.duration_s),
+    )
     scene = building.add_plant(builder, scenario)  # organs, grasper through the trocar
     god_object = building.add_articulated(
         builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,

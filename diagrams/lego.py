@@ -23,7 +23,8 @@ def build(scenario, meshcat=None):
     builder = DiagramBuilder()
     device = builder.AddNamedSystem(
         "device", building.make_device(scenario.device, seed=scenario.random_seed, meshcat=meshcat,
-                                       workspace=scenario.workspace),
+                                       workspace=scenario.workspace,
+                                       duration_s=scenario.simulation.duration_s),  # a log: what it reaches
     )  # fmt: skip
     scene = building.add_plant(builder, scenario)  # baseplate, wall, 8 bricks; proxies touch true boxes
     god = scenario.god_object

@@ -134,13 +134,15 @@ def make_device(
     seed: int = 0,
     meshcat: Meshcat | None = None,
     workspace: "sc.Workspace | None" = None,
+    duration_s: float = math.inf,
 ) -> DeviceSource | JointDevice:
     """The device a scenario's ``device`` field describes (not yet added to a builder): its
     registered kind's factory (:mod:`~godobject_drake.device_kinds`).
 
     ``seed`` seeds the pose devices' noise; a live device (``MeshcatSliders``,
     ``MeshcatJointSliders``) needs the ``meshcat`` whose page drives it, and a pose one the
-    ``workspace`` its sliders span.
+    ``workspace`` its sliders span. ``duration_s``: the run's length, so a log is read only as far
+    as the run reaches (a log of any length costs what the run uses).
     """
     kind_of(config)  # an unregistered config is refused, naming the known kinds
     try:
@@ -148,7 +150,7 @@ def make_device(
     except ValueError as e:
         raise sc.ScenarioError(f"device.{e}") from None
     try:
-        return config.make(seed=seed, meshcat=meshcat, workspace=workspace)
+        return config.make(seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s)
     except ValueError as e:
         if str(e).startswith("device:"):  # what the kind needs from the scene (a Meshcat, a workspace)
             raise sc.ScenarioError(str(e)) from None
@@ -292,8 +294,9 @@ def build_station(
     device = builder.AddNamedSystem(
         "device",
         make_device(
-            scenario.device, seed=scenario.random_seed, meshcat=meshcat, workspace=scenario.workspace
+            scenario.device, seed=scenario.random_seed, meshcat=meshcat, workspace=scenario.workspace,
+            duration_s=scenario.simulation.duration_s,
         ),
-    )
+    )  # fmt: skip
     scene, god = kind_for(scenario.god_object).build(builder, scenario, device, check_gains=check_gains)
     return finish(builder, scenario, scene, god, meshcat)

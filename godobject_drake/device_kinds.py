@@ -56,6 +56,7 @@ from godobject_drake.devices import (
 )
 
 SPACES = ("pose", "joint")
+MAX_RATE_HZ = 1e5  # a device sample every 10 µs at most
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,15 +156,19 @@ class DeviceConfig:
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"`` (the scenario prefixes ``device.``)."""
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError(f"rate_hz: {self.rate_hz!r} Hz must be > 0")
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= MAX_RATE_HZ):
+            raise ValueError(
+                f"rate_hz: {self.rate_hz!r} Hz must be > 0 and at most {MAX_RATE_HZ:g} Hz (haptic devices "
+                "run at 1 to 10 kHz)"
+            )
 
     @property
     def period_s(self) -> float:
         return 1.0 / self.rate_hz
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
-        """The runtime system (not yet added to a builder)."""
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
+        """The runtime system (not yet added to a builder). ``duration_s``: how long the run goes,
+        so a log is read only as far as the run can reach."""
         raise NotImplementedError(f"{type(self).__name__}.make")
 
     def stand_in(self):
@@ -277,7 +282,7 @@ class Scripted(_PoseDevice):
         self.check()
         return load_device_path(self.path).waypoints if self.path else self.waypoints
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         return ScriptedDevice(self.path_waypoints(), noise_m=self.noise_m, seed=seed, **self.sampling())
 
     def start_pose(self) -> RigidTransform:
@@ -297,9 +302,9 @@ class Replay(_PoseDevice):
         if not self.log:
             raise ValueError("log: !Replay needs log: FILE.csv (README 'Device log format')")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         self.check()
-        return ReplayDevice(self.log, noise_m=self.noise_m, seed=seed, **self.sampling())
+        return ReplayDevice(self.log, noise_m=self.noise_m, seed=seed, **self.sampling(), until_s=duration_s)
 
     def start_pose(self) -> RigidTransform:
         log = ReplayDevice(self.log).log
@@ -329,10 +334,10 @@ class Relative(_PoseDevice):
         if not self.log:
             raise ValueError("log: !Relative needs log: FILE.csv (README 'Relative device')")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         self.check()
         return RelativeDevice(self.log, self.start_pose(), noise_m=self.noise_m, seed=seed, **self.sampling(),
-                              aids=self.aids())  # fmt: skip
+                              aids=self.aids(), until_s=duration_s)  # fmt: skip
 
 
 @device_kind(
@@ -356,7 +361,7 @@ class MeshcatSliders(_PoseDevice):
         if self.noise_m:
             raise ValueError("noise_m: a live device's samples are the user's own; leave it 0")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         from godobject_drake.live import MeshcatDevice
 
         if meshcat is None or workspace is None:
@@ -408,7 +413,7 @@ class Lcm(_PoseDevice):
         if self.noise_m:
             raise ValueError("noise_m: a real device's samples are its own; leave it 0")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         from godobject_drake.lcm_device import LcmDevice, make_lcm
 
         return LcmDevice(
@@ -486,7 +491,7 @@ class ScriptedJoints(_JointDevice):
             raise ValueError(f"channels: {self.channels} differ from the path's channels {path.channels}")
         return path
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         return ScriptedJointDevice(self.joint_path(), **self.sampling())
 
 
@@ -502,9 +507,9 @@ class ReplayJoints(_JointDevice):
         if not self.log:
             raise ValueError("log: !ReplayJoints needs log: FILE.csv (header t,<channels>)")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         self.check()
-        return ReplayJointDevice(self.log, self.channels, **self.sampling())
+        return ReplayJointDevice(self.log, self.channels, **self.sampling(), until_s=duration_s)
 
 
 @device_kind("meshcat", space="joint", live=True, real_time=True, summary="live from the browser")
@@ -519,7 +524,7 @@ class MeshcatJointSliders(_JointDevice):
         if len(self.limits) != len(self.channels):
             raise ValueError(f"limits: {self.limits}: give one [lower, upper] per channel {self.channels}")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         from godobject_drake.live import MeshcatJointDevice
 
         if meshcat is None:
@@ -546,7 +551,7 @@ class LcmJoints(_JointDevice):
         if len(self.start) != len(self.channels):
             raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None):
+    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         from godobject_drake.lcm_device import LcmJointDevice, make_lcm
 
         s = self.sampling()

@@ -576,6 +576,11 @@ class ScriptedDevice(DeviceSource):
         self.end_time_s = float(times[-1])
         super().__init__(self._sample_path, period_s, latency_s, noise_m, seed, interpolation, guard)
 
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
+        """The waypoints' grasp names (up to ``duration_s`` of device time): read off the path, not
+        sampled, so a path of any length costs its waypoints only."""
+        return _names_until(self._times, self._grasps, duration_s, self.latency_s)
+
     def path_sample(self, t: float) -> Sample:
         """The path itself at time ``t`` (clamped to its span): no latency, noise or guard."""
         return self._sample_path(t)
@@ -599,25 +604,33 @@ class DeviceLog:
 
 
 def _csv_rows(filename: str | Path, header: Sequence[str], hint: str = ""):
-    """Non-empty data rows of a device CSV as ``(where, row)``, after checking the header.
+    """Non-empty data rows of a device CSV as ``(where, row)``, after checking the header, read as
+    they are needed: a bad row is found without reading the rest, and a reader that stops early
+    (a run shorter than the log) reads no further.
 
     ``where`` is ``file:line``, for errors that say where to look.
     """
     filename = Path(filename)
     if not filename.is_file():
         raise FileNotFoundError(f"device log {filename} does not exist")
-    try:
-        with filename.open(newline="", encoding="utf-8") as f:
-            rows = list(csv.reader(f))
-    except (UnicodeDecodeError, csv.Error) as e:  # found by tests/test_fuzz.py: not a text CSV
-        raise ValueError(f"{filename}: not a UTF-8 text CSV ({e}); write the log as text.{hint}") from None
-    if not rows or tuple(c.strip() for c in rows[0]) != tuple(header):
-        got = rows[0] if rows else "an empty file"
-        raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}.{hint}")
-    out = [(f"{filename}:{line}", row) for line, row in enumerate(rows[1:], start=2) if row]
-    if not out:
+    rows = 0
+    with filename.open(newline="", encoding="utf-8") as f:
+        reader = csv.reader(f)
+        try:
+            first = next(reader, None)
+            if first is None or tuple(c.strip() for c in first) != tuple(header):
+                got = first if first is not None else "an empty file"
+                raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}.{hint}")
+            for line, row in enumerate(reader, start=2):
+                if row:
+                    rows += 1
+                    yield f"{filename}:{line}", row
+        except (UnicodeDecodeError, csv.Error) as e:  # found by tests/test_fuzz.py: not a text CSV
+            raise ValueError(
+                f"{filename}: not a UTF-8 text CSV ({e}); write the log as text.{hint}"
+            ) from None
+    if not rows:
         raise ValueError(f"{filename}: the log has a header but no rows")
-    return out
 
 
 def _finite_floats(where: str, cells: Sequence[str]) -> list[float]:
@@ -638,8 +651,9 @@ def _check_after(where: str, t: float, times: list[float]) -> None:
         )
 
 
-def read_device_log(filename: str | Path) -> DeviceLog:
-    """Read and check a device CSV log with header ``t,x,y,z,qw,qx,qy,qz,grasp``.
+def read_device_log(filename: str | Path, until_s: float = math.inf) -> DeviceLog:
+    """Read and check a device CSV log with header ``t,x,y,z,qw,qx,qy,qz,grasp``, up to the first
+    row past ``until_s`` (s): a run reads what it can reach, however long the log.
 
     Raises ``ValueError`` naming the file and line of the first bad row.
     """
@@ -653,6 +667,8 @@ def read_device_log(filename: str | Path) -> DeviceLog:
         p.append(values[1:4])
         q.append(normalized_quaternion(values[4:8], what=where))
         grasp.append(row[8].strip() if len(row) == 9 else "")
+        if values[0] > until_s:
+            break
     return DeviceLog(np.array(t), np.array(p), np.array(q), grasp)
 
 
@@ -686,14 +702,27 @@ class ReplayDevice(DeviceSource):
         seed: int = 0,
         interpolation: str = "hold",
         guard: SampleGuard | None = None,
+        until_s: float = math.inf,
     ):
-        self.log = log if isinstance(log, DeviceLog) else read_device_log(log)
+        self.log = log if isinstance(log, DeviceLog) else read_device_log(log, until_s)
         self.end_time_s = float(self.log.t[-1])
         super().__init__(self._sample_log, period_s, latency_s, noise_m, seed, interpolation, guard)
 
     def _sample_log(self, t: float) -> Sample:
         k = max(int(np.searchsorted(self.log.t, t + 1e-9, side="right")) - 1, 0)
         return self.log.p[k], self.log.q[k], self.log.grasp[k]
+
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
+        """The log's grasp names (up to ``duration_s``), read off its rows."""
+        return _names_until(self.log.t, self.log.grasp, duration_s, self.latency_s)
+
+
+def _names_until(times, names, duration_s: float | None, latency_s: float) -> set[str]:
+    """The non-empty names of the rows a device reports on ``[0, duration_s]`` (None: all): the
+    rows up to ``duration_s − latency_s`` of its own time, and the first row, reported before it."""
+    last = len(names) if duration_s is None else max(int(np.searchsorted(times, duration_s - latency_s + 1e-9,
+                                                                        side="right")), 1)  # fmt: skip
+    return {n for n in names[:last] if n}
 
 
 RELATIVE_CSV_HEADER = ("t", "dx", "dy", "dz", "drx", "dry", "drz", "clutch", "grasp")
@@ -711,8 +740,9 @@ class IncrementLog:
     grasp: list[str]
 
 
-def read_increment_log(filename: str | Path) -> IncrementLog:
-    """Read and check a relative device's CSV (``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
+def read_increment_log(filename: str | Path, until_s: float = math.inf) -> IncrementLog:
+    """Read and check a relative device's CSV (``t,dx,dy,dz,drx,dry,drz,clutch,grasp``), up to the
+    first row past ``until_s`` (s).
 
     Raises ``ValueError`` naming the file and line of the first bad row.
     """
@@ -730,6 +760,8 @@ def read_increment_log(filename: str | Path) -> IncrementLog:
         drot.append(values[4:7])
         clutch.append(values[7] == 1.0)
         grasp.append(row[8].strip() if len(row) == 9 else "")
+        if values[0] > until_s:
+            break
     return IncrementLog(np.array(t), np.array(dp), np.array(drot), np.array(clutch), grasp)
 
 
@@ -787,8 +819,9 @@ class RelativeDevice(DeviceSource):
         interpolation: str = "hold",
         guard: SampleGuard | None = None,
         aids: RelativeAids | None = None,
+        until_s: float = math.inf,
     ):
-        self.log = log if isinstance(log, IncrementLog) else read_increment_log(log)
+        self.log = log if isinstance(log, IncrementLog) else read_increment_log(log, until_s)
         X = X_WD0 or RigidTransform()
         p, R = X.translation().copy(), X.rotation().matrix().copy()
         self._p, self._q = [], []
@@ -807,6 +840,10 @@ class RelativeDevice(DeviceSource):
         if k < 0:
             return self._p0, self._q0, self.log.grasp[0]
         return self._p[k], self._q[k], self.log.grasp[k]
+
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
+        """The log's grasp names (up to ``duration_s``), read off its rows."""
+        return _names_until(self.log.t, self.log.grasp, duration_s, self.latency_s)
 
     def reversals(self, min_travel_m: float) -> list[tuple[float, np.ndarray]]:
         """``(t, d)`` for each log row whose increment points more than 90° from the last non-zero
@@ -992,8 +1029,11 @@ class ScriptedJointDevice(JointDevice):
         return self._trajectory.value(min(max(t, self._t_range[0]), self._t_range[1])).ravel()
 
 
-def read_joint_log(filename: str | Path, channels: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Read a joint-space device CSV with header ``t,<channels>``: times (s) and values.
+def read_joint_log(
+    filename: str | Path, channels: Sequence[str], until_s: float = math.inf
+) -> tuple[np.ndarray, np.ndarray]:
+    """Read a joint-space device CSV with header ``t,<channels>``: times (s) and values, up to the
+    first row past ``until_s`` (s).
 
     Raises ``ValueError`` naming the file and line of the first bad row.
     """
@@ -1006,6 +1046,8 @@ def read_joint_log(filename: str | Path, channels: Sequence[str]) -> tuple[np.nd
         _check_after(where, values[0], t)
         t.append(values[0])
         u.append(values[1:])
+        if values[0] > until_s:
+            break
     return np.array(t), np.array(u)
 
 
@@ -1022,8 +1064,9 @@ class ReplayJointDevice(JointDevice):
     """Replays a joint-space CSV log, holding the latest row whose time has passed (1 ns tolerance)."""
 
     def __init__(self, filename: str | Path, channels: Sequence[str], mix=None,
-                 period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ, latency_s: float = 0.0):  # fmt: skip
-        self._t, self._u = read_joint_log(filename, channels)
+                 period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ, latency_s: float = 0.0,
+                 until_s: float = math.inf):  # fmt: skip
+        self._t, self._u = read_joint_log(filename, channels, until_s)
         self.end_time_s = float(self._t[-1])
         super().__init__(self._value, channels, mix, period_s, latency_s)
 

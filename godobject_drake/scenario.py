@@ -304,8 +304,8 @@ class Simulation:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
         if not (math.isfinite(self.duration_s) and 0 < self.duration_s <= MAX_DURATION_S):
             raise ValueError(
-                f"duration_s: {self.duration_s!r} s must be > 0 and at most {MAX_DURATION_S:g} s (11.6 days); "
-                "a longer session is several runs"
+                f"duration_s: {self.duration_s!r} s must be > 0 and at most {MAX_DURATION_S:g} s "
+                "(11.6 days); a longer session is several runs"
             )
         if self.mode not in SIMULATION_MODES:
             raise ValueError(f"mode: {self.mode!r}; choose one of {SIMULATION_MODES}")

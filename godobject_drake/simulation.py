@@ -150,6 +150,11 @@ def simulate(
     duration = sim.duration_s if duration_s is None else float(duration_s)
     if not (duration > 0 and np.isfinite(duration)):
         raise ValueError(f"duration_s={duration!r} s must be > 0")
+    if duration > sim.duration_s and kind_of(scenario.device).needs_log:
+        raise ValueError(
+            f"duration_s={duration!r} s is past the scenario's simulation.duration_s={sim.duration_s!r} s, "
+            "and its device's log was read only that far: build the station with the longer duration"
+        )
     record = record or scenario.recording.file or None
     meshcat = station.meshcat
     if record and meshcat is None:

@@ -48,7 +48,7 @@ class Circle(_PoseDevice):
         if not self.radius_m > 0:
             raise ValueError(f"radius_m: {self.radius_m!r} m must be > 0 (e.g. 0.02)")
 
-    def make(self, *, seed=0, meshcat=None, workspace=None):
+    def make(self, *, seed=0, meshcat=None, workspace=None, duration_s=math.inf):
         return CircleDevice(self.center_m, self.radius_m, self.turn_s, self.period_s)
 
     def start_pose(self):

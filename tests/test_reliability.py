@@ -1,6 +1,7 @@
 """Nothing lost and nothing left pushing (issue 30): outputs written whole, strict JSON, a full disk,
 and a real device's feedback zeroed whatever stops the run."""
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -13,6 +14,7 @@ from conftest import REPO, assert_refused, build_scene, own_scene_files
 from drake import lcmt_force_torque
 
 from godobject_drake.building import build_station
+from godobject_drake.devices import ScriptedDevice
 from godobject_drake.lcm_device import FEEDBACK_CHANNEL
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
@@ -157,13 +159,15 @@ LEGO = REPO / "diagrams" / "lego.yaml"
         ("plant: {time_step: 1.0e-12}", r"time_step: 1e-12 s", r"under 1e-05 s", r"Give h ≥ 1e-05"),
         ("simulation: {duration_s: 1.0e+300}", r"duration_s: 1e\+300 s", r"at most 1e\+06", r"several runs"),
         ("bricks: 100000", r"bricks: 100000", r"up to 512", r"or 0 for the directives' own"),
+        (f"device: !Scripted {{path: {REPO}/models/lego/default_path.yaml, rate_hz: 1.0e+9}}",
+         r"rate_hz: 1000000000\.0 Hz", r"at most 100000 Hz", r"1 to 10 kHz"),
     ],
 )  # fmt: skip
 def test_values_that_would_make_the_output_useless_or_the_run_endless_are_refused(
     overrides, value, limit, fix
 ):
     """Each was accepted before: a one-frame recording or frame −2147483648, a drawing every 0 s, a
-    step of 1 ps, a run of 1e300 s, 100 000 bricks to build."""
+    step of 1 ps, a run of 1e300 s, 100 000 bricks to build, a device sampled at 1 GHz."""
     assert_refused(lambda: load_scenario(LEGO, overrides), ScenarioError, value=value, limit=limit, fix=fix)
 
 
@@ -178,3 +182,72 @@ def test_a_free_body_without_mass_is_refused_naming_it(tmp_path):
         value=r"cube_post\.sdf:26: .*'mass > 0' failed", limit=r"no positive mass",
         fix=r"<inertial><mass> > 0 in its model file, or weld it \(add_weld\)",
     )  # fmt: skip
+
+
+class _CountingPath(ScriptedDevice):
+    """The brick scene's path with its times written in µs as if they were s (× 1e6: 8.5e6 s), its
+    sampler counted and stopped past a bound, so work that grows with the path's length fails fast."""
+
+    BOUND = 10_000
+
+    def __init__(self, *args, **kwargs):
+        self.calls = 0
+        super().__init__(*args, **kwargs)
+
+    def _sample_path(self, t):
+        self.calls += 1
+        assert self.calls <= self.BOUND, "the device was sampled far past the run"
+        return super()._sample_path(t)
+
+
+def test_a_path_whose_times_run_far_costs_what_the_run_uses():
+    """A path of 8.5e6 s: building the scene sampled it whole at 60 Hz (5e8 samples; RSS 160 → 786 MB
+    in 40 s, still building). Now the grasp names are read off the waypoints, and a 0.2 s run
+    samples the path 13 times, not more than a run without the stretch."""
+    from pydrake.systems.framework import DiagramBuilder
+
+    from godobject_drake.building import add_god_object, add_plant, finish
+    from godobject_drake.devices import load_device_path
+
+    s = load_scenario(LEGO, "simulation: {duration_s: 0.2}")
+    waypoints = load_device_path(REPO / "models" / "lego" / "default_path.yaml").waypoints
+    far = [dataclasses.replace(w, t=w.t * 1e6) for w in waypoints]
+    builder = DiagramBuilder()
+    device = builder.AddNamedSystem("device", _CountingPath(far))
+    assert device.grasp_names() == {"brick_0"} and device.calls <= 2
+    scene = add_plant(builder, s)
+    god = add_god_object(builder, scene.plant, device, s.god_object.gains, s.feedback)
+    station = finish(builder, s, scene, god)
+    result = simulate(station, progress=False)
+    assert result.metrics["sim_time_s"] == pytest.approx(0.2) and device.calls < 100
+
+
+def _log_with_junk_after(path, rows: int, bad_line_2: bool = False):
+    """A device log of ``rows`` good rows (10 ms apart) followed by bytes no UTF-8 text holds."""
+    lines = ["t,x,y,z,qw,qx,qy,qz,grasp"]
+    lines += [f"{0.01 * k!r},-0.1,0.0,0.0048,1,0,0,0,brick_0" for k in range(rows)]
+    if bad_line_2:
+        lines[1] = "0.0,-0.1,fast,0.0048,1,0,0,0,brick_0"
+    path.write_bytes(("\n".join(lines) + "\n").encode() + bytes([0xFF, 0xFE, 0xC0]) * 1000)
+    return path
+
+
+def test_a_log_is_read_as_far_as_the_run_reaches(tmp_path):
+    """A 1 s run of a replayed log reads its first second: the junk after row 5 000 (50 s) is never
+    read (the whole file was read first, and refused, before)."""
+    log = _log_with_junk_after(tmp_path / "log.csv", rows=5_000)
+    s = load_scenario(LEGO, f"device: !Replay {{log: {log}}}\nsimulation: {{duration_s: 1.0}}")
+    station = build_station(s)
+    assert len(station.device.log.t) == 102  # t = 0 .. 1.01 s: through the first row past the run
+    assert not simulate(station, progress=False).metrics["diverged"]
+    with pytest.raises(ValueError, match=r"duration_s=2\.0 s is past the scenario's .* build the station"):
+        simulate(station, duration_s=2.0, progress=False)
+
+
+def test_a_bad_row_is_found_without_reading_the_rest(tmp_path):
+    """Bad at line 2 of a long log: said at once, naming line 2 (it took 70 s and 1.75 GB for a
+    136 MB log, as the whole file was read before any check; here the junk after it would have
+    been the complaint)."""
+    log = _log_with_junk_after(tmp_path / "log.csv", rows=50_000, bad_line_2=True)
+    with pytest.raises(ValueError, match=r"log\.csv:2: could not convert string to float: 'fast'"):
+        build_station(load_scenario(LEGO, f"device: !Replay {{log: {log}}}"))
