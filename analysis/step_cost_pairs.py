@@ -3,8 +3,9 @@
 A refactoring that should not change speed is checked with this: a checkout of the code before
 (``git worktree add /tmp/before <commit>``) against this one. Each pair runs the same scene once
 with each tree, in fresh processes, A then B, so a machine whose speed drifts slows both alike;
-the figure is the per-pair ratio B/A of the simulation loop's cost per step (``step_cost_us``,
-the loop alone: not the build, not the metrics), and its median over the pairs.
+the figure is the per-pair ratio B/A of the run's CPU time per plant step (the process's CPU time
+over ``simulate``: the stepping loop and the metrics' folding, not the build), and its median over
+the pairs. Pairs alternate their order (A B, then B A) so a drift within a pair cancels.
 
     python analysis/step_cost_pairs.py /tmp/before . --pairs 5
 
@@ -27,7 +28,7 @@ SCENES = {  # scene: (overrides, simulated seconds)
 }
 
 RUN = """
-import json, sys, warnings
+import json, sys, time, warnings
 from godobject_drake.building import build_station
 from godobject_drake.scenario import load_scenario, replace
 from godobject_drake.simulation import simulate
@@ -36,8 +37,12 @@ s = load_scenario(f"{sys.argv[4]}/diagrams/{scene}.yaml", overrides or None)
 s = replace(s, **{"simulation.duration_s": duration})
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")
-    m = simulate(build_station(s), progress=False, keep_logs=False).metrics
-print(json.dumps({"step_cost_us": m["step_cost_us"], "diverged": m["diverged"]}))
+    station = build_station(s)
+    cpu = time.process_time()
+    m = simulate(station, progress=False, keep_logs=False).metrics
+    cpu = time.process_time() - cpu
+steps = round(m["sim_time_s"] / m["time_step_s"])
+print(json.dumps({"step_cost_us": m["step_cost_us"], "cpu_us": 1e6 * cpu / steps, "diverged": m["diverged"]}))
 """
 
 
@@ -61,7 +66,7 @@ def step_cost(tree: Path, scene: str) -> float:
     result = json.loads(out.strip().splitlines()[-1])
     if result["diverged"]:
         raise RuntimeError(f"{scene} diverged with the tree {tree}")
-    return result["step_cost_us"]
+    return result["cpu_us"]
 
 
 def main(argv=None) -> int:
@@ -72,13 +77,17 @@ def main(argv=None) -> int:
     parser.add_argument("--scenes", nargs="*", choices=sorted(SCENES), default=list(SCENES))
     args = parser.parse_args(argv)
     print(f"{os.cpu_count()} CPUs (nproc), {cpu_model()}; Python {platform.python_version()}")
-    header = ("scene", "A µs/step (median)", "B µs/step (median)", "B/A per pair: median [min, max]")
+    header = ("scene", "A CPU µs/step", "B CPU µs/step", "B/A per pair: median [min, max]")
     print(f"{header[0]:18s} {header[1]:>19s} {header[2]:>19s} {header[3]:>34s}")
     for scene in args.scenes:
         a, b = [], []
-        for _ in range(args.pairs):
-            a.append(step_cost(args.before, scene))
-            b.append(step_cost(args.after, scene))
+        for k in range(args.pairs):
+            if k % 2 == 0:
+                a.append(step_cost(args.before, scene))
+                b.append(step_cost(args.after, scene))
+            else:
+                b.append(step_cost(args.after, scene))
+                a.append(step_cost(args.before, scene))
         ratios = [y / x for x, y in zip(a, b, strict=True)]
         print(
             f"{scene:18s} {statistics.median(a):19.1f} {statistics.median(b):19.1f} "

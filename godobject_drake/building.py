@@ -64,14 +64,21 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
             before_finalize(plant, scene_graph)
 
     with _DrakeWarnings() as drake_warnings:
-        scene = add_scene_plant(
-            builder,
-            scenario.plant,
-            scenario.directives,
-            scenario.contact.geometry,
-            scenario.contact.relaxation_time_s,
-            before,
-        )
+        try:
+            scene = add_scene_plant(
+                builder,
+                scenario.plant,
+                scenario.directives,
+                scenario.contact.geometry,
+                scenario.contact.relaxation_time_s,
+                before,
+            )
+        except RuntimeError as e:  # Drake's parser and plant: a model file, a name, a frame
+            said = " ".join(str(e).split()).rstrip(".")
+            raise sc.ScenarioError(
+                f"directives: Drake could not build the scene's plant: {said}. Check the directives' files, "
+                "model names (each once) and frame names (model::frame)"
+            ) from None
     for message in drake_warnings.messages:
         if "mass > 0" in message or "mass <= 0" in message:  # Drake then gives the body 1 kg, silently
             raise sc.ScenarioError(

@@ -726,6 +726,7 @@ def _names_until(times, names, duration_s: float | None, latency_s: float) -> se
 
 
 RELATIVE_CSV_HEADER = ("t", "dx", "dy", "dz", "drx", "dry", "drz", "clutch", "grasp")
+MAX_INCREMENT_M, MAX_INCREMENT_RAD = 10.0, 1000.0  # one row's increment at most (a mouse's is mm)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -755,6 +756,14 @@ def read_increment_log(filename: str | Path, until_s: float = math.inf) -> Incre
         _check_after(where, values[0], t)
         if values[7] not in (0.0, 1.0):
             raise ValueError(f"{where}: clutch is {row[7]!r}; it must be 0 (released: move) or 1 (pressed)")
+        for name, vector, most, unit in (("dx,dy,dz", values[1:4], MAX_INCREMENT_M, "m"),
+                                         ("drx,dry,drz", values[4:7], MAX_INCREMENT_RAD, "rad")):  # fmt: skip
+            size = math.hypot(*vector)
+            if not size <= most:
+                raise ValueError(
+                    f"{where}: the increment {name} = {vector} is {size:.3g} {unit} long, over {most:g} "
+                    f"{unit} in one row; a device reports small steps: write the log in metres and radians"
+                )
         t.append(values[0])
         dp.append(values[1:4])
         drot.append(values[4:7])

@@ -26,6 +26,7 @@ import math
 from pathlib import Path
 from typing import ClassVar
 
+import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
 from pydrake.multibody.plant import MultibodyPlantConfig
@@ -525,12 +526,15 @@ def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenari
     path = Path(filename)
     if not path.is_file():
         raise ScenarioError(f"scenario file {path} does not exist")
+    where = str(path)
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=str(path))
         if overrides:
+            where = "the overrides"
             scenario = yaml_load_typed(schema=Scenario, data=overrides, defaults=scenario)
-    except (RuntimeError, ValueError, TypeError, AssertionError) as e:
-        raise ScenarioError(f"{path}: {_explain(e)}") from None
+    except LOAD_ERRORS as e:
+        text = path.read_text(errors="replace") if where == str(path) else overrides
+        raise ScenarioError(f"{path}: {_explain(e, text, where)}") from None
     resolve_paths(scenario, path.resolve().parent)
     check_scenario(scenario, where=str(path))
     return scenario
@@ -540,8 +544,8 @@ def scenario_from_yaml(text: str, base_dir: str | Path = ".") -> Scenario:
     """A scenario from YAML text (relative paths against ``base_dir``)."""
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
-    except (RuntimeError, ValueError, TypeError, AssertionError) as e:
-        raise ScenarioError(f"scenario text: {_explain(e)}") from None
+    except LOAD_ERRORS as e:
+        raise ScenarioError(f"scenario text: {_explain(e, text, 'the text')}") from None
     resolve_paths(scenario, Path(base_dir).resolve())
     check_scenario(scenario, where="scenario text")
     return scenario
@@ -552,13 +556,60 @@ def scenario_to_yaml(scenario: Scenario) -> str:
     return yaml_dump_typed(scenario)
 
 
-def _explain(e: Exception) -> str:
+# What yaml_load_typed raises for a file it cannot read into a Scenario.
+LOAD_ERRORS = (RuntimeError, ValueError, TypeError, AssertionError, yaml.YAMLError)
+
+
+def _explain(e: Exception, source: str = "", where: str = "") -> str:
+    """The loader's message, with the key it is about and the fix where they can be told."""
     text = str(e) or type(e).__name__
+    if isinstance(e, yaml.YAMLError):
+        return (
+            f"not valid YAML in {where}: {' '.join(text.split())}; check the brackets, colons and indentation"
+        )
     if "were unknown to the schema" in text:
         return f"{text}: a key the scenario does not know (check its spelling and indentation)"
     if "did not match any of the allowed type options" in text:
         return f"{text}: give the YAML tag of one of those types, e.g. device: !Scripted {{...}}"
+    keys = _keys_holding(source, text)
+    if keys:
+        at = ", ".join(keys)
+        return f"{text} (at {at} in {where}): give that key a value of its type (a number, a list, ...)"
     return text
+
+
+def _keys_holding(source: str, message: str) -> list[str]:
+    """The key paths of ``source`` (YAML text) whose value the loader's ``message`` quotes: the
+    loader names the bad value but not its key."""
+    try:
+        data = yaml.load(source, Loader=_AnyTagLoader)
+    except yaml.YAMLError:
+        return []
+    found = []
+
+    def walk(node, at):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, f"{at}.{k}" if at else str(k))
+        elif isinstance(node, list) and at and (repr(node) in message or str(node) in message):
+            found.append(at)
+        elif isinstance(node, str) and at and repr(node) in message:
+            found.append(at)
+
+    walk(data, "")
+    return found
+
+
+class _AnyTagLoader(yaml.SafeLoader):
+    """A plain loader that reads ``!Tag {...}`` as its mapping (for finding keys only)."""
+
+
+_AnyTagLoader.add_multi_constructor(
+    "!",
+    lambda loader, suffix, node: (
+        loader.construct_mapping(node) if isinstance(node, yaml.MappingNode) else None
+    ),
+)
 
 
 PACKAGE_URL = "package://godobject_models/"
@@ -626,6 +677,14 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"{s.plant.discrete_contact_approximation!r}; use sap, lagged or similar (the god-object's "
             "joint modes and deformable shells need sap)",
         )
+    for field, strict in (("sap_near_rigid_threshold", False), ("penetration_allowance", True),
+                          ("stiction_tolerance", True)):  # fmt: skip
+        value = getattr(s.plant, field)
+        finite = isinstance(value, float | int) and math.isfinite(value)
+        if not (finite and (value > 0 if strict else value >= 0)):
+            default = getattr(MultibodyPlantConfig(), field)
+            _fail(where, f"plant.{field}", f"{value!r} must be a finite number {'>' if strict else '≥'} 0 "
+                  f"(Drake's default: {default:g})")  # fmt: skip
     try:
         device_kind = kind_of(s.device)
     except ValueError as e:

@@ -4,6 +4,7 @@ and a real device's feedback zeroed whatever stops the run."""
 import dataclasses
 import json
 import math
+import re
 import subprocess
 import sys
 import threading
@@ -13,6 +14,7 @@ import pytest
 from conftest import REPO, assert_refused, build_scene, own_scene_files
 from drake import lcmt_force_torque
 
+from godobject_drake import cli
 from godobject_drake.building import build_station
 from godobject_drake.devices import ScriptedDevice
 from godobject_drake.lcm_device import FEEDBACK_CHANNEL
@@ -251,3 +253,66 @@ def test_a_bad_row_is_found_without_reading_the_rest(tmp_path):
     log = _log_with_junk_after(tmp_path / "log.csv", rows=50_000, bad_line_2=True)
     with pytest.raises(ValueError, match=r"log\.csv:2: could not convert string to float: 'fast'"):
         build_station(load_scenario(LEGO, f"device: !Replay {{log: {log}}}"))
+
+
+DRAKE_REFUSALS = {  # overrides of the brick scene: what the user now reads (exit 2, no traceback)
+    "a missing model file": (
+        "- add_model: {name: thing, file: NOWHERE/nothing.sdf}",
+        r"directives: Drake could not build the scene's plant: error: URI .*nothing\.sdf.* does not exist",
+    ),
+    "a file that is not a model": (
+        f"- add_model: {{name: thing, file: {REPO}/README.md}}",
+        r"README\.md' is not a recognized type\. Known types are",
+    ),
+    "the same model name twice": (
+        "- add_directives: {file: package://godobject_models/lego/lego.dmd.yaml}",
+        r"a model instance named 'lego_table'.*Check the directives' files, model names \(each once\)",
+    ),
+    "a weld to a frame that does not exist": (
+        "- add_weld: {parent: world, child: no_such::frame}",
+        r"There is no model instance named 'no_such'.*frame names \(model::frame\)",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DRAKE_REFUSALS))
+def test_drake_errors_while_building_are_bad_input_with_drakes_message_inside(tmp_path, capsys, case):
+    """Each gave a traceback and exit 1."""
+    directive, message = DRAKE_REFUSALS[case]
+    text = LEGO.read_text().replace(
+        "directives:\n- add_directives:\n    file: package://godobject_models/lego/lego.dmd.yaml\n",
+        "directives:\n- add_directives: {file: package://godobject_models/lego/lego.dmd.yaml}\n"
+        + directive.replace("NOWHERE", str(tmp_path))
+        + "\n",
+    )
+    assert text.count("add_") >= 2
+    (tmp_path / "s.yaml").write_text(text)
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["run", str(tmp_path / "s.yaml"), "--duration", "0.01", "--no-progress"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and re.search(message, err) and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ("plant: {sap_near_rigid_threshold: .nan}",
+         r"plant\.sap_near_rigid_threshold: nan must be a finite number ≥ 0 \(Drake's default: 1\)"),
+        ("simulation: [1, 2]", r"\[1, 2\] \(at simulation in the overrides\): give that key a value"),
+        ("simulation: {duration_s: fast}", r"'fast' \(at simulation\.duration_s in the overrides\)"),
+        ("simulation: {duration_s: 1", r"not valid YAML in the overrides: .*check the brackets"),
+    ],
+)  # fmt: skip
+def test_scenario_mistakes_drake_reported_badly_name_the_key(overrides, message):
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario(LEGO, overrides)
+
+
+def test_an_increment_of_1e300_is_refused_naming_the_line(tmp_path):
+    """It reached Drake as 'Axis is not normalized'."""
+    log = tmp_path / "mouse.csv"
+    rows = ["t,dx,dy,dz,drx,dry,drz,clutch,grasp", "0.0,0,0,0,0,0,0,0,brick_0", "0.1,0,0,0,1e300,0,0,0,"]
+    log.write_text("\n".join(rows) + "\n")
+    said = r"mouse\.csv:3: the increment drx,dry,drz = \[1e\+300, 0\.0, 0\.0\] is 1e\+300 rad long, over 1000"
+    with pytest.raises(ValueError, match=said + r" in one row; .* metres and radians"):
+        build_station(load_scenario(LEGO, f"device: !Relative {{log: {log}}}"))
