@@ -18,6 +18,7 @@ import dataclasses
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -183,6 +184,7 @@ def simulate(
         wiring_checked=True,  # when the station was built (building.finish)
     )  # fmt: skip
     simulator.Initialize()
+    falls = FallWatch(plant, plant.GetMyContextFromRoot(root), god, min(FALL_WATCH_S, duration))
     recording_steps = None
     if record:
         meshcat.StartRecording(
@@ -242,6 +244,8 @@ def simulate(
             if recording_steps is not None and k >= recording_steps:
                 meshcat.StopRecording()  # the cap: the rest of the run is not recorded
                 recording_steps = None
+            if falls.pending and k * h >= falls.at_s - 0.5 * h:
+                falls.check(plant.GetMyContextFromRoot(root), root)
             if k >= next_fold:
                 t0 = time.perf_counter()
                 fold()
@@ -271,6 +275,8 @@ def simulate(
         metrics["interrupted"] = True
     if zeroed:
         metrics["feedback_zeroed_at_s"] = root.get_time()
+    if falls.fallen:
+        metrics["unsupported_bodies"] = falls.fallen
     if record:  # before the last metrics: a metric that fails must not lose the recording
         try:
             metrics["recording_bytes"] = save_recording(meshcat, record)
@@ -289,6 +295,44 @@ def simulate(
     if interrupted is not None:
         raise RunInterrupted(result) from interrupted
     return result
+
+
+FALL_WATCH_S = 1.0  # a free body that drops this early on its own was left unsupported
+FALL_DROP_M = 0.1  # how far below its start it must be: a second of free fall is 4.9 m
+
+
+class UnsupportedBodyWarning(UserWarning):
+    """A free body nobody held fell in the run's first second: a fixed model left unwelded?"""
+
+
+class FallWatch:
+    """Free bodies that fall on their own at the start of a run (a model someone forgot to weld:
+    the run used to exit 0 while it fell away). At ``at_s`` every free body not held then and more
+    than :data:`FALL_DROP_M` below its start is named in a warning, and in the metrics
+    (``unsupported_bodies``)."""
+
+    def __init__(self, plant, plant_context, god, at_s: float):
+        self.plant, self.god, self.at_s = plant, god, at_s
+        self.start = {b: plant.EvalBodyPoseInWorld(plant_context, plant.get_body(b)).translation()[2]
+                      for b in plant.GetFloatingBaseBodies()}  # fmt: skip
+        self.pending, self.fallen = bool(self.start), []
+
+    def check(self, plant_context, root_context) -> None:
+        self.pending = False
+        held = self.god.held_bodies(root_context)
+        for b, z0 in self.start.items():
+            body = self.plant.get_body(b)
+            drop = z0 - self.plant.EvalBodyPoseInWorld(plant_context, body).translation()[2]
+            if int(b) not in held and drop > FALL_DROP_M:
+                self.fallen.append(body.scoped_name().get_full())
+        if self.fallen:
+            warnings.warn(
+                f"{', '.join(self.fallen)} fell more than {FALL_DROP_M:g} m in the first {self.at_s:g} s "
+                "without being held: a model that should stay put needs a weld (add_weld, or a fixed joint "
+                "to world in its file), or a support under it",
+                UnsupportedBodyWarning,
+                stacklevel=3,
+            )
 
 
 class RealtimeLag:

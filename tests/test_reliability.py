@@ -21,7 +21,7 @@ from godobject_drake.lcm_device import FEEDBACK_CHANNEL
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
 from godobject_drake.scenario import ScenarioError, load_scenario
-from godobject_drake.simulation import simulate
+from godobject_drake.simulation import UnsupportedBodyWarning, simulate
 
 
 def test_a_reader_never_sees_half_a_metrics_file(tmp_path):
@@ -316,3 +316,20 @@ def test_an_increment_of_1e300_is_refused_naming_the_line(tmp_path):
     said = r"mouse\.csv:3: the increment drx,dry,drz = \[1e\+300, 0\.0, 0\.0\] is 1e\+300 rad long, over 1000"
     with pytest.raises(ValueError, match=said + r" in one row; .* metres and radians"):
         build_station(load_scenario(LEGO, f"device: !Relative {{log: {log}}}"))
+
+
+def test_a_model_left_unwelded_that_falls_is_named(tmp_path):
+    """The README's own scene with the floor's weld forgotten: the floor (and the cube on it) fell
+    away and the run exited 0 in silence. Now the floor is named, with the fix; the cube, held, is not."""
+    own_scene_files(tmp_path)
+    sdf = tmp_path / "cube_post.sdf"
+    weld = '<joint name="floor_weld" type="fixed"><parent>world</parent><child>floor</child></joint>'
+    assert weld in sdf.read_text()
+    sdf.write_text(sdf.read_text().replace(weld, ""))
+    s = load_scenario(tmp_path / "cube_post.yaml", "simulation: {duration_s: 1.2}")
+    said = r"^cube_post::floor fell more than 0\.1 m in the first 1 s without being held: .* needs a weld"
+    with pytest.warns(UnsupportedBodyWarning, match=said):
+        m = simulate(build_station(s), progress=False).metrics
+    assert m["unsupported_bodies"] == ["cube_post::floor"]
+    resting = simulate(build_scene("lego", "--duration", "1.2"), progress=False).metrics  # 8 bricks rest
+    assert "unsupported_bodies" not in resting and resting["free_bodies"] == 8

@@ -95,6 +95,10 @@ class GodObject:
         """The metrics' configuration keys this kind adds."""
         return {}
 
+    def held_bodies(self, root_context) -> set[int]:
+        """The BodyIndex values the coupling holds now (none by default)."""
+        return set()
+
     def prepare(self, plant_context) -> None:
         """Before the simulator initializes (nothing by default)."""
 

@@ -84,6 +84,11 @@ class RigidGodObject(GodObject):
     def configuration(self, scenario, station) -> dict:
         return {"haptic": scenario.haptic.mode}
 
+    def held_bodies(self, root_context) -> set[int]:
+        context = self.coupling.GetMyContextFromRoot(root_context)
+        held = int(self.coupling.GetOutputPort("held_body").Eval(context)[0])
+        return {held} if held >= 0 else set()
+
     def before_step(self, plant: MultibodyPlant):
         """The position baseline sets the held body to its target every step (paper Fig. 5)."""
         if self.mode != "position":
