@@ -45,6 +45,8 @@ UNITS = {
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
 NAME = re.compile(r"godobject_drake\.(\w+)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")
+# mutmut of this Python, by module: no activated venv needed, and never another install's mutmut
+MUTMUT = [sys.executable, "-m", "mutmut"]
 
 
 def unit_of(module: str, cls: str | None, function: str) -> str:
@@ -60,7 +62,7 @@ def unit_of(module: str, cls: str | None, function: str) -> str:
 def read_results() -> list[tuple[str, str, str]]:
     """``(mutant, unit, status)`` for every mutant of the last run."""
     out = subprocess.run(
-        ["mutmut", "results", "--all", "true"], cwd=ROOT, capture_output=True, text=True, check=True
+        [*MUTMUT, "results", "--all", "true"], cwd=ROOT, capture_output=True, text=True, check=True
     ).stdout
     rows = []
     for line in out.splitlines():
@@ -84,7 +86,7 @@ def main(argv=None) -> int:
         log = ROOT / "reports" / "mutmut_run.log"
         log.parent.mkdir(exist_ok=True)
         with log.open("w") as f:  # mutmut's progress line is long; keep it out of the terminal
-            subprocess.run(["mutmut", "run", "--max-children", str(args.max_children)], cwd=ROOT, stdout=f,
+            subprocess.run([*MUTMUT, "run", "--max-children", str(args.max_children)], cwd=ROOT, stdout=f,
                            stderr=subprocess.STDOUT, check=True)  # fmt: skip
     rows = read_results()
     by_unit = collections.defaultdict(collections.Counter)
@@ -112,7 +114,7 @@ def main(argv=None) -> int:
     if args.survivors:
         for name, unit, status in rows:
             if status == "survived" and unit in UNITS:
-                show = ["mutmut", "show", name]
+                show = [*MUTMUT, "show", name]
                 diff = subprocess.run(show, cwd=ROOT, capture_output=True, text=True).stdout
                 changed = [line for line in diff.splitlines() if line[:2] in ("- ", "+ ")]
                 print(f"\n{name}  [{unit}]\n" + "\n".join(changed))
