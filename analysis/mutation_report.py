@@ -41,6 +41,7 @@ UNITS = {
     "spatial math": ("spatial", "*", None),
     "device sample guard": ("devices", "SampleGuard", None),
     "device source (guard, timing)": ("devices", "DeviceSource", None),
+    "device aids (tether, ratio)": ("devices", "RelativeAids", None),
     "device timing check": ("devices", None, {"_check_timing"}),
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
