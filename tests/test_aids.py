@@ -153,6 +153,20 @@ def test_rotations_follow_the_raw_increments_each_sample():
     assert rig.status["device_tethered_samples"] == 0
 
 
+def test_samples_off_unit_within_the_tolerance_turn_nothing():
+    # A device's quaternions may be off unit by up to the guard's tolerance (1e-3: accepted, then
+    # normalised). An increment device that holds one orientation (0.4 rad about z, |q| = 1.0005)
+    # and moves 1 mm a sample must report no rotation increment, from its first sample on.
+    class Increments(DeviceSource):
+        reports_increments = True
+
+    q = 1.0005 * np.array([math.cos(0.2), 0.0, 0.0, math.sin(0.2)])
+    device = Increments(lambda t: ([1e-3 * round(t / T), 0, 0], q, ""), period_s=T, aids=RelativeAids(1.0))
+    X = Rig(device).sample(3)
+    np.testing.assert_allclose(X.rotation().matrix(), rz(0.4).matrix(), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(X.translation(), [2e-3, 0, 0], rtol=0, atol=1e-15)
+
+
 def test_exactly_at_the_tether_is_not_reindexed():
     # a target exactly at the bound (the same floating-point distance and angle) is left alone
     dp, dR = np.array([0.002, 0.0, 0.0]), rz(0.25).matrix()
