@@ -11,11 +11,14 @@ import math
 
 import numpy as np
 import pytest
-from conftest import assert_refused
+from conftest import add_free_boxes, assert_refused
 from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
 
+from godobject_drake.building import add_god_object
+from godobject_drake.coupling import CouplingGains
 from godobject_drake.devices import DeviceSource, IncrementLog, RelativeAids, RelativeDevice, SampleGuard
 from godobject_drake.spatial import rotation_error
 
@@ -36,16 +39,16 @@ def angle_between(R_a: RotationMatrix, R_b: RotationMatrix) -> float:
     return float(np.linalg.norm(rotation_error(R_a.ToQuaternion().wxyz(), R_b.ToQuaternion().wxyz())))
 
 
-def relative(dps, drots=None, X_WD0=None, aids=None, guard=None) -> RelativeDevice:
+def relative(dps, drots=None, X_WD0=None, aids=None, guard=None, grasp="") -> RelativeDevice:
     """A relative device at 100 Hz whose sample k (k ≥ 1) reports the increments ``dps[k − 1]``
-    (m) and ``drots[k − 1]`` (rad, rotation vector), clutch released."""
+    (m) and ``drots[k − 1]`` (rad, rotation vector), clutch released, holding ``grasp``."""
     n = len(dps)
     log = IncrementLog(
         T * np.arange(1, n + 1),
         np.array(dps, float).reshape(n, 3),
         np.zeros((n, 3)) if drots is None else np.array(drots, float).reshape(n, 3),
         np.zeros(n, bool),
-        [""] * n,
+        [grasp] * n,
     )
     return RelativeDevice(log, X_WD0, period_s=T, aids=aids, guard=guard)
 
@@ -299,6 +302,28 @@ def test_aids_add_the_coupling_inputs_only_when_active():
         value=r"^a tether or control/display ratio re-indexes a device's increments; a DeviceSource reports",
         limit=r"absolute poses, which cannot be re-indexed \(the target would no longer be where the device",
         fix=r"Use a relative or live device, or leave the aids off$",
+    )
+
+
+def test_wired_to_a_coupling_the_aids_close_the_loop_without_an_algebraic_cycle():
+    # add_god_object wires the coupling's pose_WT and pose_WG, which follow the device's X_WD and
+    # V_WD at once, back into the device: the loop builds only because the device's X_WD and V_WD
+    # depend on its state alone. One free box, held from t = 0, no gravity: at rest where the
+    # device starts, so the 5 cm increment of sample 1 is re-indexed to the 2 mm tether.
+    builder = DiagramBuilder()
+    plant, _ = add_free_boxes(builder, 1e-3, gravity=False)
+    device = relative([[0.05, 0, 0]], aids=RelativeAids(tether_m=0.002), grasp="body_0")
+    builder.AddNamedSystem("device", device)
+    add_god_object(builder, plant, device, CouplingGains(40.0))
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(T + 1e-6)
+    context = device.GetMyContextFromRoot(simulator.get_context())
+    assert device.GetOutputPort("X_WD").Eval(context).translation() == pytest.approx([0.002, 0, 0], abs=1e-15)
+    assert (
+        DeviceSource.status_dict(device.GetOutputPort("device_status").Eval(context))[
+            "device_tethered_samples"
+        ]
+        == 1
     )
 
 
