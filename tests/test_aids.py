@@ -327,6 +327,28 @@ def test_wired_to_a_coupling_the_aids_close_the_loop_without_an_algebraic_cycle(
     )
 
 
+def test_wired_to_a_coupling_the_ratio_grows_to_r_at_its_force_cap():
+    # add_god_object hands the coupling's force-cap stretch (here 0.1 m) to the ratio: R = 4 there,
+    # 2.5 halfway from an onset of 0; an onset past the cap is refused, naming the coupling's cap
+    def wire(aids):
+        builder = DiagramBuilder()
+        plant, _ = add_free_boxes(builder, 1e-3, gravity=False)
+        device = builder.AddNamedSystem("device", relative([[0.001, 0, 0]], aids=aids, grasp="body_0"))
+        add_god_object(builder, plant, device, CouplingGains(40.0), max_stretch_m=0.1)
+        return device
+
+    device = wire(RelativeAids(cd_ratio=4.0, cd_onset_m=0.0))
+    assert device.aids.cap_stretch_m == 0.1
+    assert device.aids.cd(0.1) == 4.0 and device.aids.cd(0.05) == 2.5
+    assert_refused(
+        lambda: wire(RelativeAids(cd_ratio=4.0, cd_onset_m=0.3)),
+        ValueError,
+        value=r"^cd_ratio=4 grows to R at the coupling's force-cap stretch, which is 0\.1 m;",
+        limit=r"it must be finite and past cd_onset_m=0\.3 m\.",
+        fix=r" Set god_object\.max_stretch_m, or a smaller cd_onset_m$",
+    )
+
+
 def test_aids_without_the_coupling_wired_say_what_to_connect():
     device = relative([[0.001, 0, 0]], aids=RelativeAids(tether_m=0.01))
     device.set_name("mouse")
