@@ -139,8 +139,11 @@ def test_zero_feedback_gains_give_zero_at_no_cost():
 
 
 # -- a small diagram: device → coupling → grasper, no organ contact (free space) -------------
-def run_grasper(coupling, omega_n, samples, duration, check_gains=True, h=1e-3, jaws_imposed=False):
-    """Run the grasper in free space from HOME under a held-sample device; return times, q, device q."""
+def run_grasper(coupling, omega_n, samples, duration, check_gains=True, h=1e-3):
+    """Run the grasper in free space from HOME under a held-sample device ``samples(t)`` at 60 Hz.
+
+    Returns ``(q, system)``: the positions of the device's joints, one row per plant step from
+    t = 0, and the articulated god-object. A Drake error (a diverging run) is raised."""
     builder = DiagramBuilder()
     scene = add_scene_from_directives(builder, LAPAROSCOPY, h)
     plant = scene.plant
@@ -160,10 +163,7 @@ def run_grasper(coupling, omega_n, samples, duration, check_gains=True, h=1e-3, 
     log = LogVectorOutput(plant.get_state_output_port(), builder, h)
     diagram = builder.Build()
     simulator = Simulator(diagram)
-    try:
-        simulator.AdvanceTo(duration)
-    except RuntimeError:
-        return None
+    simulator.AdvanceTo(duration)
     data = log.FindLog(simulator.get_context()).data().T
     return data[:, system.tool.q_device], system
 

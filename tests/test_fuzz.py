@@ -12,6 +12,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from drake import lcmt_robot_state
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -81,16 +82,21 @@ def test_any_pose_log_is_read_whole_or_refused_naming_file_and_line(text):
     np.testing.assert_allclose(np.linalg.norm(log.q, axis=1), 1.0, rtol=1e-12)
 
 
+# Bytes that no UTF-8 text holds anywhere (0xC0, 0xC1 and 0xF5 to 0xFF: RFC 3629).
+NOT_UTF8 = st.sampled_from([bytes([b]) for b in (0xC0, 0xC1, *range(0xF5, 0x100))])
+
+
 @FUZZ
-@given(data=st.binary(max_size=200))
-def test_any_bytes_as_a_pose_log_are_refused_naming_the_file(data):
-    """Not text at all (invalid UTF-8, NUL bytes): refused, naming the file, never a crash."""
+@given(before=st.binary(max_size=100), bad=NOT_UTF8, after=st.binary(max_size=100))
+def test_any_bytes_that_are_not_utf8_text_as_a_pose_log_are_refused_naming_the_file(before, bad, after):
+    """Not text at all (a byte no UTF-8 text has, anywhere among any others): refused as not text,
+    naming the file; never read as a log, never a crash."""
     path = Path(tempfile.mkdtemp()) / "log.csv"
-    path.write_bytes(b"t,x,y,z,qw,qx,qy,qz,grasp\n" + data)
-    try:
+    path.write_bytes(b"t,x,y,z,qw,qx,qy,qz,grasp\n" + before + bad + after)
+    with pytest.raises(ValueError) as refused:
         read_device_log(path)
-    except ValueError as e:
-        assert refused_well(e, path), str(e)
+    assert refused_well(refused.value, path), str(refused.value)
+    assert str(refused.value).startswith(f"{path}: not a UTF-8 text CSV"), str(refused.value)
 
 
 @FUZZ
