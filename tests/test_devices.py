@@ -5,6 +5,7 @@ import pytest
 from pydrake.math import RigidTransform
 
 from godobject_drake.devices import (
+    DeviceSource,
     IncrementLog,
     RelativeDevice,
     ReplayDevice,
@@ -144,3 +145,28 @@ def test_relative_device_with_clutch_reproduces_a_known_path(tmp_path):
     assert X.rotation().ToRollPitchYaw().yaw_angle() == pytest.approx(np.pi / 2)
     assert grasp == "brick_0"
     assert outputs_at(device, 1.25)[0].rotation().ToRollPitchYaw().yaw_angle() == pytest.approx(0.0)
+
+
+class _Named(DeviceSource):
+    """A device of one's own without a path of rows: its grasp names come from sampling it."""
+
+    def __init__(self, end_time_s=None):
+        if end_time_s is not None:
+            self.end_time_s = end_time_s
+        super().__init__(lambda t: (np.zeros(3), np.array([1.0, 0, 0, 0]), f"b{round(10 * t)}"), period_s=0.1)
+
+
+def test_a_device_of_ones_own_names_what_it_reports_to_its_end():
+    """Sampled at 10 Hz: to its end_time_s (0.3 s: b0..b3), or its first sample without one; a
+    duration given is the span sampled."""
+    assert _Named(0.3).grasp_names() == {"b0", "b1", "b2", "b3"}
+    assert _Named().grasp_names() == {"b0"}
+    assert _Named().grasp_names(0.2) == {"b0", "b1", "b2"}
+
+
+def test_a_device_that_renders_no_feedback_adds_and_sends_nothing():
+    """Only a device that renders the feedback itself (LCM) wires it and is sent a zero wrench."""
+    device = _Named()
+    assert device.zero_feedback(1.0) is False
+    assert device.connect_feedback(None, None, {"b0"}) is None
+    assert device.reversals(0.002) is None
