@@ -204,3 +204,56 @@ def test_a_real_device_is_analysed_without_its_driver():
     assert isinstance(analysed.device, sc.Scripted)
     assert analysed.device.waypoints[0].xyz == [0.01, 0.02, 0.03]
     assert isinstance(s.device, sc.Lcm)  # the user's scenario is not changed
+
+
+RESTING_SDF = """<?xml version="1.0"?>
+<sdf version="1.9" xmlns:drake="http://drake.mit.edu">
+  <model name="rest">
+    <joint name="floor_weld" type="fixed"><parent>world</parent><child>floor</child></joint>
+    <link name="floor">
+      <pose>0 0 -0.01 0 0 0</pose>
+      <collision name="floor"><geometry><box><size>0.6 0.6 0.02</size></box></geometry>
+        <drake:proximity_properties><drake:point_contact_stiffness>1e5</drake:point_contact_stiffness>
+        </drake:proximity_properties></collision>
+      <visual name="floor"><geometry><box><size>0.6 0.6 0.02</size></box></geometry></visual>
+    </link>
+    <link name="can">
+      <inertial><mass>0.2</mass><inertia><ixx>2e-4</ixx><iyy>2e-4</iyy><izz>1e-4</izz>
+        <ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>
+      <collision name="can">
+        <geometry><cylinder><radius>0.03</radius><length>0.1</length></cylinder></geometry>
+        <drake:proximity_properties><drake:point_contact_stiffness>1e5</drake:point_contact_stiffness>
+        </drake:proximity_properties></collision>
+      <visual name="can">
+        <geometry><cylinder><radius>0.03</radius><length>0.1</length></cylinder></geometry></visual>
+    </link>
+  </model>
+</sdf>
+"""
+
+RESTING_YAML = """name: resting_can
+directives:
+- add_model:
+    name: rest
+    file: rest.sdf
+    default_free_body_pose:
+      can: {translation: [0.0, 0.0, 0.05]}   # its bottom exactly on the floor's top: distance 0
+device: !Scripted
+  waypoints:
+  - {t: 0.0, xyz: [0.0, 0.0, 0.05], grasp: can}
+  - {t: 1.0, xyz: [0.05, 0.0, 0.08], grasp: can}
+simulation: {duration_s: 1.0}
+metrics: {penetration_budget_m: 0.005}
+"""
+
+
+def test_a_body_resting_exactly_on_a_surface_is_analysed(tmp_path):
+    """A cylinder whose bottom is on the floor at distance 0: Drake's signed distance gives no
+    normal there, and the push-in check wrote an internal waypoint of NaN ("waypoint 1 (t=0.05)
+    needs a finite t, 3 finite xyz"); now the push goes down the floor's distance gradient."""
+    (tmp_path / "rest.sdf").write_text(RESTING_SDF)
+    (tmp_path / "rest.yaml").write_text(RESTING_YAML)
+    s = analyze(sc.load_scenario(tmp_path / "rest.yaml"), quick=True, verify=True)
+    push = s["verify_penetration"]
+    assert push["obstacle"].endswith("floor") and not push["diverged"], push
+    assert push["simulated_m"] == pytest.approx(push["predicted_m"], rel=0.2), push

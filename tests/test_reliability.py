@@ -314,7 +314,7 @@ def test_an_increment_of_1e300_is_refused_naming_the_line(tmp_path):
     rows = ["t,dx,dy,dz,drx,dry,drz,clutch,grasp", "0.0,0,0,0,0,0,0,0,brick_0", "0.1,0,0,0,1e300,0,0,0,"]
     log.write_text("\n".join(rows) + "\n")
     said = r"mouse\.csv:3: the increment drx,dry,drz = \[1e\+300, 0\.0, 0\.0\] is 1e\+300 rad long, over 1000"
-    with pytest.raises(ValueError, match=said + r" in one row; .* metres and radians"):
+    with pytest.raises(ValueError, match=said + r" rad in one row; .* metres and radians"):
         build_station(load_scenario(LEGO, f"device: !Relative {{log: {log}}}"))
 
 

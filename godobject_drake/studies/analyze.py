@@ -386,6 +386,7 @@ def _nearest_fixed_obstacle(station, body):
     frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
     welded = {plant.GetBodyFrameIdOrThrow(b.index()) for b in plant.GetBodiesWeldedTo(plant.world_body())}
     own = inspector.GetGeometries(frame, Role.kProximity)
+    X_WB = plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(ctx), plant.get_body(BodyIndex(body.index)))
     found = {}
     for b in inspector.GetAllGeometryIds(Role.kProximity):
         if inspector.GetFrameId(b) not in welded or inspector.IsDeformableGeometry(b):
@@ -399,6 +400,10 @@ def _nearest_fixed_obstacle(station, body):
                 continue
             # nhat_BA_W points from the pair's B toward its A; Drake may order the pair by id.
             toward = -np.asarray(r.nhat_BA_W) if r.id_A == a else np.asarray(r.nhat_BA_W)
+            if not np.all(np.isfinite(toward)):  # touching (distance 0): Drake gives no normal
+                toward = _toward_obstacle(query, b, X_WB)
+                if toward is None:
+                    continue
             found.setdefault(b, []).append((r.distance, toward))
     if not found:
         return None
@@ -407,6 +412,18 @@ def _nearest_fixed_obstacle(station, body):
     d0, direction = min(dists, key=lambda x: x[0])
     contacts = sum(1 for d, _ in dists if d <= d0 + 1e-4)
     return d0, direction, inspector.GetName(b), contacts
+
+
+def _toward_obstacle(query, obstacle, X_WB):
+    """For a pair in contact, where Drake's signed distance gives no normal: the direction from the
+    body's origin toward the obstacle, down the obstacle's distance gradient there (for a body
+    resting on a table, straight down), or None where that is not defined either."""
+    for d in query.ComputeSignedDistanceToPoint(X_WB.translation(), np.inf):
+        if d.id_G == obstacle:
+            g = -np.asarray(d.grad_W)
+            n = float(np.linalg.norm(g))
+            return g / n if n > 1e-12 and np.all(np.isfinite(g)) else None
+    return None
 
 
 def _push_in(station, out: dict):
