@@ -42,3 +42,64 @@ def symplectic_euler_matrix(M, K, D, time_step: float) -> np.ndarray:
 def symplectic_euler_radius(M, K, D, time_step: float) -> float:
     """Spectral radius of :func:`symplectic_euler_matrix` (< 1: the explicit loop is stable)."""
     return float(np.max(np.abs(np.linalg.eigvals(symplectic_euler_matrix(M, K, D, time_step)))))
+
+
+def device_wall_matrix(
+    mass: float,
+    damping: float,
+    period_s: float,
+    kd: float,
+    gamma_d: float,
+    hand_k: float = 0.0,
+    hand_b: float = 0.0,
+) -> np.ndarray:
+    """One servo period of an impedance haptic device pressing a god-object held still.
+
+    The worst case the feedback port gives the device: the god-object stopped by a rigid
+    obstacle, so the device feels ``F = −kd x − γd (x_k − x_{k−1})/T`` (the feedback port's
+    spring and damper on the sampled position and its backward difference), held for one
+    period ``T`` with the hand's ``−k_h x − b_h v`` on the handle (a simulated hand, 0 for
+    a hand that lets go). The handle is the exact zero-order-hold map of
+    ``m ẍ + b ẋ = f`` (:func:`godobject_drake.haptic.zoh_mass_damper`). State ``[x, v, x_prev]``.
+    """
+    from godobject_drake.haptic import zoh_mass_damper
+
+    A, B = zoh_mass_damper(mass, damping, period_s)
+    # the held force u = −c·[x, v, x_prev]
+    c = np.array([kd + gamma_d / period_s + hand_k, hand_b, -gamma_d / period_s])
+    M = np.zeros((3, 3))
+    M[0, :2], M[1, :2] = A[0], A[1]
+    M[:2, :] -= np.outer(B, c)
+    M[2, 0] = 1.0
+    return M
+
+
+def device_wall_radius(mass, damping, period_s, kd, gamma_d, hand_k=0.0, hand_b=0.0) -> float:
+    """Spectral radius of :func:`device_wall_matrix` (< 1: the device is stable against a wall)."""
+    M = device_wall_matrix(mass, damping, period_s, kd, gamma_d, hand_k, hand_b)
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def device_wall_limit(mass, damping, period_s, gamma_d, hand_k=0.0, hand_b=0.0, rel_tol=1e-6) -> float:
+    """Largest feedback stiffness ``kd`` (N/m) for which :func:`device_wall_radius` < 1.
+
+    Bisection on ``kd > 0`` (without a hand, ``kd = 0`` leaves the free handle's marginal
+    pole at 1); 0 when even a vanishing ``kd`` is unstable (``γd`` past its own limit). Near
+    ``2 (b + γd)/T`` without a hand (docs/theory.md §2); the hand's damping adds to ``b``.
+    """
+
+    def stable(kd: float) -> bool:
+        return device_wall_radius(mass, damping, period_s, kd, gamma_d, hand_k, hand_b) < 1.0
+
+    lo = 1e-6 * mass / period_s**2  # far below any limit: 1e-6 of the handle's own m/T²
+    if not stable(lo):
+        return 0.0
+    hi = 2.0 * lo
+    while stable(hi):
+        lo, hi = hi, 2.0 * hi
+        if hi > 1e18:
+            return math.inf
+    while hi - lo > rel_tol * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+    return lo

@@ -106,6 +106,7 @@ class Safeguards:
         before_step: Callable | None = None,
         project_quaternions: bool = True,
         sleeper=None,
+        watch: Callable | None = None,
     ):
         h = plant.time_step()
         if not h > 0.0:
@@ -119,6 +120,7 @@ class Safeguards:
         self.max_speed, self.stop, self.before_step = float(max_speed), stop, before_step
         self.project_quaternions = project_quaternions
         self.sleeper = sleeper
+        self.watch = watch
         self.diagnosis: str | None = None
         self.stopped = False
         self.checks = self.projections = 0
@@ -130,6 +132,7 @@ class Safeguards:
         self._velocity_names = plant.GetVelocityNames()
         self._simulator = None
         self._plant_context = None
+        self._root = None
 
     def install(self, simulator: Simulator) -> Safeguards:
         """Become ``simulator``'s monitor (replacing any other)."""
@@ -168,9 +171,16 @@ class Safeguards:
         return EventStatus.DidNothing()
 
     def check(self, t: float | None = None) -> None:
-        """Raise :class:`DivergenceError` if the plant's state is non-finite or too fast."""
+        """Raise :class:`DivergenceError` if the plant's state is non-finite or too fast, or if
+        ``watch`` (what a god-object adds outside the plant: a haptic device) says it diverged."""
         ctx = self._plant_context
         t = ctx.get_time() if t is None else t
+        if self.watch is not None and self._root is not None:
+            found = self.watch(self._root, self.max_speed)
+            if found is not None:
+                part, what = found
+                self.diagnosis = f"{part} diverged at t={t:.4f} s: {what}. The run was stopped there"
+                raise DivergenceError(self.diagnosis, t, part)
         x = self.plant.GetPositionsAndVelocities(ctx)
         nq = self.plant.num_positions()
         bad = np.flatnonzero(~np.isfinite(x))
@@ -241,6 +251,7 @@ def install_safeguards(
     mode: str = "god_object",
     sleeper=None,
     wiring_checked: bool = False,
+    watch: Callable | None = None,
 ) -> Safeguards:
     """Check ``simulator``'s diagram's wiring, then watch the run (module docstring).
 
@@ -266,6 +277,9 @@ def install_safeguards(
     wiring_checked : bool
         The diagram's wiring was checked already (a built station's was, when it was built:
         :func:`~godobject_drake.building.finish`), so it is not checked twice.
+    watch : callable | None
+        ``watch(root_context, max_speed)`` → ``(part, what)`` when a part outside the plant (a
+        simulated haptic device) diverged, else None; asked at every check, before the plant.
     """
     diagram = simulator.get_system()
     plant = plant or find_plant(diagram)
@@ -288,6 +302,7 @@ def install_safeguards(
         before_step=before_step,
         project_quaternions=project_quaternions,
         sleeper=sleeper,
+        watch=watch,
     )
     return guard.install(simulator)
 

@@ -182,6 +182,7 @@ def simulate(
         simulator, plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
         meshcat=meshcat if live else None, before_step=before_step, mode=god.mode, sleeper=station.sleeper,
         wiring_checked=True,  # when the station was built (building.finish)
+        watch=god.diverged_part,
     )  # fmt: skip
     simulator.Initialize()
     falls = FallWatch(plant, plant.GetMyContextFromRoot(root), god, min(FALL_WATCH_S, duration))
@@ -259,6 +260,9 @@ def simulate(
         diagnosis = guard.diagnosis
     except RuntimeError as e:
         diagnosis = f"Drake stopped at t={root.get_time():.4f} s: {e}"
+        found = god.diverged_part(root, guard.max_speed)  # the likely cause, when it is ours
+        if found is not None:
+            diagnosis = f"{found[0]} diverged: {found[1]}. {diagnosis}"
     except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM through the command line's handler
         interrupted = e
     finally:

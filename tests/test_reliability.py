@@ -333,3 +333,75 @@ def test_a_model_left_unwelded_that_falls_is_named(tmp_path):
     assert m["unsupported_bodies"] == ["cube_post::floor"]
     resting = simulate(build_scene("lego", "--duration", "1.2"), progress=False).metrics  # 8 bricks rest
     assert "unsupported_bodies" not in resting and resting["free_bodies"] == 8
+
+
+def test_the_device_limit_at_build_is_python_controls_closed_loop_limit():
+    """The build-time limit (plain numpy, limits.device_wall_limit) against a second method: the
+    closed loop of python-control's exact ZOH device (studies.stability) on the virtual wall
+    H(z) = kd + γd(1 − z⁻¹)/T, bisected on its poles; with no hand it is also near docs/theory.md
+    §2's closed form 2(b + γd)/T (4400 N/m for 0.1 kg, 2 N·s/m, 1 kHz, γd = 0.2)."""
+    import control as ct
+
+    from godobject_drake.god_objects.rigid import hand_on_handle
+    from godobject_drake.limits import device_wall_limit
+    from godobject_drake.scenario import Haptic
+    from godobject_drake.studies.analyze import _device_with_hand
+    from godobject_drake.studies.stability import DeviceParams, bisect, wall_impedance
+
+    haptic = Haptic(mode="impedance")
+    m, b, T = haptic.device_mass_kg, haptic.device_damping, 1.0 / haptic.rate_hz
+    hand = hand_on_handle(haptic)
+    dev = DeviceParams(m, b, T, 0)
+    for gamma_d in (0.0, 0.2, 5.0):
+        for G, on_handle in ((_device_with_hand(dev, haptic), (hand.k, hand.b)), (None, ())):
+            G = G if G is not None else ct.c2d(ct.ss([[0, 1], [0, -b / m]], [[0], [1 / m]], [[1, 0]], 0), T)
+
+            def stable(kd, G=G, gamma_d=gamma_d):
+                loop = ct.feedback(G, wall_impedance(kd, gamma_d, T), sign=-1)
+                return float(np.max(np.abs(loop.poles()))) < 1.0
+
+            second = bisect(stable, 1e-3, 1e6, 1e-7)
+            ours = device_wall_limit(m, b, T, gamma_d, *on_handle)
+            assert ours == pytest.approx(second, rel=1e-5), (gamma_d, on_handle)
+            if not on_handle and gamma_d < b:  # the closed form is for light virtual damping
+                assert ours == pytest.approx(2 * (b + gamma_d) / T, rel=0.01)
+
+
+def test_an_unstable_haptic_gain_is_refused_at_build_naming_the_limit_and_the_fix():
+    """``--haptic impedance --kd 1e6`` diverged with Drake's "cannot normalize" as the diagnosis; it
+    is now refused before simulating (exit 2, no traceback): past the device's limit against a
+    rigid obstacle with the simulated hand, 2.884e4 N/m at γd = 0 (the test above checks it)."""
+    run = subprocess.run(
+        [sys.executable, "-m", "godobject_drake", "run", "diagrams/lego.yaml", "--no-progress",
+         "--haptic", "impedance", "--kd", "1e6", "--duration", "0.1"],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr
+    assert re.search(r"feedback\.kd: 1e\+06 N/m is past the stability limit 2\.884e\+04 N/m", run.stderr)
+    assert re.search(r"Use feedback\.kd < 2\.884e\+04 N/m \(--kd\), or raise haptic\.device_", run.stderr)
+    # Within 20 % of the limit, or past the limit without a hand: built, with a warning.
+    from godobject_drake.god_objects.rigid import HapticGainWarning
+
+    with pytest.warns(HapticGainWarning, match=r"past the limit 4013 N/m of the same device with no hand"):
+        build_scene("lego", "--haptic", "impedance", "--kd", "5000")
+    with pytest.warns(HapticGainWarning, match=r"within 20% of the limit 2\.884e\+04 N/m"):
+        build_scene("lego", "--haptic", "impedance", "--kd", "25000")
+
+
+def test_a_diverging_haptic_device_is_named_with_the_likely_cause():
+    """Built past the limit anyway (``check_gains=False``, as analyze does), the run stops at the
+    first check with the simulated device named and its gain as the likely cause, not Drake's
+    NaN message; the metrics stay strict JSON."""
+    from conftest import scenario
+
+    s = scenario("lego", "--haptic", "impedance", "--kd", "1e6", "--duration", "1")
+    result = simulate(build_station(s, None, check_gains=False), progress=False)
+    m = result.metrics
+    assert m["diverged"] and m["sim_time_s"] < 0.2
+    assert m["diagnosis"].startswith("the simulated haptic device diverged at t=")
+    assert (
+        "the likely cause: feedback.kd 1e+06 N/m is past the device's stability limit 2.884e+04 N/m"
+        in (m["diagnosis"])
+    )
+    json.loads(dumps_metrics(m), parse_constant=lambda c: pytest.fail(f"{c} in the metrics"))

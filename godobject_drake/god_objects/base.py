@@ -9,6 +9,7 @@ studies call these and never compare a kind's name (docs/design.md "Adding a god
 import dataclasses
 from typing import TYPE_CHECKING, ClassVar
 
+import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder, System
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
@@ -105,6 +106,43 @@ class GodObject:
     def before_step(self, plant: MultibodyPlant):
         """What must happen before every plant step, or None."""
         return None
+
+    def diverged_part(self, root_context, max_speed: float) -> tuple[str, str] | None:
+        """``(part, what and likely cause)`` if a part outside the plant diverged: a simulated
+        impedance device whose handle's state is non-finite or faster than ``max_speed`` (m/s).
+        The safeguards ask at every check; a run Drake stopped asks it for the likely cause."""
+        from godobject_drake.haptic import HapticDevice
+        from godobject_drake.limits import device_wall_limit
+
+        dev = self.haptic
+        if not isinstance(dev, HapticDevice):
+            return None
+        state = dev.GetOutputPort("device_state").Eval(dev.GetMyContextFromRoot(root_context))
+        n = dev.num_axes
+        x, v = state[:n], state[n:]
+        if np.all(np.isfinite(state)) and float(np.max(np.abs(v))) <= max_speed:
+            return None
+        what = (
+            f"its handle's state is not finite (x = {x}, v = {v})"
+            if not np.all(np.isfinite(state))
+            else f"its handle's speed reached {float(np.max(np.abs(v))):.3g} m/s (> {max_speed:g})"
+        )
+        kd, gd = self.feedback.gains.kd, self.feedback.gains.gamma_d
+        hand = self.hand.hand if self.hand is not None else None
+        on_handle = (hand.k, hand.b) if hand else ()
+        limit = device_wall_limit(dev.mass, dev.damping, dev.period_s, gd, *on_handle)
+        if kd >= limit:
+            cause = (
+                f"the likely cause: feedback.kd {kd:g} N/m is past the device's stability limit "
+                f"{limit:.4g} N/m against a rigid obstacle; use feedback.kd < {limit:.4g} N/m, or raise "
+                "haptic.device_damping or haptic.rate_hz"
+            )
+        else:
+            cause = (
+                f"the likely cause: the haptic loop (feedback.kd {kd:g} N/m, gamma_d {gd:g} N·s/m) on this "
+                "scene's contact; `python -m godobject_drake analyze SCENARIO` gives the device's limit"
+            )
+        return "the simulated haptic device", f"{what}; {cause}"
 
     def device_metrics(self, root_context) -> dict:
         """The device's counts and the haptic loop's energies (J) at the end of a run."""

@@ -9,6 +9,7 @@ per-step imposition.
 
 import dataclasses
 import math
+import warnings
 from typing import ClassVar
 
 import numpy as np
@@ -32,6 +33,7 @@ from godobject_drake.haptic import (
     PassivityController,
     SimulatedHand,
 )
+from godobject_drake.limits import device_wall_limit
 
 
 class PenetrationBudgetWarning(UserWarning):
@@ -132,6 +134,65 @@ def hand_on_handle(haptic: "sc.Haptic") -> HandImpedance:
     return HandImpedance(k=haptic.device_mass_kg * w**2, b=2 * haptic.device_mass_kg * w)
 
 
+WARN_FRACTION = 0.8  # a feedback stiffness past 80 % of the device's limit warns (as analyze does)
+
+
+class HapticGainError(ValueError):
+    """A feedback stiffness past the simulated haptic device's stability limit."""
+
+
+class HapticGainWarning(UserWarning):
+    """A feedback stiffness the device holds only while the simulated hand holds its handle."""
+
+
+def check_haptic_gains(haptic: "sc.Haptic", feedback_gains: FeedbackGains) -> None:
+    """Refuse a feedback stiffness the impedance device cannot render stably, as the coupling
+    refuses a bandwidth past its explicit limit (docs/theory.md §2).
+
+    The model (:func:`godobject_drake.limits.device_wall_limit`) is the device's worst case:
+    the god-object held still by a rigid obstacle, the handle's exact sampled mechanics, the
+    feedback port's ``kd`` and ``γd`` on its sampled position, the simulated hand on the
+    handle. Past that limit the device diverges at the first rigid contact: refused. Within
+    20 % of it, or past the limit of the same device without a hand (stable only while the hand
+    holds it), a warning. Drake's boundary on a scene, bisected by ``analyze --verify``, depends
+    on its contact: 6 % below this limit on the brick scene, 33 % above it on the README's cube
+    (docs/theory.md §2). A passivity controller
+    (``passivity_damping > 0``) is meant to hold a stiffer wall, so it gets the warning only.
+    """
+    if haptic.mode != "impedance" or feedback_gains.kd <= 0.0:
+        return
+    hand = hand_on_handle(haptic)
+    period = 1.0 / haptic.rate_hz
+    m, b, gd, kd = haptic.device_mass_kg, haptic.device_damping, feedback_gains.gamma_d, feedback_gains.kd
+    held = device_wall_limit(m, b, period, gd, hand.k, hand.b)
+    alone = device_wall_limit(m, b, period, gd)
+    where = (
+        f"the simulated haptic device (mass {m:g} kg, damping {b:g} N·s/m, {haptic.rate_hz:g} Hz) "
+        f"pressing a rigid obstacle with feedback.gamma_d {gd:g} N·s/m"
+    )
+    if kd >= held and haptic.passivity_damping <= 0.0:
+        raise HapticGainError(
+            f"feedback.kd: {kd:g} N/m is past the stability limit {held:.4g} N/m of {where} and "
+            f"the simulated hand on its handle: the device would diverge at the first contact. Use "
+            f"feedback.kd < {held:.4g} N/m (--kd), or raise haptic.device_damping or haptic.rate_hz "
+            f"(the limit grows as (damping + gamma_d) x rate), or set haptic.passivity_damping > 0"
+        )
+    near = []
+    if kd >= alone:
+        near.append(f"past the limit {alone:.4g} N/m of the same device with no hand on its handle")
+    if kd >= WARN_FRACTION * held:
+        near.append(
+            f"within {1 - WARN_FRACTION:.0%} of the limit {held:.4g} N/m with the hand against a rigid "
+            "obstacle (a scene's own boundary depends on its contact: `analyze --verify` measures it)"
+        )
+    if near:
+        warnings.warn(
+            f"feedback.kd {kd:g} N/m for {where} is " + "; and ".join(near),
+            HapticGainWarning,
+            stacklevel=3,
+        )
+
+
 def add_god_object(
     builder: DiagramBuilder,
     plant: MultibodyPlant,
@@ -163,12 +224,15 @@ def add_god_object(
       god-object, the handle follows it.
 
     ``connect_forces=False`` leaves the plant's force inputs alone (the position baseline).
-    ``check_gains=False`` builds gains past the explicit limit (stability analysis only).
+    ``check_gains=False`` builds gains past the explicit limit, and haptic gains past the
+    device's (:func:`check_haptic_gains`; stability analysis only).
     ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
     ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
     """
     feedback_gains = feedback_gains or FeedbackGains()
     haptic = haptic or sc.Haptic()
+    if check_gains:
+        check_haptic_gains(haptic, feedback_gains)
     coupling = builder.AddNamedSystem(
         name,
         GodObjectCoupling(
