@@ -516,8 +516,21 @@ class SeparationMetrics:
     chunk at a time; any split gives the same numbers.
     """
 
-    def __init__(self, h: float, distance_m: float, reversals: list[tuple[float, np.ndarray]] | None = None):
+    def __init__(
+        self,
+        h: float,
+        distance_m: float,
+        reversals: list[tuple[float, np.ndarray]] | None = None,
+        tether_m: float = math.inf,
+        device_period_s: float = 0.0,
+    ):
         self.h, self.distance_m = h, distance_m
+        self.tether_m = tether_m
+        # rows back to the god-object a device sample read: the last sample is less than one device
+        # period ago, and it read the state of a plant step at most one step before it
+        self._window = math.ceil(device_period_s / h - 1e-9) + 2 if math.isfinite(tether_m) else 0
+        self._recent = np.zeros((0, 3))  # the last rows of p_G, for the window across chunks
+        self.max_travel, self.bound_violations = 0.0, 0
         self.max_sep, self.far_rows, self.rows = 0.0, 0, 0
         self.reversals = list(reversals) if reversals is not None else None
         self._next = 0  # the next reversal to start waiting for
@@ -534,7 +547,26 @@ class SeparationMetrics:
         if self.reversals is not None:
             for i in range(n):
                 self._follow(self.rows + i, p_WG[i])
+        if self._window and n:
+            self._tether(separation, p_WG)
         self.rows += n
+
+    def _tether(self, separation: np.ndarray, p_WG: np.ndarray) -> None:
+        """The tether holds at each device sample; between samples the target is held while G
+        moves on, so ``|p_T − p_G(t)| ≤ tether + |p_G(t) − p_G(t_k)|``, ``t_k`` the last sample.
+        ``travel(t)``, the farthest G has been within the window, bounds that second term."""
+        w = self._window
+        p = np.vstack([self._recent, p_WG])
+        need = w - 1 - len(self._recent)  # the run's first rows: G stood at its start before them
+        if need > 0:
+            p = np.vstack([np.repeat(p[:1], need, axis=0), p])
+        windows = np.lib.stride_tricks.sliding_window_view(p, w, axis=0)  # (rows, 3, w): row i's last w
+        travel = np.max(np.linalg.norm(windows - p_WG[:, :, None], axis=1), axis=1)
+        travel = np.where(np.isfinite(travel), travel, 0.0)  # a diverged row: its separation is 0 too
+        self.max_travel = max(self.max_travel, float(np.max(travel)))
+        excess = separation - self.tether_m - travel
+        self.bound_violations += int(np.sum(excess > 1e-12 * max(self.tether_m, 1.0)))
+        self._recent = p[-(w - 1) :]
 
     def _follow(self, row: int, p: np.ndarray) -> None:
         t = row * self.h
@@ -560,6 +592,9 @@ class SeparationMetrics:
             out["reversals"] = len(self.latencies) + self.unanswered + (self._waiting is not None)
             out["reversal_latency_max_s"] = max(self.latencies) if self.latencies else None
             out["reversals_unanswered"] = self.unanswered + (self._waiting is not None)
+        if self._window:
+            out["tether_bound_m"] = self.tether_m + self.max_travel
+            out["tether_bound_violations"] = self.bound_violations
         return out
 
 
@@ -582,9 +617,11 @@ class SceneMetrics:
     def __init__(self, station):
         god, plant = station.god_object, station.plant
         reversals = god.source.reversals(2 * REVERSAL_MOVE_M)  # None: a device that does not say
+        aids = getattr(god.source, "aids", None)  # a relative device's tether (devices.RelativeAids)
         self._sep = SeparationMetrics(
-            plant.time_step(), station.scenario.metrics.impossible_pose_distance_m, reversals
-        )
+            plant.time_step(), station.scenario.metrics.impossible_pose_distance_m, reversals,
+            tether_m=aids.tether_m if aids is not None else math.inf, device_period_s=god.source.period_s,
+        )  # fmt: skip
         self._acc = god.new_metrics(station)  # the god-object kind's own fold
 
     def update(self, data: dict) -> None:
