@@ -184,14 +184,17 @@ def simulate(
         wiring_checked=True,  # when the station was built (building.finish)
         watch=god.diverged_part,
     )  # fmt: skip
-    simulator.Initialize()
-    falls = FallWatch(plant, plant.GetMyContextFromRoot(root), god, min(FALL_WATCH_S, duration))
     recording_steps = None
     if record:
+        # Before Initialize: what the drawing sets at t = 0 (which ghost shows, its cue's colour)
+        # is a keyframe. Started after it, those went to the scene only, and the first keyframe of
+        # a later change (a release hiding the ghost) held for the whole recording before it.
         meshcat.StartRecording(
             frames_per_second=scenario.recording.frames_per_second, set_visualizations_while_recording=live
         )
         recording_steps = round(scenario.recording.max_duration_s / h)
+    simulator.Initialize()
+    falls = FallWatch(plant, plant.GetMyContextFromRoot(root), god, min(FALL_WATCH_S, duration))
 
     logs = _Logs(station, root, keep_logs)
     try:

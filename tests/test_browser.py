@@ -143,23 +143,33 @@ def test_live_page_grasps_lifts_and_stops_the_run(browser, tmp_path):
 
 
 def test_force_cue_turns_the_ghost_red_at_the_wall(browser, tmp_path):
-    """The brick path: at 1 s the brick tracks its target (faint ghost); at 3 s the target is
-    through the wall, the stretch near the cap, and the ghost and spring are drawn solid red:
-    the red area grows by the ghost's (the bricks are red too, in both frames)."""
-    html = tmp_path / "lego.html"
-    run_scene("lego", "--duration", "4", "--record", str(html))
-    page = browser.new_page(viewport=VIEW)
-    page.goto(html.as_uri())
-    page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
-    page.evaluate("() => viewer.animator.pause()")
-    red = {}
-    for t, name in ((1.0, "force_cue_tracking"), (3.0, "force_cue_at_wall")):
-        page.evaluate(f"() => {{ viewer.animator.seek({t}); viewer.set_dirty(); }}")
-        time.sleep(0.3)
-        image = shot(page, name)
-        red[t] = int(np.sum((image[..., 0] > 180) & (image[..., 1] < 70) & (image[..., 2] < 70)))
-    assert red[3.0] > red[1.0] + 500, red
-    page.close()
+    """The whole brick path, its release at 7.5 s included: at 1 s the brick tracks its target
+    (faint ghost); at 3.1 s the target is through the wall, the stretch at the cap, and the
+    ghost and spring are drawn solid red: the red area grows by the ghost's (the bricks are red
+    too, in both frames). The release must not hide the ghost before it (issue 30, case 9: the
+    drawing's t = 0 keyframes were lost, and the release's "hidden" held from the start): the
+    frames before it are the same pixels as a recording cut at 4 s, before any release."""
+    images = {}
+    for duration in ("8.5", "4"):
+        html = tmp_path / f"lego_{duration}.html"
+        run_scene("lego", "--duration", duration, "--record", str(html))
+        page = browser.new_page(viewport=VIEW)
+        page.goto(html.as_uri())
+        page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
+        page.evaluate("() => viewer.animator.pause()")
+        for t, name in ((1.0, "force_cue_tracking"), (3.1, "force_cue_at_wall")):
+            page.evaluate(f"() => {{ viewer.animator.seek({t}); viewer.set_dirty(); }}")
+            time.sleep(0.3)
+            images[duration, t] = shot(page, name if duration == "8.5" else f"{name}_cut")
+        page.close()
+    red = {
+        t: int(np.sum((image[..., 0] > 180) & (image[..., 1] < 70) & (image[..., 2] < 70)))
+        for (duration, t), image in images.items()
+        if duration == "8.5"
+    }
+    assert red[3.1] > red[1.0] + 500, red
+    for t in (1.0, 3.1):
+        assert int(np.sum(changed(images["8.5", t], images["4", t]))) == 0, t
 
 
 def test_tether_keeps_the_ghost_at_the_wall(browser, tmp_path):
