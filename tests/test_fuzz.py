@@ -7,6 +7,8 @@ was sent. The number of cases: ``max_examples`` below (run with
 ``--hypothesis-show-statistics`` to see them).
 """
 
+import json
+import math
 import re
 import tempfile
 from pathlib import Path
@@ -14,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from drake import lcmt_robot_state
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform
@@ -220,3 +222,150 @@ def test_any_lcm_payload_is_used_or_dropped_and_counted(batches):
     assert counts["lcm_messages"] == sent
     assert counts["lcm_bad_messages"] + counts["lcm_stale_messages"] <= sent
     assert counts["lcm_silent_samples"] <= len(batches) + 1
+
+
+# -- whole scenario files ---------------------------------------------------------------------------------
+#
+# The brick scene's file with each field either its own value or one a user might write by mistake
+# (a sign, a zero, a NaN, a huge number, a word, a list, nothing) and each tag either a known one or
+# not. Every file either runs (exit 0, or 1 when it diverged, with strict-JSON metrics) or is refused
+# before simulating (exit 2, one message, no traceback); nothing else.
+
+
+def yaml_value(v) -> str:
+    if isinstance(v, float) and math.isnan(v):
+        return ".nan"
+    if isinstance(v, float) and math.isinf(v):
+        return ".inf" if v > 0 else "-.inf"
+    return json.dumps(v)
+
+
+BAD = [-1.0, 0.0, math.nan, math.inf, -math.inf, 1e300, "fast", [], {}, None, True, [1.0, 2.0]]
+
+
+SCENARIO_TEMPLATE = """\
+name: fuzz
+plant:
+  time_step: {time_step}
+  discrete_contact_approximation: {approximation}
+directives:
+- add_directives:
+    file: package://godobject_models/lego/lego.dmd.yaml
+{directive}contact:
+  geometry: {geometry}
+god_object: {god_tag}
+  gains:
+    omega_n: {omega_n}
+    zeta: {zeta}
+    omega_n_rot: {omega_n_rot}
+  max_stretch_m: {max_stretch}
+device: {device}
+workspace:
+  lower_m: {lower}
+  upper_m: {upper}
+feedback:
+  kd: {kd}
+  gamma_d: {gamma_d}
+haptic:
+  mode: {haptic}
+bricks: {bricks}
+simulation:
+  duration_s: {duration}
+  check_period_s: {check_period}
+recording:
+  frames_per_second: {fps}
+visualization:
+  publish_period_s: {publish_period}
+metrics:
+  penetration_budget_m: {budget}
+{extra}"""
+
+DEVICES = [
+    "!Scripted\n  path: package://godobject_models/lego/default_path.yaml\n  rate_hz: {rate}",
+    "!Relative\n  log: package://godobject_models/lego/push_and_return.csv\n  rate_hz: {rate}\n"
+    "  tether_m: {tether}",
+    "!Replay\n  log: package://godobject_models/lego/push_and_return.csv\n  rate_hz: {rate}",
+    "!Lcm\n  url: memq://\n  grasp: brick_0\n  rate_hz: {rate}",
+    "!ScriptedJoints\n  path: package://godobject_models/lego/default_path.yaml",
+    "!Nope\n  rate_hz: {rate}",
+    "{{}}",
+]
+
+FIELDS = {  # the brick scene's value first, then other sensible ones; any may also get a BAD one
+    "time_step": (0.001, 0.002, 1e-12, 0.05),
+    "approximation": ("sap", "lagged", "similar", "tamsi", "SAP"),
+    "geometry": ("proxies", "hydroelastic", "boxes"),
+    "omega_n": (40.0, 400.0, 1e4),
+    "zeta": (1.0, 0.7, 3.0),
+    "omega_n_rot": (120.0, 1e5),
+    "max_stretch": (0.05, 1e-9, 10.0),
+    "lower": ([-0.15, -0.10, 0.0], [0.1, 0.1, 0.1], [0.0, 0.0]),
+    "upper": ([0.15, 0.10, 0.12], [-0.2, -0.2, -0.2], ["a", "b", "c"]),
+    "kd": (0.0, 20.0, 1e6),
+    "gamma_d": (0.0, 0.2, -5.0),
+    "haptic": ("none", "impedance", "admittance", "both"),
+    "bricks": (0, 2, 513, 2.5),
+    "duration": (0.05, 0.02, 1e7),
+    "check_period": (0.05, 1e-9, 10.0),
+    "fps": (64.0, 1001.0, 1e-3),
+    "publish_period": (1 / 64, 1e-9),
+    "budget": (1e-3, 1e-9, 10.0),
+    "rate": (60.0, 1e5, 1e9, 0.1),
+    "tether": (math.inf, 0.002, 0.0),
+}
+
+
+DIRECTIVES = [  # Drake's own errors while building (a missing file, not a model, a name twice, a bad weld)
+    "- add_model: {name: thing, file: /nonexistent/thing.sdf}\n",
+    "- add_model: {name: thing, file: package://godobject_models/lego/default_path.yaml}\n",
+    "- add_directives: {file: package://godobject_models/lego/lego.dmd.yaml}\n",
+    "- add_weld: {parent: world, child: nothing::body}\n",
+    "- add_model: {name: extra, file: package://godobject_models/lego/brick_2x4.sdf}\n",
+]
+
+
+@st.composite
+def scenario_text(draw):
+    """The brick scene with up to three fields changed, its tags and an extra line drawn too."""
+    values = {k: v[0] for k, v in FIELDS.items()}
+    for k in draw(st.lists(st.sampled_from(sorted(FIELDS)), max_size=3, unique=True)):
+        values[k] = draw(st.sampled_from([*FIELDS[k][1:], *BAD]))
+    text = {k: yaml_value(v) for k, v in values.items()}
+    device = draw(st.sampled_from(DEVICES[:1] * 4 + DEVICES[1:]))
+    return SCENARIO_TEMPLATE.format(
+        **text,
+        god_tag=draw(st.sampled_from(["!Rigid"] * 4 + ["!Articulated", "!Deformable", "!Brick", ""])),
+        device=device.format(rate=text["rate"], tether=text["tether"]),
+        directive=draw(st.sampled_from([""] * 6 + DIRECTIVES)),
+        extra=draw(
+            st.sampled_from([""] * 4 + ["unknown_section: 3\n", "simulation:\n  nothing: 1\n", "bricks: [\n"])
+        ),
+    )
+
+
+@settings(
+    max_examples=100,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(text=scenario_text())
+def test_any_scenario_file_runs_or_is_refused_with_a_message(text, capsys):
+    from godobject_drake import cli
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "scene.yaml"
+        path.write_text(text)
+        metrics = Path(d) / "m.json"
+        try:
+            code = cli.main(["run", str(path), "--no-progress", "--metrics", str(metrics)])
+        except SystemExit as e:
+            code = e.code
+        err = capsys.readouterr().err
+        event(f"exit {code}")
+        assert code in (0, 1, 2), (code, text, err[-2000:])
+        assert "Traceback" not in err, (text, err[-2000:])
+        if code == 2:
+            assert "error:" in err and len(err.strip().splitlines()[-1]) > 20, (text, err[-2000:])
+        else:
+            m = json.loads(metrics.read_text(), parse_constant=lambda c: pytest.fail(f"{c} in {text}"))
+            assert m["diverged"] == (code == 1) or "metrics_error" in m, (code, m["diagnosis"], text)
