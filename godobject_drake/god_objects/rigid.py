@@ -156,8 +156,8 @@ def check_haptic_gains(haptic: "sc.Haptic", feedback_gains: FeedbackGains) -> No
     20 % of it, or past the limit of the same device without a hand (stable only while the hand
     holds it), a warning. Drake's boundary on a scene, bisected by ``analyze --verify``, depends
     on its contact: 6 % below this limit on the brick scene, 33 % above it on the README's cube
-    (docs/theory.md §2). A passivity controller
-    (``passivity_damping > 0``) is meant to hold a stiffer wall, so it gets the warning only.
+    (docs/theory.md §2). A passivity controller (``passivity_damping > 0``) is meant to hold a
+    stiffer wall, so it gets the warning only.
     """
     if haptic.mode != "impedance" or feedback_gains.kd <= 0.0:
         return
