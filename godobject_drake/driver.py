@@ -164,9 +164,10 @@ class Driver:
         self.heard_scene = False
         self.offset = np.zeros(3)  # the clutch's re-indexing
         self.held = None  # the pose sent while the clutch is held
-        self.rows: list[tuple] = []
-        self.late: list[float] = []
-        self.gaps: list[float] = []
+        self.rows: list[tuple] = []  # kept when there is no log file
+        self.log_file = None
+        self.late: deque = deque(maxlen=1_000_000)  # the last 17 min at 1 kHz
+        self.gaps: deque = deque(maxlen=1_000_000)
         self.stop_requested = False
         lcm.Subscribe(feedback_channel, self._on_feedback)
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
@@ -260,9 +261,11 @@ class Driver:
                     else "waiting"
                 )
                 t_scene = self.feedback[1] if self.feedback is not None else math.nan
-                self.rows.append((now, *sent, *requested, *f, t_scene, state, int(self.safety.buzzing)))
+                self._row((now, *sent, *requested, *f, t_scene, state, int(self.safety.buzzing)))
                 if self.counts["loops"] % 100 == 0:
                     self.publish_status(now)
+                    if self.log_file is not None:
+                        self.log_file.flush()
                 next_tick += self.period
                 wait = next_tick - time.monotonic()
                 if wait > 0:
@@ -281,7 +284,9 @@ class Driver:
         finally:
             self.device.close()
         now = time.monotonic()
-        self.rows.append((now, *(math.nan,) * 3, *zero, *zero, math.nan, "exit", 0))
+        self._row((now, *(math.nan,) * 3, *zero, *zero, math.nan, "exit", 0))
+        if self.log_file is not None:
+            self.log_file.close()
         try:
             self.publish_status(now)
         except OSError:
@@ -314,19 +319,26 @@ class Driver:
             "feedback_gap": quantiles(self.gaps),
         }
 
-    def write_log(self, path: str | Path) -> None:
-        header = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz"
-        with open(path, "w") as out:
-            out.write(header + "\n")
-            for row in self.rows:
-                out.write(",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n")
+    LOG_HEADER = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz"
+
+    def open_log(self, path: str | Path) -> None:
+        """Write every period to ``path`` as it runs (flushed every 100 periods, closed at exit)."""
+        self.log_file = open(path, "w")
+        self.log_file.write(self.LOG_HEADER + "\n")
+
+    def _row(self, row: tuple) -> None:
+        if self.log_file is None:
+            self.rows.append(row)
+        else:
+            self.log_file.write(",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n")
 
 
 def read_log(path: str | Path) -> dict:
     """A driver's ``--log`` as arrays by column (``state`` as strings)."""
-    lines = Path(path).read_text().splitlines()
+    lines = Path(path).read_text().splitlines() or [Driver.LOG_HEADER]  # not yet flushed: empty
     names = lines[0].split(",")
-    rows = [line.split(",") for line in lines[1:]]
+    # a running log's last line may be cut short
+    rows = [r for r in (line.split(",") for line in lines[1:]) if len(r) == len(names)]
     out = {}
     for i, name in enumerate(names):
         column = [r[i] for r in rows]
@@ -416,11 +428,11 @@ def _run(args) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    if args.log:
+        driver.open_log(args.log)
     try:
         driver.run(args.duration)
     finally:
-        if args.log:
-            driver.write_log(args.log)
         summary = driver.summary()
         if args.summary:
             Path(args.summary).write_text(json.dumps(summary, indent=1))
