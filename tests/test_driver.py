@@ -373,3 +373,46 @@ def test_driver_status_reaches_the_scene_metrics():
         time.sleep(0.005)
     assert status["driver_watchdog_trips"] == 3 and status["driver_buzz_events"] == 2
     assert status["driver_force_clamps"] == 0 and status["lcm_udp_received"] == 1
+
+
+class _QuietLink:
+    """A transport that hears nothing and keeps what is sent (for the driver's own logic)."""
+
+    def __init__(self):
+        self.sent = []
+
+    def Subscribe(self, channel, handler):
+        pass
+
+    def HandleSubscriptions(self, timeout_millis=0):
+        return 0
+
+    def Publish(self, channel, data):
+        self.sent.append((channel, data))
+
+
+def test_the_clutch_holds_the_pose_sent_and_resumes_without_a_jump():
+    """The hand moves +2 cm, holds the clutch while going back 4 cm, lets go and moves +2 cm:
+    while clutched the pose sent stays exactly where it was (no force either), and after it the
+    pose sent is the handle's plus the offset the clutch made (held − handle at the release)."""
+    hand = HandPath(
+        np.array([0.0, 0.2, 0.25, 0.45, 0.5, 0.7, 5.0]),
+        np.array([[0, 0, 0], [0.02, 0, 0], [0.02, 0, 0], [-0.02, 0, 0], [-0.02, 0, 0], [0, 0, 0], [0, 0, 0]]),
+        np.zeros(7, bool),
+        np.array([False, False, True, True, False, False, False]),
+    )
+    device = drv.EmulatedDevice(hand, start_on_scene=False)
+    driver = drv.Driver(device, _QuietLink(), RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
+                        max_force_n=12.0)  # fmt: skip
+    driver.run(0.8)
+    rows = driver.rows[:-1]  # the last is the exit row
+    state = np.array([r[11] for r in rows])
+    sent = np.array([r[1:4] for r in rows])
+    clutched = np.flatnonzero(state == "clutch")
+    assert len(clutched) > 50 and np.all(np.diff(clutched) == 1)
+    np.testing.assert_array_equal(sent[clutched], np.repeat(sent[clutched[:1]], len(clutched), axis=0))
+    after = clutched[-1] + 1
+    assert np.linalg.norm(sent[after] - sent[clutched[0]]) < 1e-3  # no jump at the release
+    assert sent[-1][0] - device.p[0] == pytest.approx(driver.offset[0], abs=1e-12)
+    assert driver.offset[0] > 0.03  # the 4 cm moved while clutched (less the handle's lag)
+    assert all(np.all(np.array(r[7:10]) == 0.0) for r in rows)  # nothing heard: no force ever
