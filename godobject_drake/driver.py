@@ -2,6 +2,7 @@
 the scene, the scene's feedback wrench to the device, and every safety on the device's side.
 
     godobject-driver run FAMILY --scene udp://127.0.0.1:7667 [--rate 1000] [--watchdog-periods 10]
+                     [--max-force N] [--rt-priority 50] [--log F.csv] [--summary F.json]
     godobject-driver calibrate FAMILY --scenario S.yaml --out CALIBRATED.yaml [--seconds 20]
     (or python -m godobject_drake.driver ...)
 
@@ -45,6 +46,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import time
@@ -315,6 +317,7 @@ class Driver:
                 "watchdog_s": self.watchdog_s,
                 "period_s": self.period,
             },
+            "rt_priority": getattr(self, "rt_priority", 0),
             "loop_lateness": quantiles(self.late),
             "feedback_gap": quantiles(self.gaps),
         }
@@ -392,6 +395,10 @@ def _check(args) -> None:
         )
     if not args.duration > 0:
         raise BadInput(f"--duration {args.duration!r} s must be > 0 (inf: until SIGTERM or Ctrl-C)")
+    if not 0 <= args.rt_priority <= 99:
+        raise BadInput(
+            f"--rt-priority {args.rt_priority!r} must be within 1 to 99 (SCHED_FIFO), or 0 for none"
+        )
     if args.hand and args.family != "emulated":
         raise BadInput(f"--hand moves the emulated device only; {args.family} is moved by your hand")
 
@@ -422,6 +429,15 @@ def _run(args) -> int:
         file=sys.stderr,
         flush=True,
     )
+
+    driver.rt_priority = 0
+    if args.rt_priority:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.rt_priority))
+            driver.rt_priority = args.rt_priority
+        except (PermissionError, AttributeError, OSError) as e:
+            print(f"godobject-driver: --rt-priority {args.rt_priority} not applied ({e}); "
+                  "running on the normal scheduler", file=sys.stderr)  # fmt: skip
 
     def on_signal(signum, frame):
         driver.stop_requested = True
@@ -539,6 +555,13 @@ def parser() -> argparse.ArgumentParser:
         help="button: button 0 grasps while held; always: grasp from the start (no buttons)",
     )
     run.add_argument("--duration", type=float, default=math.inf, help="s (default: until SIGTERM or Ctrl-C)")
+    run.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="1-99: run the loop under SCHED_FIFO at this priority (Linux; needs CAP_SYS_NICE), as a "
+        "device's servo loop should; 0 (default): the normal scheduler",
+    )
     run.add_argument("--exit-on-stop", action="store_true", help="exit when the scene says it stopped")
     run.add_argument("--log", default="", help="write every period to FILE.csv at exit")
     run.add_argument("--summary", default="", help="write the counts, limits and timing to FILE.json at exit")

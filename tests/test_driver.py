@@ -186,6 +186,7 @@ def test_bad_driver_and_frame_input_is_refused_naming_the_limit(capsys):
     assert "3D Systems Touch's rated 3.3 N" in capsys.readouterr().err
     assert drv.main(["run", "emulated", "--watchdog-periods", "0"]) == 2
     assert drv.main(["run", "emulated", "--rate", "5"]) == 2
+    assert drv.main(["run", "emulated", "--rt-priority", "100"]) == 2
     assert drv.main(["run", "emulated", "--scene", "udp://127.0.0.1"]) == 2
     assert "udp://HOST:PORT" in capsys.readouterr().err
     assert drv.main(["run", "haply", "--hand", "h.json"]) == 2
