@@ -372,6 +372,35 @@ class MeshcatSliders(_PoseDevice):
                              aids=self.aids())  # fmt: skip
 
 
+@dataclasses.dataclass
+class DeviceToWorld:
+    """Where a real device's frame Dev sits in the world, and its scale (docs/haptic_devices.md
+    "Calibration"): ``p_W = X_WDev (scale p_Dev)`` with ``X_WDev`` from ``xyz`` (m) and
+    ``rpy_deg`` (degrees); the feedback wrench goes back as ``f_Dev = scale R_WDevᵀ f_W``,
+    ``τ_Dev = R_WDevᵀ τ_W``. The defaults are the identity."""
+
+    xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    scale: float = 1.0
+
+    def check(self) -> None:
+        for name in ("xyz", "rpy_deg"):
+            values = getattr(self, name)
+            if len(values) != 3 or not all(isinstance(v, int | float) and math.isfinite(v) for v in values):
+                raise ValueError(f"device_to_world.{name}: {values!r}; give 3 finite numbers, e.g. [0, 0, 0]")
+        if not (isinstance(self.scale, int | float) and math.isfinite(self.scale) and 0 < self.scale <= 1e3):
+            raise ValueError(
+                f"device_to_world.scale: {self.scale!r} must be > 0 and at most 1000 (world metres per "
+                "device metre; 1 maps the device 1:1)"
+            )
+
+    def is_identity(self) -> bool:
+        return self.xyz == [0.0, 0.0, 0.0] and self.rpy_deg == [0.0, 0.0, 0.0] and self.scale == 1.0
+
+    def transform(self) -> RigidTransform:
+        return RigidTransform(RollPitchYaw(np.radians(self.rpy_deg)), np.asarray(self.xyz, dtype=float))
+
+
 @device_kind(
     "lcm", space="pose", real_time=True, renders_feedback=True, summary="a real device's driver over LCM"
 )
@@ -383,7 +412,11 @@ class Lcm(_PoseDevice):
     ----------
     url : str
         Drake's LCM URL; empty: Drake's default (UDP multicast on this network). ``memq://``
-        stays in the process (tests).
+        stays in the process (tests); ``udp://HOST:PORT`` listens for a driver process
+        (``godobject-driver``, docs/haptic_devices.md).
+    device_to_world : DeviceToWorld
+        The device's frame and scale in the world (identity by default); the scenario's
+        ``workspace`` is the box samples are expected in (outside ones are counted).
     channel, feedback_channel : str
         The ``lcmt_robot_state`` samples in; the ``lcmt_force_torque`` feedback wrench out,
         published at ``rate_hz``.
@@ -406,19 +439,33 @@ class Lcm(_PoseDevice):
     timeout_periods: int = 5
     start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    device_to_world: DeviceToWorld = dataclasses.field(default_factory=DeviceToWorld)
 
     def check(self) -> None:
         super().check()
         _check_timeout(self.timeout_periods)
         if self.noise_m:
             raise ValueError("noise_m: a real device's samples are its own; leave it 0")
+        self.device_to_world.check()
+        if self.url.startswith("udp://"):
+            from godobject_drake.udp_lcm import parse_url
+
+            try:
+                parse_url(self.url)
+            except ValueError as e:
+                raise ValueError(f"url: {e}") from None
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         from godobject_drake.lcm_device import LcmDevice, make_lcm
 
+        frame = {}
+        if not self.device_to_world.is_identity():
+            frame = dict(X_WDev=self.device_to_world.transform(), scale=self.device_to_world.scale)
+        box = None if workspace is None else (workspace.lower_m, workspace.upper_m)
         return LcmDevice(
             make_lcm(self.url), self.start_pose(), self.channel, self.timeout_periods, self.period_s,
             self.latency_s, self.guard, self.interpolation, self.feedback_channel, self.grasp,
+            workspace=box, **frame,
         )  # fmt: skip
 
 

@@ -28,7 +28,23 @@ counted in the metrics (:data:`LCM_STATUS_KEYS`):
   handles it as for any device (joint devices: a non-finite value drops the message).
 
 Use ``memq://`` for tests (in-process; nothing leaves the process). Drake's default URL is UDP
-multicast, for a lab's own network.
+multicast, for a lab's own network. ``udp://HOST:PORT`` is a point-to-point link to a driver
+process (:mod:`~godobject_drake.udp_lcm`, :mod:`~godobject_drake.driver`).
+
+**Device frame** (docs/haptic_devices.md "Calibration"): a driver reports the device's pose in
+its own frame Dev (m); ``X_WDev`` and ``scale`` map it into W, ``p_W = X_WDev (scale p_Dev)``,
+``R_W = R_WDev R_Dev``, and the feedback wrench goes back into Dev with the power-preserving
+inverse, ``f_Dev = scale R_WDevᵀ f_W``, ``τ_Dev = R_WDevᵀ τ_W`` (what the hand puts in through
+the device equals what the scene takes out). The identity (the default) leaves every value as it
+was. Samples outside the scenario's workspace are counted (``device_outside_workspace``), not moved.
+
+**Stop**: at every stop the scene publishes the zero wrench on the feedback channel and then
+an empty ``lcmt_force_torque`` on ``<feedback channel>_STOP``, which a driver takes as "the scene
+has stopped": zero force at once, without waiting for its watchdog.
+
+**Driver status**: a driver (:mod:`~godobject_drake.driver`) publishes its fault counts on
+``GODOBJECT_DRIVER_STATUS`` (``lcmt_robot_state``, one entry per count, :data:`DRIVER_STATUS_KEYS`);
+on a ``udp://`` link the newest counts are in the metrics as ``driver_*``.
 """
 
 from __future__ import annotations
@@ -49,7 +65,20 @@ from godobject_drake.devices import DEFAULT_DEVICE_RATE_HZ, DeviceSource, JointD
 POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
 JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"
 FEEDBACK_CHANNEL = "GODOBJECT_FEEDBACK"
+DRIVER_STATUS_CHANNEL = "GODOBJECT_DRIVER_STATUS"
+STOP_SUFFIX = "_STOP"
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+# What a driver counts (godobject_drake.driver), in the metrics as driver_<key>.
+DRIVER_STATUS_KEYS = (
+    "loops",  # device periods run
+    "overruns",  # periods that started more than one period late
+    "watchdog_trips",  # feedback went silent for the watchdog time: force zeroed
+    "scene_stops",  # the scene said it stopped: force zeroed
+    "force_clamps",  # device periods with the force cut to the device's rated maximum
+    "rate_clamps",  # device periods with the force's change cut to the rated rate
+    "buzz_events",  # feedback oscillating near the device's Nyquist rate: damped
+    "bad_feedback",  # feedback messages that did not decode or were not finite
+)
 GRASP_PREFIX = "grasp="
 LCM_STATUS_KEYS = (
     "lcm_messages",
@@ -60,9 +89,24 @@ LCM_STATUS_KEYS = (
 )
 
 
-def make_lcm(url: str = "") -> DrakeLcm:
-    """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast)."""
+def make_lcm(url: str = ""):
+    """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast); ``udp://HOST:PORT``:
+    a point-to-point link to a driver process (:class:`~godobject_drake.udp_lcm.UdpLcm`)."""
+    from godobject_drake.udp_lcm import UdpLcm, is_udp_url
+
+    if is_udp_url(url):
+        return UdpLcm.listen(url)
     return DrakeLcm(url) if url else DrakeLcm()
+
+
+def status_message(utime: int, counts: dict) -> lcmt_robot_state:
+    """A driver's counts as an ``lcmt_robot_state`` (names :data:`DRIVER_STATUS_KEYS`)."""
+    msg = lcmt_robot_state()
+    msg.utime = int(utime)
+    msg.num_joints = len(DRIVER_STATUS_KEYS)
+    msg.joint_name = list(DRIVER_STATUS_KEYS)
+    msg.joint_position = [float(counts.get(k, 0)) for k in DRIVER_STATUS_KEYS]
+    return msg
 
 
 def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state:
@@ -189,8 +233,20 @@ class LcmDevice(DeviceSource):
         interpolation: str = "hold",
         feedback_channel: str = FEEDBACK_CHANNEL,
         grasp: str = "",
+        X_WDev: RigidTransform | None = None,
+        scale: float = 1.0,
+        workspace: tuple | None = None,
     ):
         self.lcm, self.feedback_channel, self._fixed_grasp = lcm, feedback_channel, grasp
+        self.X_WDev = None if X_WDev is None and scale == 1.0 else (X_WDev or RigidTransform())
+        self.scale = float(scale)
+        self.workspace = None if workspace is None else (np.asarray(workspace[0]), np.asarray(workspace[1]))
+        self._outside = 0
+        self.driver_link = not isinstance(lcm, DrakeLcm)  # udp://: a driver process reports its counts
+        self.driver_counts = dict.fromkeys(DRIVER_STATUS_KEYS, 0)
+        self.driver_status_messages = 0
+        if self.driver_link:
+            lcm.Subscribe(DRIVER_STATUS_CHANNEL, self._driver_status)
         self.known_grasps: set[str] | None = None  # the coupling's names (connect_feedback)
         self.receiver = LcmReceiver(lcm, channel, POSE_NAMES, timeout_periods, self._grasp_ok)
         self._p0 = X_WD0.translation().copy()
@@ -200,10 +256,11 @@ class LcmDevice(DeviceSource):
         super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard)
 
     def _read(self, t: float):
+        fresh = False
         if t > self._polled_at:  # once per device sample; not from a build-time query
             self._polled_at = t
             if t > 0.0 or self.receiver.latest is None:
-                self.receiver.poll()
+                fresh = self.receiver.poll()
         latest = self.receiver.latest
         if latest is None:
             return self._p0, self._q0, self._fixed_grasp
@@ -212,7 +269,36 @@ class LcmDevice(DeviceSource):
         values, grasp = latest
         if grasp is not None:
             self._grasp = GRASP_NEAREST if grasp == "*" else grasp
-        return values[:3], values[3:7], self._fixed_grasp or self._grasp
+        p, q = values[:3], values[3:7]
+        if self.X_WDev is not None:
+            p, q = self.to_world(p, q)
+        if fresh and self.workspace is not None and np.all(np.isfinite(p)):
+            lower, upper = self.workspace
+            self._outside += int(np.any(p < lower) or np.any(p > upper))
+        return p, q, self._fixed_grasp or self._grasp
+
+    def to_world(self, p_Dev, q_Dev):
+        """A driver's pose (its frame Dev, m; a W-first quaternion) in W: ``X_WDev (scale p)``,
+        ``R_WDev R``. A non-unit or NaN quaternion is passed on unchanged for the sample guard."""
+        p = self.X_WDev.multiply(self.scale * np.asarray(p_Dev, float))
+        q = np.asarray(q_Dev, float)
+        norm = np.linalg.norm(q)
+        if not (np.all(np.isfinite(q)) and abs(norm - 1.0) < 1e-6):
+            return p, q
+        from pydrake.common.eigen_geometry import Quaternion
+
+        q_W = self.X_WDev.rotation().ToQuaternion().multiply(Quaternion(q / norm)).wxyz()
+        return p, q_W * norm
+
+    def _driver_status(self, raw: bytes) -> None:
+        try:
+            msg = lcmt_robot_state.decode(raw)
+        except ValueError:
+            return
+        self.driver_status_messages += 1
+        for name, value in zip(msg.joint_name, msg.joint_position, strict=False):
+            if name in self.driver_counts and math.isfinite(value):
+                self.driver_counts[name] = round(value)
 
     def _grasp_ok(self, name: str) -> bool:
         return name in ("", "*") or self.known_grasps is None or name in self.known_grasps
@@ -226,7 +312,15 @@ class LcmDevice(DeviceSource):
         return [(0.0, self._read(0.0))]
 
     def lcm_status(self) -> dict:
-        return dict(self.receiver.counts)
+        counts = dict(self.receiver.counts)
+        if (self.workspace is not None and self.X_WDev is not None) or self.driver_link:
+            counts["device_outside_workspace"] = self._outside
+        if self.driver_link:
+            self.lcm.HandleSubscriptions(0)  # the driver's last counts, sent as it stops
+            counts.update({f"driver_{k}": v for k, v in self.driver_counts.items()})
+            counts["driver_status_messages"] = self.driver_status_messages
+            counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})
+        return counts
 
     def status(self, context) -> dict:
         return {**super().status(context), **self.lcm_status()}
@@ -238,6 +332,7 @@ class LcmDevice(DeviceSource):
         message = lcmt_force_torque()
         message.timestamp = round(t * 1e6)
         self.lcm.Publish(self.feedback_channel, message.encode())
+        self.lcm.Publish(self.feedback_channel + STOP_SUFFIX, message.encode())  # then: stopped
         return True
 
     def connect_feedback(self, builder, F_Do_W_port, grasp_names):
@@ -293,29 +388,55 @@ class LcmJointDevice(JointDevice):
 
 
 def add_feedback_publisher(builder, F_Do_W_port, device: LcmDevice):
-    """Publish ``F_Do_W`` as ``lcmt_force_torque`` on the device's feedback channel at its rate."""
+    """Publish ``F_Do_W`` as ``lcmt_force_torque`` on the device's feedback channel at its rate
+    (in the device's frame when the device has one: module docstring)."""
     from pydrake.systems.lcm import LcmPublisherSystem
 
-    message = builder.AddNamedSystem("feedback_message", ForceTorqueMessage())
-    publisher = builder.AddNamedSystem(
-        "feedback_publisher",
-        LcmPublisherSystem.Make(device.feedback_channel, lcmt_force_torque, device.lcm, device.period_s),
+    mapping = (
+        {} if device.X_WDev is None else dict(R_WDev=device.X_WDev.rotation().matrix(), scale=device.scale)
     )
+    message = builder.AddNamedSystem("feedback_message", ForceTorqueMessage(**mapping))
+    if isinstance(device.lcm, DrakeLcm):
+        system = LcmPublisherSystem.Make(
+            device.feedback_channel, lcmt_force_torque, device.lcm, device.period_s
+        )
+    else:  # a driver link (udp://): Drake's publisher takes only its own C++ LCM
+        system = ForceTorquePublisher(device.lcm, device.feedback_channel, device.period_s)
+    publisher = builder.AddNamedSystem("feedback_publisher", system)
     builder.Connect(F_Do_W_port, message.GetInputPort("F_Do_W"))
     builder.Connect(message.GetOutputPort("message"), publisher.get_input_port())
     return publisher
 
 
-class ForceTorqueMessage(LeafSystem):
-    """``F_Do_W`` (torque first, as Drake's spatial forces) → ``lcmt_force_torque`` for a publisher."""
+class ForceTorquePublisher(LeafSystem):
+    """Publishes its ``lcmt_force_torque`` input every ``period_s`` from t = 0 on a Python LCM
+    (``Publish(channel, bytes)``), as Drake's ``LcmPublisherSystem`` does on its own."""
 
-    def __init__(self):
+    def __init__(self, lcm, channel: str, period_s: float):
         super().__init__()
+        self.lcm, self.channel = lcm, channel
+        self._in = self.DeclareAbstractInputPort("lcm_message", AbstractValue.Make(lcmt_force_torque()))
+        self.DeclarePeriodicPublishEvent(period_s, 0.0, self._publish)
+
+    def _publish(self, context):
+        self.lcm.Publish(self.channel, self._in.Eval(context).encode())
+
+
+class ForceTorqueMessage(LeafSystem):
+    """``F_Do_W`` (torque first, as Drake's spatial forces) → ``lcmt_force_torque`` for a publisher;
+    with ``R_WDev`` and ``scale``, in the device's frame: ``f = scale R_WDevᵀ f_W``, ``τ = R_WDevᵀ τ_W``."""
+
+    def __init__(self, R_WDev=None, scale: float = 1.0):
+        super().__init__()
+        self._R_DevW = None if R_WDev is None else np.asarray(R_WDev, float).T
+        self._scale = float(scale)
         self._F = self.DeclareVectorInputPort("F_Do_W", 6)
         self.DeclareAbstractOutputPort("message", lambda: AbstractValue.Make(lcmt_force_torque()), self._calc)
 
     def _calc(self, context, output):
         F = self._F.Eval(context)
+        if self._R_DevW is not None:
+            F = np.concatenate([self._R_DevW @ F[:3], self._scale * (self._R_DevW @ F[3:])])
         msg = lcmt_force_torque()
         msg.timestamp = round(context.get_time() * 1e6)
         msg.tx, msg.ty, msg.tz, msg.fx, msg.fy, msg.fz = (float(v) for v in F)

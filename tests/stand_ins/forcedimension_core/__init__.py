@@ -1,0 +1,1 @@
+"""Stand-in for ``forcedimension_core`` (README.md here): only its ``dhd`` module."""

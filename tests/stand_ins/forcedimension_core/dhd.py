@@ -1,0 +1,55 @@
+"""Stand-in for ``forcedimension_core.dhd`` (README.md here), the signatures of the wrapper's
+``forcedimension_core/dhd/__init__.py``: ``open() -> ID`` (−1: none), ``enableForce(enable, ID=-1)``,
+``getPosition(out, ID=-1)``, ``getButton(index, ID=-1)``, ``setForce(f, ID=-1)``, ``stop(ID=-1)``,
+``close(ID=-1)``, ``errorGetLastStr()``; 0 on success, −1 on error."""
+
+from godobject_drake.haptic_families import EmulatedDevice
+
+HAND = None
+forces: list[list[float]] = []
+state = {"device": None, "force_enabled": False, "stopped": False, "closed": False}
+
+
+def errorGetLastStr() -> str:
+    return "no error (stand-in)"
+
+
+def open() -> int:
+    state.update(device=EmulatedDevice(HAND, start_on_scene=False), closed=False, stopped=False)
+    return 0
+
+
+def enableForce(enable: bool, ID: int = -1) -> int:
+    state["force_enabled"] = bool(enable)
+    return 0
+
+
+def getPosition(out, ID: int = -1) -> int:
+    p, _, _ = state["device"].read()
+    out[0], out[1], out[2] = (float(v) for v in p)
+    return 0
+
+
+def getButton(index: int, ID: int = -1) -> int:
+    device = state["device"]
+    _, grasp, clutch = device.hand.at(device.hand_time())
+    return int((grasp, clutch)[index]) if index < 2 else 0
+
+
+def setForce(f, ID: int = -1) -> int:
+    if not state["force_enabled"]:
+        return -1
+    forces.append([float(v) for v in f])
+    state["device"].render(f)
+    return 0
+
+
+def stop(ID: int = -1) -> int:
+    state["stopped"] = True
+    state["force_enabled"] = False
+    return 0
+
+
+def close(ID: int = -1) -> int:
+    state["closed"] = True
+    return 0
