@@ -463,7 +463,44 @@ USER_ERRORS = (
 )
 
 
-def main(argv=None, *, scenario: str | Path | None = None, build=None, description: str | None = None) -> int:
+SCENARIO_HELP = f"a scenario YAML file, or a shipped scene by name ({', '.join(sc.SHIPPED)})"
+
+
+def scenario_path(text: str) -> Path:
+    """The command line's scenario: a file, or a shipped scene's name (``lego``) when no such file
+    is here."""
+    path = Path(text)
+    if text in sc.SHIPPED and not path.exists():
+        return sc.shipped_scenario_file(text)
+    return path
+
+
+def version_text() -> str:
+    """``--version``: this package's version and the Drake it runs on."""
+    import importlib.metadata
+
+    from godobject_drake import __version__
+
+    try:
+        drake = importlib.metadata.version("drake")
+    except importlib.metadata.PackageNotFoundError:
+        drake = "unknown"
+    return f"godobject_drake {__version__} (drake {drake}, Python {sys.version.split()[0]})"
+
+
+def console_main() -> int:
+    """The ``godobject`` console script (``godobject run lego``)."""
+    return main(prog="godobject")
+
+
+def main(
+    argv=None,
+    *,
+    scenario: str | Path | None = None,
+    build=None,
+    description: str | None = None,
+    prog: str = "python -m godobject_drake",
+) -> int:
     """Run a scenario with the command line's overrides; the exit status is 1 for a diverged run
     or a failed metric, 2 for bad input.
 
@@ -472,18 +509,19 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     if scenario is None:
-        parser = argparse.ArgumentParser(prog="python -m godobject_drake", description=__doc__,
+        parser = argparse.ArgumentParser(prog=prog, description=__doc__,
                                          formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+        parser.add_argument("--version", action="version", version=version_text())
         commands = parser.add_subparsers(dest="command", required=True)
         run = commands.add_parser(
             "run", help="run a scenario: the metrics table, and a recording with --record"
         )
-        run.add_argument("scenario", type=Path, help="the scenario YAML file")
+        run.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
         add_arguments(run)
         analyze = commands.add_parser(
             "analyze", help="the scenario's stability and passivity report, each verdict checked in Drake"
         )
-        analyze.add_argument("scenario", type=Path, help="the scenario YAML file")
+        analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
         analyze.add_argument("--out", type=Path, required=True, help="directory for report.md, summary.json")
         analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
         analyze.add_argument(
