@@ -61,4 +61,9 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'godobject_drake' has no attribute {name!r}")
 
 
+def __dir__() -> list[str]:
+    """The module's names and the lazily imported public ones (tab completion, ``help()``)."""
+    return sorted({*globals(), *_EXPORTS})
+
+
 __all__ = sorted(_EXPORTS)

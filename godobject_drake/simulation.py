@@ -457,4 +457,5 @@ def _progress(total: int, enabled: bool):
         return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="step", file=sys.stderr, leave=False, mininterval=0.5)
+    # disable=None: no bar when stderr is not a terminal (a log file, CI), so no \r frames there
+    return tqdm(total=total, unit="step", file=sys.stderr, leave=False, mininterval=0.5, disable=None)

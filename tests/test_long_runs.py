@@ -149,7 +149,7 @@ def test_sigterm_ends_the_run_as_ctrl_c_does(tmp_path):
     assert proc.returncode == 143, (out, err)
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["partial"] is True and m["interrupted"] is True and 0.0 < m["sim_time_s"] < 60.0
-    assert "interrupted (SIGTERM)" in err and "recording written to" in out
+    assert "interrupted (SIGTERM)" in err and "recording written to" in err  # logged: stderr
     html = (tmp_path / "r.html").read_text()
     assert html.rstrip().endswith("</html>")
     frames = _frames(tmp_path / "r.html")  # the recording covers the run up to the signal
