@@ -142,6 +142,8 @@ def simulate(
         ``checkpoint(metrics)`` every ``checkpoint_period_s`` of wall time with the metrics so far
         (marked ``partial``): the command line writes them, so a killed run leaves its last ones.
 
+    Notes
+    -----
     A run that stops early (a divergence, a Drake error, the Stop button) still measures what
     it ran, its metrics marked ``partial``; Ctrl-C does too, then raises :class:`RunInterrupted`
     carrying the result.

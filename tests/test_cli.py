@@ -74,6 +74,7 @@ def test_set_overrides_any_field_before_the_checks():
             cli.load_with_sets(sc.shipped_scenario_file("lego"), items)
 
 
+@pytest.mark.slow
 def test_a_recording_run_logs_to_stderr_without_meshcat_or_progress_frames(tmp_path):
     """A run writing a recording, stderr not a terminal: no "Meshcat listening" (nobody is to open
     it), no tqdm \\r frames, the outputs named by the logger; -q keeps only warnings."""

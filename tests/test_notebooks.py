@@ -15,6 +15,7 @@ def test_there_are_the_two_notebooks():
     assert [p.name for p in NOTEBOOKS] == ["first_god_object.ipynb", "stability_of_your_scene.ipynb"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_notebook_executes(path):
     nb = nbformat.read(path, as_version=4)
