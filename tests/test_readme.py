@@ -27,7 +27,6 @@ def test_readme_is_short_and_its_links_resolve():
     links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README)
     local = [link for link in links if "://" not in link]
     assert local and [link for link in local if not (REPO / link).exists()] == []
-    assert "../shared" not in README
 
 
 def test_the_own_scene_example_is_the_file_wherever_it_is_shown():
