@@ -479,7 +479,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
         return old
     if DEVICE_KINDS[cls].needs_log and log is None:
         raise sc.ScenarioError(
-            f"--device {name} needs --device-log FILE.csv (README 'Device log format' and 'Relative device')"
+            f"--device {name} needs --device-log FILE.csv (docs/guide/devices.md: the log formats)"
         )
     common = {f.name: getattr(old, f.name) for f in dataclasses.fields(cls) if hasattr(old, f.name)}
     for field in ("path", "waypoints", "log"):

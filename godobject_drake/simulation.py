@@ -40,7 +40,7 @@ class RunResult:
     Attributes
     ----------
     metrics : dict
-        README "Metrics JSON": the common keys every scene has and the scene's own.
+        docs/metrics.md: the common keys every scene has and the scene's own.
     station : Station
         The diagram and its parts.
     simulator : Simulator
