@@ -82,4 +82,16 @@ def test_py_typed_and_license_ship():
     assert (Path(godobject_drake.__file__).parent / "py.typed").is_file()
     assert "py.typed" in SETUPTOOLS["package-data"]["godobject_drake"]
     assert (REPO / "LICENSE").read_text().startswith("BSD 3-Clause License")
-    assert PYPROJECT["project"]["license"] == {"text": "BSD-3-Clause"}
+    assert PYPROJECT["project"]["license"] == "BSD-3-Clause" and PYPROJECT["project"]["license-files"] == [
+        "LICENSE"
+    ]
+
+
+def test_every_model_folder_is_a_listed_package():
+    """setuptools ships models/'s folders as package data of godobject_models only when they are
+    listed packages (otherwise it warns that this is deprecated)."""
+    folders = {p.name for p in (REPO / "models").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    listed = {
+        name.split(".", 1)[1] for name in SETUPTOOLS["packages"] if name.startswith("godobject_models.")
+    }
+    assert folders == listed
