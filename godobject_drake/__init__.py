@@ -2,13 +2,13 @@
 
 Describe a scene once in a scenario file, build it with one call, run it::
 
-    from godobject_drake import build_station, load_scenario, simulate
+    from godobject_drake import build_station, load_scenario, shipped_scenario, simulate
 
-    station = build_station(load_scenario("diagrams/lego.yaml"))
+    station = build_station(shipped_scenario("lego"))  # or load_scenario("my_scene.yaml")
     result = simulate(station)
     print(result.metrics["max_penetration_m"])
 
-or compose a diagram of one's own from the parts (README "Compose your own
+or compose a diagram of one's own from the parts (docs/guide/own_scene.md, "Compose your own
 diagram"). The runtime, what runs in a scene, is one module per role:
 
 - :mod:`~godobject_drake.device_kinds`: the device kinds, each a scenario config registered once;
@@ -59,6 +59,11 @@ def __getattr__(name: str):
 
         return getattr(importlib.import_module(f"godobject_drake.{_EXPORTS[name]}"), name)
     raise AttributeError(f"module 'godobject_drake' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and the lazily imported public ones (tab completion, ``help()``)."""
+    return sorted({*globals(), *_EXPORTS})
 
 
 __all__ = sorted(_EXPORTS)

@@ -230,7 +230,17 @@ def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     vis = scenario.visualization
     if vis.serve or kind_of(scenario.device).live:
         return start_meshcat(vis.host, vis.port)
-    return start_meshcat(vis.host, 0) if scenario.recording.file else None
+    if not scenario.recording.file:
+        return None
+    # A Meshcat that only records: nobody is to open it, so Drake's "Meshcat listening for
+    # connections at ..." (its INFO log) is not shown; a non-loopback host is still announced.
+    drake_log = logging.getLogger("drake")
+    level = drake_log.level
+    drake_log.setLevel(max(level, logging.WARNING))
+    try:
+        return start_meshcat(vis.host, 0)
+    finally:
+        drake_log.setLevel(level)
 
 
 def add_loggers(builder: DiagramBuilder, plant: MultibodyPlant, god: GodObject) -> dict[str, VectorLogSink]:

@@ -9,7 +9,9 @@ flags through :func:`main`, with their own wiring as ``build``.
 import argparse
 import copy
 import dataclasses
+import logging
 import math
+import re
 import signal
 import sys
 import threading
@@ -27,6 +29,20 @@ from godobject_drake.outputs import OutputError
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted
 
+logger = logging.getLogger("godobject_drake")
+
+DESCRIPTION = """Run a god-object scene, or analyse its stability.
+
+  godobject run lego --record lego.html --metrics metrics.json
+  godobject run my_scene.yaml --set simulation.duration_s=2
+  godobject analyze lego --out reports/lego --quick
+
+A scenario is a YAML file or a shipped scene's name (lego, laparoscopy,
+deformable_probe). Every flag overrides one scenario field (its help names
+the field); --set KEY=VALUE overrides any field. Exit status: 0 done, 1 a
+diverged run or a failed check, 2 bad input. 'godobject run --help' lists
+the flags."""
+
 
 def device_names() -> tuple[str, ...]:
     """Every registered device kind's name, pose and joint alike (``--device NAME``), read when a
@@ -40,7 +56,7 @@ def device_help() -> str:
     for k in DEVICE_KINDS.values():
         if k.summary not in summaries.setdefault(k.name, []):
             summaries[k.name].append(k.summary)
-    return "; ".join(f"{name}: {' / '.join(texts)}" for name, texts in summaries.items())
+    return plain("; ".join(f"{name}: {' / '.join(texts)}" for name, texts in summaries.items()))
 
 
 # (flag, argparse options, help, the scenario field it sets)
@@ -219,10 +235,20 @@ FLAG_KINDS = {
 }
 
 
-def add_arguments(parser: argparse.ArgumentParser, kinds=None) -> None:
+# Flags of a run that ``analyze`` has no use for: it writes no recording or metrics file, serves
+# no page, and stands a scripted device in for the scenario's (studies.analyze.analysis_scenario).
+RUN_ONLY_FLAGS = frozenset({
+    "--record", "--meshcat", "--meshcat-host", "--force-cue", "--metrics", "--no-progress", "--device",
+    "--device-log", "--lcm-url", "--device-interpolation", "--max-device-speed", "--device-noise", "--seed",
+    "--tether", "--tether-angle", "--cd-ratio", "--cd-onset",
+})  # fmt: skip
+
+
+def add_arguments(parser: argparse.ArgumentParser, kinds=None, exclude=frozenset()) -> None:
     """The flags: the common ones, and those of the god-object ``kinds`` (scenario config classes;
-    None: every kind's); each help names its field."""
-    seen = set()
+    None: every kind's), but those in ``exclude``; each help names its field. Then ``--set``,
+    ``-v`` and ``-q``."""
+    seen = set(exclude)
     for flags in (COMMON_FLAGS, *(KIND_FLAGS.get(k, ()) for k in (kinds or KIND_FLAGS))):
         for flag, options, text, field in flags:
             if flag not in seen:
@@ -231,6 +257,91 @@ def add_arguments(parser: argparse.ArgumentParser, kinds=None) -> None:
                     options = {**options, "choices": options["choices"]()}
                 text = text() if callable(text) else text
                 parser.add_argument(flag, help=f"{text} [{field}]" if field else text, **options)
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", dest="set_fields",
+        help="set any scenario field, e.g. --set simulation.duration_s=2 or --set 'feedback={kd: 50}' "
+        "(the value is YAML; applied before the named flags; repeatable)",
+    )  # fmt: skip
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="say more (debug messages)")
+    parser.add_argument("-q", "--quiet", action="count", default=0, help="say only warnings and errors")
+
+
+_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+
+
+def set_overrides(items: list[str]) -> str | None:
+    """``--set a.b=v`` items as one YAML override text (``a:\n  b: v``); raises ``ScenarioError``
+    naming an item that is not ``KEY=VALUE``."""
+    tree: dict = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not _KEY.fullmatch(key):
+            raise sc.ScenarioError(
+                f"--set {item}: give KEY=VALUE with KEY a scenario field's dotted path, e.g. "
+                "--set simulation.duration_s=2"
+            )
+        *parents, leaf = key.split(".")
+        node = tree
+        for part in parents:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise sc.ScenarioError(f"--set {item}: {key} is inside a field set whole by another --set")
+        node[leaf] = value.strip() or '""'
+
+    def emit(node: dict, indent: int) -> list[str]:
+        lines = []
+        for k, v in node.items():
+            if isinstance(v, dict):
+                lines += [" " * indent + f"{k}:", *emit(v, indent + 2)]
+            else:
+                lines.append(" " * indent + f"{k}: {v}")
+        return lines
+
+    return "\n".join(emit(tree, 0)) + "\n" if tree else None
+
+
+def load_with_sets(path: str | Path, items: list[str]) -> sc.Scenario:
+    """The scenario file with the ``--set`` items applied (before its checks); an error names the
+    item that caused it."""
+    text = set_overrides(items)
+    try:
+        return sc.load_scenario(path, text)
+    except sc.ScenarioError as e:
+        if not text:
+            raise
+        for item in items:  # which item: the first that fails alone
+            try:
+                sc.load_scenario(path, set_overrides([item]))
+            except sc.ScenarioError as alone:
+                raise sc.ScenarioError(f"--set {item}: {alone}") from None
+        raise sc.ScenarioError(f"--set {' '.join(items)}: {e}") from None
+
+
+class _Handler(logging.StreamHandler):
+    """The command line's handler of the ``godobject_drake`` logger (one at a time)."""
+
+
+def configure_logging(verbose: int = 0, quiet: int = 0) -> None:
+    """The ``godobject_drake`` logger to stderr as plain lines: info by default, debug with
+    ``-v``, warnings and errors only with ``-q``."""
+    handler = _Handler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    for old in [h for h in logger.handlers if isinstance(h, _Handler)]:
+        logger.removeHandler(old)
+    logger.addHandler(handler)
+    logger.setLevel(
+        logging.DEBUG if verbose > quiet else logging.WARNING if quiet > verbose else logging.INFO
+    )
+    logger.propagate = False
+
+
+def plain(text: str | None) -> str | None:
+    """A docstring as plain help text: no reStructuredText markup (````x````, ``:func:`~a.b```)."""
+    if text is None:
+        return None
+    text = re.sub(r":[a-z]+:`~?(?:[\w.]*\.)?([\w]+)`", r"\1", text)
+    return text.replace("``", "")
 
 
 def _given(args, name):
@@ -368,7 +479,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
         return old
     if DEVICE_KINDS[cls].needs_log and log is None:
         raise sc.ScenarioError(
-            f"--device {name} needs --device-log FILE.csv (README 'Device log format' and 'Relative device')"
+            f"--device {name} needs --device-log FILE.csv (docs/guide/devices.md: the log formats)"
         )
     common = {f.name: getattr(old, f.name) for f in dataclasses.fields(cls) if hasattr(old, f.name)}
     for field in ("path", "waypoints", "log"):
@@ -422,7 +533,7 @@ def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
             write_metrics(path, metrics)
         except OutputError as e:  # the run goes on; the last complete file stays, said once
             if not failed:
-                print(f"checkpoint not written: {e}", file=sys.stderr)
+                logger.warning("checkpoint not written: %s", e)
             failed.append(e)
 
     return simulate(
@@ -439,10 +550,15 @@ def report(results: list[dict], metrics_path: str | Path | None) -> bool:
         try:
             write_metrics(metrics_path, results[0] if len(results) == 1 else results)
         except OutputError as e:
-            print(f"metrics not written: {e}", file=sys.stderr)
+            logger.error("metrics not written: %s", e)
             return False
-        print(f"metrics written to {metrics_path}")
+        logger.info("metrics written to %s", metrics_path)
     return True
+
+
+def refuse_input(parser: argparse.ArgumentParser, error: Exception):
+    """Bad input: the message alone (no usage block: the flags were parsed), exit status 2."""
+    parser.exit(2, f"{parser.prog}: error: {error}\n")
 
 
 class Terminated(KeyboardInterrupt):
@@ -463,7 +579,44 @@ USER_ERRORS = (
 )
 
 
-def main(argv=None, *, scenario: str | Path | None = None, build=None, description: str | None = None) -> int:
+SCENARIO_HELP = f"a scenario YAML file, or a shipped scene by name ({', '.join(sc.SHIPPED)})"
+
+
+def scenario_path(text: str) -> Path:
+    """The command line's scenario: a file, or a shipped scene's name (``lego``) when no such file
+    is here."""
+    path = Path(text)
+    if text in sc.SHIPPED and not path.exists():
+        return sc.shipped_scenario_file(text)
+    return path
+
+
+def version_text() -> str:
+    """``--version``: this package's version and the Drake it runs on."""
+    import importlib.metadata
+
+    from godobject_drake import __version__
+
+    try:
+        drake = importlib.metadata.version("drake")
+    except importlib.metadata.PackageNotFoundError:
+        drake = "unknown"
+    return f"godobject_drake {__version__} (drake {drake}, Python {sys.version.split()[0]})"
+
+
+def console_main() -> int:
+    """The ``godobject`` console script (``godobject run lego``)."""
+    return main(prog="godobject")
+
+
+def main(
+    argv=None,
+    *,
+    scenario: str | Path | None = None,
+    build=None,
+    description: str | None = None,
+    prog: str = "python -m godobject_drake",
+) -> int:
     """Run a scenario with the command line's overrides; the exit status is 1 for a diverged run
     or a failed metric, 2 for bad input.
 
@@ -472,26 +625,28 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     if scenario is None:
-        parser = argparse.ArgumentParser(prog="python -m godobject_drake", description=__doc__,
+        parser = argparse.ArgumentParser(prog=prog, description=DESCRIPTION,
                                          formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+        parser.add_argument("--version", action="version", version=version_text())
         commands = parser.add_subparsers(dest="command", required=True)
         run = commands.add_parser(
             "run", help="run a scenario: the metrics table, and a recording with --record"
         )
-        run.add_argument("scenario", type=Path, help="the scenario YAML file")
+        run.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
         add_arguments(run)
         analyze = commands.add_parser(
             "analyze", help="the scenario's stability and passivity report, each verdict checked in Drake"
         )
-        analyze.add_argument("scenario", type=Path, help="the scenario YAML file")
+        analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
         analyze.add_argument("--out", type=Path, required=True, help="directory for report.md, summary.json")
         analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
         analyze.add_argument(
             "--verify", action=argparse.BooleanOptionalAction, default=None,
             help="simulate each prediction in Drake on this scene (default: on, off with --quick)",
         )  # fmt: skip
-        add_arguments(analyze)
+        add_arguments(analyze, exclude=RUN_ONLY_FLAGS)
         args = parser.parse_args(argv)
+        configure_logging(args.verbose, args.quiet)
         if args.command == "analyze":
             return _analyze(args, analyze)
         path, parser = args.scenario, run
@@ -499,10 +654,11 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
         path = Path(scenario)
         kinds = (type(sc.load_scenario(path).god_object),)
         parser = argparse.ArgumentParser(
-            description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+            description=plain(description), formatter_class=argparse.RawDescriptionHelpFormatter
         )
         add_arguments(parser, kinds)
         args = parser.parse_args(argv)
+        configure_logging(args.verbose, args.quiet)
     interrupted = None
     previous = (
         signal.signal(signal.SIGTERM, _terminate)
@@ -512,14 +668,14 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
-            s = apply_arguments(sc.load_scenario(path), args)
+            s = apply_arguments(load_with_sets(path, args.set_fields), args)
             result = run_scenario(s, build, progress=not args.no_progress)
     except USER_ERRORS as e:
-        parser.error(str(e))
+        refuse_input(parser, e)
     except RunInterrupted as e:  # Ctrl-C or SIGTERM: what the run produced is written, marked partial
         result, interrupted = e.result, e.__cause__ or e
     except KeyboardInterrupt as e:  # before the run started: nothing to write
-        print("interrupted before the run started", file=sys.stderr)
+        logger.warning("interrupted before the run started")
         return 143 if isinstance(e, Terminated) else 130
     finally:
         if previous is not None:
@@ -527,12 +683,11 @@ def main(argv=None, *, scenario: str | Path | None = None, build=None, descripti
     metrics = result.metrics
     written = report([metrics], s.metrics.file or None)
     if s.recording.file and "recording_error" not in metrics:
-        print(f"recording written to {s.recording.file}")
+        logger.info("recording written to %s", s.recording.file)
     if interrupted is not None:
         by = "SIGTERM" if isinstance(interrupted, Terminated) else "Ctrl-C"
-        print(
-            f"interrupted ({by}) at t = {metrics['sim_time_s']:.3f} s: the metrics above are partial",
-            file=sys.stderr,
+        logger.warning(
+            "interrupted (%s) at t = %.3f s: the metrics above are partial", by, metrics["sim_time_s"]
         )
         return 143 if by == "SIGTERM" else 130
     if not written or "recording_error" in metrics:
@@ -547,11 +702,12 @@ def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     from godobject_drake.studies.analyze import analyze, verdict_table, write_report
 
     try:
-        s = apply_arguments(sc.load_scenario(args.scenario), args)
+        s = apply_arguments(load_with_sets(args.scenario, args.set_fields), args)
         summary = analyze(s, quick=args.quick, verify=args.verify)
     except USER_ERRORS as e:
-        parser.error(str(e))
+        refuse_input(parser, e)
     path = write_report(summary, args.out)
     print(verdict_table(summary))
-    print(f"verdict: {summary['verdict']}; report written to {path}")
+    print(f"verdict: {summary['verdict']}")  # the product, with the table: stdout
+    logger.info("report written to %s", path)
     return 1 if summary["verdict"] == "fail" else 0

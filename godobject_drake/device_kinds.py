@@ -300,7 +300,7 @@ class Replay(_PoseDevice):
     def check(self) -> None:
         super().check()
         if not self.log:
-            raise ValueError("log: !Replay needs log: FILE.csv (README 'Device log format')")
+            raise ValueError("log: !Replay needs log: FILE.csv (docs/guide/devices.md)")
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         self.check()
@@ -332,7 +332,7 @@ class Relative(_PoseDevice):
     def check(self) -> None:
         super().check()
         if not self.log:
-            raise ValueError("log: !Relative needs log: FILE.csv (README 'Relative device')")
+            raise ValueError("log: !Relative needs log: FILE.csv (docs/guide/devices.md)")
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
         self.check()

@@ -658,7 +658,7 @@ def read_device_log(filename: str | Path, until_s: float = math.inf) -> DeviceLo
     Raises ``ValueError`` naming the file and line of the first bad row.
     """
     t, p, q, grasp = [], [], [], []
-    for where, row in _csv_rows(filename, CSV_HEADER, " See the README section 'Device log format'."):
+    for where, row in _csv_rows(filename, CSV_HEADER, " See the device log format in docs/guide/devices.md."):
         if len(row) not in (8, 9):
             raise ValueError(f"{where}: expected 9 columns ({','.join(CSV_HEADER)}), got {len(row)}")
         values = _finite_floats(where, row[:8])
@@ -748,7 +748,7 @@ def read_increment_log(filename: str | Path, until_s: float = math.inf) -> Incre
     Raises ``ValueError`` naming the file and line of the first bad row.
     """
     t, dp, drot, clutch, grasp = [], [], [], [], []
-    hint = " See the README section 'Relative device'."
+    hint = " See the relative device in docs/guide/devices.md."
     for where, row in _csv_rows(filename, RELATIVE_CSV_HEADER, hint):
         if len(row) not in (8, 9):
             raise ValueError(f"{where}: expected 9 columns ({','.join(RELATIVE_CSV_HEADER)}), got {len(row)}")

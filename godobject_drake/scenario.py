@@ -22,6 +22,7 @@ This module must not use ``from __future__ import annotations``:
 
 import copy
 import dataclasses
+import importlib.resources
 import math
 from pathlib import Path
 from typing import ClassVar
@@ -506,15 +507,21 @@ class Scenario:
         return self.plant.time_step
 
 
-SCENARIOS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
+# The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
+SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
 SHIPPED = ("lego", "laparoscopy", "deformable_probe")  # the shipped scenes: diagrams/NAME.yaml
 
 
-def shipped_scenario(name: str, overrides: str | None = None) -> Scenario:
-    """A shipped scene's scenario, ``diagrams/NAME.yaml`` of the clone (an editable install)."""
+def shipped_scenario_file(name: str) -> Path:
+    """The scenario file of the shipped scene ``name`` (``lego``, ...), from the installed package."""
     if name not in SHIPPED:
-        raise ScenarioError(f"no shipped scene {name!r}; the shipped scenes are {SHIPPED}")
-    return load_scenario(SCENARIOS_DIR / f"{name}.yaml", overrides)
+        raise ScenarioError(f"no shipped scene {name!r}; the shipped scenes are {', '.join(SHIPPED)}")
+    return SCENARIOS_DIR / f"{name}.yaml"
+
+
+def shipped_scenario(name: str, overrides: str | None = None) -> Scenario:
+    """A shipped scene's scenario (``diagrams/NAME.yaml`` of a clone; package data when installed)."""
+    return load_scenario(shipped_scenario_file(name), overrides)
 
 
 def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenario:

@@ -9,6 +9,7 @@ always measured on true shapes (:mod:`godobject_drake.metrics`).
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import re
 from pathlib import Path
 
@@ -32,7 +33,8 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+# The installed package godobject_models (the clone's models/ folder in an editable install).
+MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 PROXY_PREFIX = "proxy_"
 CORNER_PREFIX = "proxy_corner_"  # a proxy at a vertex of its body's convex true shape
 FLAT_PREFIX = "flat_"  # a welded geometry only ever touched on one flat face (a floor, a baseplate)
@@ -43,15 +45,12 @@ APPROXIMATIONS = ("sap", "lagged", "similar")
 
 
 def make_parser(plant: MultibodyPlant) -> Parser:
-    """A Parser that resolves ``package://godobject_models/...``."""
-    package_xml = MODELS_DIR / "package.xml"
-    if not package_xml.is_file():
-        raise FileNotFoundError(
-            f"{package_xml} not found: godobject_drake finds its models beside the package. "
-            "Install from a clone with `pip install -e .` (editable), as the README says."
-        )
+    """A Parser that resolves ``package://godobject_models/...`` (the installed package data); a
+    scene of one's own with no such URL does not need it."""
     parser = Parser(plant)
-    parser.package_map().AddPackageXml(str(package_xml))
+    package_xml = MODELS_DIR / "package.xml"
+    if package_xml.is_file():
+        parser.package_map().AddPackageXml(str(package_xml))
     return parser
 
 

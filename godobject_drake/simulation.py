@@ -40,7 +40,7 @@ class RunResult:
     Attributes
     ----------
     metrics : dict
-        README "Metrics JSON": the common keys every scene has and the scene's own.
+        docs/metrics.md: the common keys every scene has and the scene's own.
     station : Station
         The diagram and its parts.
     simulator : Simulator
@@ -142,6 +142,8 @@ def simulate(
         ``checkpoint(metrics)`` every ``checkpoint_period_s`` of wall time with the metrics so far
         (marked ``partial``): the command line writes them, so a killed run leaves its last ones.
 
+    Notes
+    -----
     A run that stops early (a divergence, a Drake error, the Stop button) still measures what
     it ran, its metrics marked ``partial``; Ctrl-C does too, then raises :class:`RunInterrupted`
     carrying the result.
@@ -464,4 +466,5 @@ def _progress(total: int, enabled: bool):
         return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="step", file=sys.stderr, leave=False, mininterval=0.5)
+    # disable=None: no bar when stderr is not a terminal (a log file, CI), so no \r frames there
+    return tqdm(total=total, unit="step", file=sys.stderr, leave=False, mininterval=0.5, disable=None)

@@ -12,6 +12,7 @@ import dataclasses
 import importlib.util
 import logging
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,7 @@ from godobject_drake.scenario import Scenario, load_scenario
 from godobject_drake.simulation import RunResult, simulate
 
 REPO = Path(__file__).resolve().parent.parent
+EXAMPLES = REPO / "examples"
 SCENES = ("lego", "laparoscopy", "deformable_probe")
 
 
@@ -164,13 +166,8 @@ def assert_refused(call, error, *, value: str, limit: str, fix: str) -> str:
 
 
 def own_scene_files(tmp_path) -> str:
-    """The README's own scene (``cube_post.yaml`` and ``cube_post.sdf``), written to ``tmp_path``
-    as a user copies it; returns the README's command that runs it."""
-    readme = (REPO / "README.md").read_text()
-    section = readme.split("## Describe your own scene")[1].split("\n## ")[0]
-    (yaml_text,) = re.findall(r"```yaml\n(.*?)```", section, flags=re.S)
-    (sdf_text,) = re.findall(r"```xml\n(.*?)```", section, flags=re.S)
-    assert len(yaml_text.splitlines()) <= 40
-    (tmp_path / "cube_post.yaml").write_text(yaml_text)
-    (tmp_path / "cube_post.sdf").write_text(sdf_text)
-    return re.findall(r"```bash\n(python -m godobject_drake run cube_post.yaml.*?)\n```", section)[0]
+    """The README's own scene (``examples/cube_post.yaml`` and ``cube_post.sdf``), copied to
+    ``tmp_path`` as a user copies them; returns the command that runs it (the example's own)."""
+    for name in ("cube_post.yaml", "cube_post.sdf"):
+        shutil.copy(EXAMPLES / name, tmp_path / name)
+    return "godobject run cube_post.yaml --record cube_post.html --metrics cube_post.json"

@@ -118,6 +118,7 @@ def test_explicit_coupling_refuses_h_10_ms_with_the_limit():
     assert r["wall_s_per_sim_s"] == []
 
 
+@pytest.mark.slow
 def test_mujoco_peer_follows_the_same_path():
     """MuJoCo's weld and Drake's coupling lift brick_0 along the same path: after 0.5 s the
     device is at z = 2 cm; both bricks are within 3 mm of it (the weld lags by 2ζv/ωn =
@@ -131,6 +132,7 @@ def test_mujoco_peer_follows_the_same_path():
     assert len(mj["wall_s_per_sim_s"]) == 1 and mj["mujoco_version"]
 
 
+@pytest.mark.slow
 def test_engine_neutral_errors_agree_with_each_engines_own():
     """Both engines measured by the same code (true shapes, the device's target): on Drake's run the
     held brick's sampled true penetration is Drake's own per-step maximum (pressed statically on
@@ -149,6 +151,7 @@ def test_engine_neutral_errors_agree_with_each_engines_own():
     assert soft["crossed_wall"]
 
 
+@pytest.mark.slow
 def test_the_peer_places_extra_bricks_where_drake_does():
     pytest.importorskip("mujoco")
     from godobject_drake.building import add_plant

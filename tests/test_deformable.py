@@ -55,6 +55,7 @@ def default_run(request):
     return probe_run("--shell", request.param, "--time-step", "0.01")
 
 
+@pytest.mark.slow
 def test_shell_deforms_while_the_core_stays_outside_and_comes_back_to_rest(default_run):
     m = default_run
     assert not m["diverged"], m["diagnosis"]
@@ -71,6 +72,7 @@ def test_shell_deformation_is_bounded_by_the_shell(default_run):
     assert default_run["max_shell_deformation_m"] < spec.thickness_m
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shell", SHELL_MODELS)
 @pytest.mark.parametrize("time_step", [0.001, 0.01])
 def test_fast_device_motion_leaves_the_shell_stable(tmp_path, shell, time_step):
@@ -88,6 +90,7 @@ def test_fast_device_motion_leaves_the_shell_stable(tmp_path, shell, time_step):
     assert m["final_shell_deformation_m"] < 0.0005  # back at rest 0.6 s after the last jump
 
 
+@pytest.mark.slow
 def test_imposing_the_core_under_fast_motion_tears_the_shell_the_god_object_does_not(tmp_path):
     # Paper: driving the rigid component directly "can lead to instabilities of the mass net in
     # case of fast movements". Imposed, the core jumps 60 mm in one step; the nodes lag by
@@ -102,6 +105,7 @@ def test_imposing_the_core_under_fast_motion_tears_the_shell_the_god_object_does
     assert runs["position"]["max_shell_deformation_m"] > 0.002
 
 
+@pytest.mark.slow
 def test_mass_spring_nodes_hang_on_their_anchor_springs_by_m_g_over_k(tmp_path):
     # Held still in free space: every node's weight rests on its zero-length spring, so it sits
     # m g / k below its rest point (edge springs stay at rest length: all nodes move alike),

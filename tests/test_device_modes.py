@@ -49,6 +49,7 @@ def increments_of(samples, clutch_every=10):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_relative_device_with_clutch_drives_the_brick_as_the_path_does(tmp_path):
     samples = ScriptedDevice(load_device_path(REPO / "models/lego/default_path.yaml").waypoints).samples(2.0)
     log = tmp_path / "mouse.csv"
@@ -62,6 +63,7 @@ def test_relative_device_with_clutch_drives_the_brick_as_the_path_does(tmp_path)
     assert np.ptp(a[:, 0]) > 0.05  # the brick did travel
 
 
+@pytest.mark.slow
 def test_admittance_device_moves_the_brick_as_the_impedance_coupling_does():
     # Paper Fig. 2: the admittance device "handles the god-object directly". A hand with the
     # coupling's (k, γ) on the handle is the same spring; the device senses it once per ms, so the
@@ -77,6 +79,7 @@ def test_admittance_device_moves_the_brick_as_the_impedance_coupling_does():
     assert not admittance.metrics["diverged"]
 
 
+@pytest.mark.slow
 def test_simulated_impedance_device_closes_the_force_loop_passively():
     # A hand pushes the 3-axis haptic device along the path; proportional feedback gains with the
     # passivity controller: the device never gives the user energy.
@@ -101,6 +104,7 @@ def active_soft_tissue(**kw):
                              force_frequency=10.0, **kw)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_passivity_controller_stops_the_active_loop_giving_energy():
     sc = active_soft_tissue()
     H = st.pipeline_impedance(sc.pipeline(1.0))

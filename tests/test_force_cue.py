@@ -49,6 +49,7 @@ def visible_levels(html, ghost: str) -> dict[int, int]:
     return out
 
 
+@pytest.mark.slow
 def test_the_recording_shows_the_stretch_the_coupling_has(tmp_path):
     """The brick path pushed through the wall: at every recorded frame the ghost shows the level
     of √(stretch / cap), stretch = |p_T − p_G| from the coupling's logged terms (a second

@@ -33,6 +33,8 @@ from godobject_drake.devices import (
 )
 from godobject_drake.lcm_device import POSE_CHANNEL, POSE_NAMES, LcmDevice
 
+pytestmark = pytest.mark.slow  # hypothesis: seconds per property
+
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 T = 0.01
 

@@ -205,6 +205,7 @@ def test_one_metre_teleport_is_bounded_by_the_force_cap(guarded):
 # -- 3. the target held 5 cm inside an obstacle for 10 s -----------------------------------------
 
 
+@pytest.mark.slow
 def test_target_held_5cm_inside_the_baseplate_for_10_s():
     """Pass: pressed by the target 5 cm below it for 10 s, the brick stays on the baseplate
     (centre within 0.1 mm of its resting height: no tunnelling), and comes to rest (speed

@@ -24,6 +24,7 @@ def default_runs():
     return {mode: run("--mode", mode)[1] for mode in ("god_object", "position")}
 
 
+@pytest.mark.slow
 def test_god_object_stays_out_of_the_organ_where_the_baseline_goes_in(default_runs):
     god, pos = default_runs["god_object"], default_runs["position"]
     assert not god["diverged"] and not pos["diverged"]

@@ -201,11 +201,22 @@ def test_a_run_on_the_wall_clock_reports_its_lag():
                  progress=False).metrics  # fmt: skip
     assert 0 <= m["realtime_lag_p50_s"] <= m["realtime_lag_p99_s"] <= m["realtime_lag_max_s"] + 1e-5
     assert m["realtime_late_threshold_s"] == pytest.approx(1 / 60.0)
-    assert m["real_time_factor"] == pytest.approx(1.0, abs=0.1)  # paced to the wall clock
+    assert m["real_time_factor"] <= 1.1  # paced to the wall clock: never faster (load only slows it)
     assert (
         "realtime_lag_p50_s"
         not in simulate(build_scene("lego", "--duration", "0.05"), progress=False).metrics
     )
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+def test_a_run_on_the_wall_clock_keeps_up_with_it():
+    """Paced to the wall clock, the brick scene (several times faster than real time on an idle
+    2-core machine) runs at real time: 1.0 ± 0.1. A loaded machine measured 0.67, hence
+    ``realtime``: CI runs it on its own."""
+    m = simulate(build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--duration", "0.3"),
+                 progress=False).metrics  # fmt: skip
+    assert m["real_time_factor"] == pytest.approx(1.0, abs=0.1)
 
 
 def test_replay_publishes_each_row_at_its_time(tmp_path):

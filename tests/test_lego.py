@@ -18,6 +18,7 @@ def default_runs():
     return {mode: lego_run("--mode", mode).metrics for mode in ("god_object", "position")}
 
 
+@pytest.mark.slow
 def test_god_object_respects_the_obstacles(default_runs):
     m = default_runs["god_object"]
     assert not m["diverged"], m["diagnosis"]
@@ -41,6 +42,7 @@ def test_replayed_csv_equals_the_scripted_path(tmp_path):
     assert scripted.metrics["max_penetration_m"] == replayed.metrics["max_penetration_m"]
 
 
+@pytest.mark.slow
 def test_same_seed_same_run():
     a = lego_run("--duration", "0.3", "--device-noise", "0.001", "--seed", "7")
     b = lego_run("--duration", "0.3", "--device-noise", "0.001", "--seed", "7")

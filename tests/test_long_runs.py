@@ -41,6 +41,7 @@ device: !Scripted
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["lego", "laparoscopy", "deformable_probe"])
 def test_streamed_metrics_equal_the_whole_log_ones(name):
     """The default path, folded every simulated second, against the same logs measured at once."""
@@ -72,6 +73,7 @@ def peak_rss_mb(tmp_path, duration_s: float) -> float:
     return float(proc.stdout.split()[-1])
 
 
+@pytest.mark.slow
 def test_memory_stays_flat_however_long_the_run(tmp_path):
     """120 s against 5 s of simulation: kept logs would add 115 s × 376 KB/s = 43 MB; folded,
     the peak grows by less than 4 MB (allocator noise: the logs hold at most 1 s, 0.4 MB)."""
@@ -79,6 +81,7 @@ def test_memory_stays_flat_however_long_the_run(tmp_path):
     assert long - short < 4.0, (short, long)
 
 
+@pytest.mark.slow
 def test_a_recording_covers_its_stated_span(tmp_path):
     """``recording.max_duration_s`` caps what is recorded: at 0.5 s of a 1 s run the last
     recorded frame is at most 0.5 s × 64 fps = frame 32, and the file says how long it covers."""
@@ -124,6 +127,7 @@ def wait_for(path, timeout_s=60.0):
         time.sleep(0.1)
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_the_metrics_so_far_marked_partial(tmp_path):
     proc = cli(tmp_path)
     # Into the run, whatever start-up costs on this machine: the first checkpoint is written
@@ -139,6 +143,7 @@ def test_ctrl_c_leaves_the_metrics_so_far_marked_partial(tmp_path):
     assert "the metrics above are partial" in err and "max_penetration_m" in out
 
 
+@pytest.mark.slow
 def test_sigterm_ends_the_run_as_ctrl_c_does(tmp_path):
     """SIGTERM (a scheduler's or a service manager's stop) gives exit 143, the metrics so far marked
     partial and a whole recording, where it used to lose the run."""
@@ -149,13 +154,14 @@ def test_sigterm_ends_the_run_as_ctrl_c_does(tmp_path):
     assert proc.returncode == 143, (out, err)
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["partial"] is True and m["interrupted"] is True and 0.0 < m["sim_time_s"] < 60.0
-    assert "interrupted (SIGTERM)" in err and "recording written to" in out
+    assert "interrupted (SIGTERM)" in err and "recording written to" in err  # logged: stderr
     html = (tmp_path / "r.html").read_text()
     assert html.rstrip().endswith("</html>")
     frames = _frames(tmp_path / "r.html")  # the recording covers the run up to the signal
     assert max(frames) >= 0.9 * m["sim_time_s"] * 64 and m["recording_s"] == m["sim_time_s"]
 
 
+@pytest.mark.slow
 def test_a_killed_run_leaves_its_last_checkpoint(tmp_path):
     """Even SIGKILL, which nothing can catch, leaves the metrics of the last checkpoint (every
     ``metrics.checkpoint_period_s`` of wall time: 10 s by default, 0.3 s here)."""

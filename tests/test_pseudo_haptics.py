@@ -162,6 +162,7 @@ def test_the_ratio_curve_and_its_integral():
 # -- in the scene ----------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_tether_bounds_the_separation_the_coupling_sees():
     """At 1 kHz the device samples at every plant step: the target it sets at step j (logged at
     row j + 1) is within the tether of the god-object it saw (row j), to the rounding."""
@@ -176,6 +177,7 @@ def test_the_tether_bounds_the_separation_the_coupling_sees():
     assert result.metrics["device_tethered_samples"] > 100
 
 
+@pytest.mark.slow
 def test_tether_and_ratio_against_the_bare_relative_device(runs):
     none, tether, ratio = (separation(runs[k]) for k in ("none", "tether", "ratio"))
     # untethered, the target runs 12 cm through the wall (the device's 20 cm push, the brick stopped
@@ -265,6 +267,7 @@ def test_a_jitter_is_not_a_reversal():
     assert t == pytest.approx(12 / 60) and d == pytest.approx([-1, 0, 0])
 
 
+@pytest.mark.slow
 def test_no_aid_changes_a_run_it_never_acts_in():
     """A tether too long to bind, and a ratio of 1, leave the relative run as it is: the aids
     re-sum the same increments (the target differs by rounding only)."""

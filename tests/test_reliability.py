@@ -24,6 +24,7 @@ from godobject_drake.scenario import ScenarioError, load_scenario
 from godobject_drake.simulation import UnsupportedBodyWarning, simulate
 
 
+@pytest.mark.slow
 def test_a_reader_never_sees_half_a_metrics_file(tmp_path):
     """A reader polling the metrics while they are rewritten (as the checkpoints do) parses every
     read: a file is replaced whole, never truncated and refilled (the old write_text gave ~4 %

@@ -48,6 +48,7 @@ def runs(request):
     return name, short_run(name), short_run(name), short_run(name, build=script.build)
 
 
+@pytest.mark.slow
 def test_same_scenario_same_trajectory(runs):
     name, a, b, _ = runs
     # 0.3 s at h = 1 ms (the probe's h = 10 ms), one row per plant step, t = 0 included
@@ -99,6 +100,7 @@ def test_yaml_round_trips(name):
     assert type(again.device) is type(s.device) and type(again.god_object) is type(s.god_object)
 
 
+@pytest.mark.slow
 def test_the_command_and_the_script_agree(tmp_path):
     """``python -m godobject_drake run diagrams/lego.yaml`` and ``python diagrams/lego.py``: same run."""
     out = {}

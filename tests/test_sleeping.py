@@ -30,6 +30,7 @@ def lego_along(waypoints: list[Waypoint], *flags: str):
     return simulate(build_station(s), progress=False)
 
 
+@pytest.mark.slow
 def test_the_default_path_is_the_same_asleep_or_awake():
     """Issue 16's budget: the held brick within 0.05 mm RMS, no more penetration; 6 of the 7
     other bricks sleep on average (brick_1, where brick_0 is set down, wakes for it)."""
@@ -43,6 +44,7 @@ def test_the_default_path_is_the_same_asleep_or_awake():
     np.testing.assert_allclose(positions(asleep, "brick_1")[-1], positions(awake, "brick_1")[-1], atol=2e-6)
 
 
+@pytest.mark.slow
 def test_a_brick_pushed_after_it_slept_moves_as_if_it_never_had():
     """brick_0 rests 0.6 s (brick_3, 5 cm away in y, falls asleep), then slides along y into
     brick_3 and pushes it 2 cm on. brick_3's path matches the all-awake run's."""
@@ -69,6 +71,7 @@ directives:
 """
 
 
+@pytest.mark.slow
 def test_a_resting_stack_stays_put_for_a_minute():
     """Three bricks stacked on the plate (the grid's layers, as ``--bricks`` lays them), the
     device away: asleep from 0.1 s on, each within 0.1 mm of where it was placed after 60 s."""

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 from conftest import REPO
 
 KEYS = {
@@ -17,6 +18,7 @@ KEYS = {
 }
 
 
+@pytest.mark.slow
 def test_stability_report_quick(tmp_path):
     out = tmp_path / "stability"
     subprocess.run(

@@ -30,6 +30,7 @@ def test_bad_worker_count_is_refused():
         run_tasks(explicit_limit_omega_h, ZETAS, workers=-1)
 
 
+@pytest.mark.slow
 def test_dask_cluster_runs_the_same_drake_simulations():
     """Two brick-scene runs on a local Dask cluster give the trajectories this process gets:
     the simulation is deterministic, so the scheduler must not change a number."""

@@ -88,6 +88,7 @@ def test_passive_gains_never_give_the_user_energy():
     np.testing.assert_allclose(run.energy_to_user, e_pred, rtol=1e-6, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_gamma_d_zero_on_soft_tissue_is_active_and_grows():
     sc = va.HapticScenario(DEVICE, **SOFT, kd=1000.0, gamma_d=0.0, force_amplitude=0.05, force_frequency=10.0)
     H = st.pipeline_impedance(sc.pipeline(1.0))

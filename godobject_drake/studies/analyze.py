@@ -12,7 +12,7 @@ it. With ``verify`` it simulates each prediction in Drake on the user's own scen
   grows instead of decaying.
 
 :func:`write_report` writes ``report.md``, ``summary.json`` and ``margins.png``. The JSON
-keys are documented in README "Analysing your own scene". The theory is docs/theory.md.
+keys are documented in docs/guide/stability.md, "Analysing your own scene". The theory is docs/theory.md.
 """
 
 from __future__ import annotations

@@ -29,7 +29,9 @@ from collections.abc import Callable, Sequence
 def _bar(total: int, desc: str, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="run", file=sys.stderr, disable=not enabled, leave=False)
+    return tqdm(
+        total=total, desc=desc, unit="run", file=sys.stderr, disable=None if enabled else True, leave=False
+    )
 
 
 def run_tasks(

@@ -1,0 +1,104 @@
+"""The command line's conventions (issue 29, item 2): plain help, errors without the usage block,
+``--set`` for any field, a logger with -v/-q, and nothing on stderr that a log file should not hold."""
+
+import json
+import pydoc
+import subprocess
+import sys
+
+import pytest
+from conftest import REPO, load_script
+
+import godobject_drake
+from godobject_drake import cli
+from godobject_drake import scenario as sc
+
+MARKUP = ("``", ":func:", ":mod:", ":class:")
+
+
+def help_text(capsys, argv, main=cli.main) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["analyze", "--help"]])
+def test_help_is_plain_text(capsys, argv):
+    text = help_text(capsys, argv)
+    assert not [m for m in MARKUP if m in text], text
+
+
+def test_a_scene_scripts_help_is_plain_text(capsys):
+    script = load_script("diagrams/laparoscopy.py")  # its docstring has ``--coupling`` markup
+    text = help_text(capsys, ["--help"], script.main)
+    assert "--coupling picks" in text and not [m for m in MARKUP if m in text]
+
+
+def test_analyze_takes_only_the_flags_it_uses(capsys):
+    analyze, run = help_text(capsys, ["analyze", "--help"]), help_text(capsys, ["run", "--help"])
+    for flag in cli.RUN_ONLY_FLAGS:
+        assert f"{flag} " in run and f"{flag} " not in analyze, flag
+    for flag in ("--omega-n", "--time-step", "--kd", "--set", "--quick"):
+        assert flag in analyze
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["analyze", "lego", "--out", "x", "--record", "r.html"])
+    assert exit_.value.code == 2 and "unrecognized arguments: --record" in capsys.readouterr().err
+
+
+def test_bad_input_is_one_line_and_exit_2_without_the_usage(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["run", "lego", "--set", "simulation.duration_s=-1"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "usage:" not in err, err
+    assert err.startswith("python -m godobject_drake run: error: --set simulation.duration_s=-1: ")
+    assert "simulation.duration_s: -1.0 s must be > 0" in err and err.count("\n") == 1
+
+
+def test_set_overrides_any_field_before_the_checks():
+    sets = ["simulation.duration_s=2", "feedback.kd=50", "god_object.gains.zeta=0.7"]
+    s = cli.load_with_sets(sc.shipped_scenario_file("lego"), sets)
+    lego = sc.shipped_scenario("lego")
+    assert s.simulation.duration_s == 2.0 and s.feedback.kd == 50.0 and s.god_object.gains.zeta == 0.7
+    assert s.simulation.mode == lego.simulation.mode and s.god_object.gains.omega_n == 40.0  # the rest kept
+    assert cli.set_overrides(["a.b=1", "a.c=[1, 2]", "d="]) == 'a:\n  b: 1\n  c: [1, 2]\nd: ""\n'
+    for items, named in (
+        (
+            ["simulation.duration_s=2", "simulation.durration_s=2"],
+            "--set simulation.durration_s=2: .*unknown",
+        ),
+        (["plant.time_step=fast"], "--set plant.time_step=fast: "),
+        (["simulation"], "--set simulation: give KEY=VALUE"),
+    ):
+        with pytest.raises(sc.ScenarioError, match=named):
+            cli.load_with_sets(sc.shipped_scenario_file("lego"), items)
+
+
+@pytest.mark.slow
+def test_a_recording_run_logs_to_stderr_without_meshcat_or_progress_frames(tmp_path):
+    """A run writing a recording, stderr not a terminal: no "Meshcat listening" (nobody is to open
+    it), no tqdm \\r frames, the outputs named by the logger; -q keeps only warnings."""
+    argv = [sys.executable, "-m", "godobject_drake", "run", "lego", "--duration", "0.05",
+            "--record", "r.html", "--metrics", "m.json"]  # fmt: skip
+    proc = subprocess.run(argv, capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines() == ["metrics written to m.json", "recording written to r.html"]
+    assert (
+        "max_penetration_m" in proc.stdout
+        and json.loads((tmp_path / "m.json").read_text())["sim_time_s"] == 0.05
+    )
+    quiet = subprocess.run([*argv, "-q"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+
+
+def test_the_package_shows_its_public_names():
+    public = set(godobject_drake.__all__)
+    assert {"load_scenario", "build_station", "simulate", "Scenario"} <= public <= set(dir(godobject_drake))
+    text = pydoc.render_doc(godobject_drake, renderer=pydoc.plaintext)
+    assert "load_scenario(filename" in text and "simulate(station" in text
+
+
+def test_the_console_script_and_python_m_are_one_command():
+    proc = subprocess.run([sys.executable, "-m", "godobject_drake", "--version"], capture_output=True,
+                          text=True, cwd=REPO)  # fmt: skip
+    assert proc.returncode == 0 and proc.stdout.startswith("godobject_drake ")
