@@ -20,6 +20,15 @@ class OutputError(OSError):
     """An output file could not be written; the previous version, if any, is untouched."""
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()  # read once, at import: os.umask can only be read by setting it
+
+
 def write_atomically(path: str | Path, text: str) -> int:
     """Write ``text`` to ``path`` all at once (module docstring); return the bytes written."""
     path = Path(path)
@@ -31,6 +40,7 @@ def write_atomically(path: str | Path, text: str) -> int:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_UMASK)  # as open() would make it: mkstemp's file is private (0600)
         os.replace(tmp, path)
     except OSError as e:
         if tmp is not None:

@@ -406,3 +406,14 @@ def test_a_diverging_haptic_device_is_named_with_the_likely_cause():
         in (m["diagnosis"])
     )
     json.loads(dumps_metrics(m), parse_constant=lambda c: pytest.fail(f"{c} in the metrics"))
+
+
+def test_an_output_gets_the_mode_a_plain_write_gives(tmp_path):
+    """Outputs are written through a temporary file (mkstemp makes it 0600); the renamed file has
+    the mode open() would give it under the process's umask, so others can read a recording."""
+    import os
+
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    write_atomically(tmp_path / "atomic.txt", "x")
+    assert os.stat(tmp_path / "atomic.txt").st_mode & 0o777 == os.stat(plain).st_mode & 0o777
