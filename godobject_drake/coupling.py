@@ -254,7 +254,124 @@ class _HotBody:
     torque_cap: float  # N·m
 
 
-class GodObjectCoupling(LeafSystem):
+class GraspingCoupling:
+    """What every rigid coupling (explicit :class:`GodObjectCoupling`, implicit
+    :class:`~godobject_drake.implicit.ImplicitCoupling`) knows of the bodies it may hold: which they
+    are, their force caps, and which one a grasp name or the ``"*"`` button selects."""
+
+    def _setup_bodies(
+        self,
+        plant,
+        gains,
+        gravity_compensation,
+        carried,
+        grasp_reach_m,
+        max_stretch_m,
+        max_twist_rad,
+        graspable,
+    ) -> None:
+        for label, value in (("max_stretch_m", max_stretch_m), ("max_twist_rad", max_twist_rad)):
+            if not value > 0.0:  # inf is allowed: no cap
+                raise ValueError(f"{label}={value!r} must be > 0 (math.inf: no force cap)")
+        self.max_stretch_m, self.max_twist_rad = float(max_stretch_m), float(max_twist_rad)
+        if not (math.isfinite(grasp_reach_m) and grasp_reach_m > 0.0):
+            raise ValueError(f"grasp_reach_m={grasp_reach_m!r} m must be > 0")
+        self.grasp_reach_m = float(grasp_reach_m)
+        self.gains = gains
+        self.plant = plant
+        self._free = graspable_bodies(plant)
+        self._fixed = fixed_bodies(plant)
+        self.bodies = self._free
+        if graspable:
+            chosen = {self.body_for_grasp(name).index for name in graspable}
+            self.bodies = {k: v for k, v in self._free.items() if v.index in chosen}
+        for name, M in (carried or {}).items():
+            body = self.body_for_grasp(name)
+            heavier = with_carried_inertia(body, M)
+            self.bodies = {k: heavier if v is body else v for k, v in self.bodies.items()}
+        self._by_index = {b.index: b for b in self.bodies.values()}
+        g = np.asarray(plant.gravity_field().gravity_vector())
+        self._g = g if gravity_compensation else np.zeros(3)
+        self._wn2, self._2zwn = gains.omega_n**2, 2.0 * gains.zeta * gains.omega_n
+        self._wr2, self._2zwr = gains.omega_r**2, 2.0 * gains.zeta_r * gains.omega_r
+
+    def force_caps(self, body: GraspableBody) -> tuple[float, float]:
+        """The spring-damper's force (N) and torque (N·m) caps on ``body``.
+
+        ``|f| ≤ m ωn² · max_stretch_m`` and ``|τ| ≤ λmax(I) ωr² · max_twist_rad``: what the
+        spring alone gives at that stretch and twist. Past them (a device teleport, a target
+        deep in an obstacle) the wrench keeps its direction and is scaled down to the cap;
+        gravity compensation comes on top. The ``terms`` output's last entry is 1 on a capped
+        step, and the metrics count them (``coupling_capped_steps``).
+        """
+        lam = float(np.linalg.eigvalsh(body.I_Bcm_B)[-1])
+        return (
+            body.mass * self._wn2 * self.max_stretch_m,
+            lam * self._wr2 * self.max_twist_rad,
+        )
+
+    def device_and_grasp(self, context) -> tuple[int, np.ndarray, float]:
+        """``(held BodyIndex or −1, p_WD, |v_WD|)``: what is held (the coupling's state) and where
+        the device point is and how fast it goes (its inputs), without computing the terms."""
+        held = int(context.get_discrete_state(self._grasp_state).get_value()[0])
+        p_WD = self._X_WD_port.Eval(context).translation()
+        v_WD = self._V_WD_port.Eval(context)
+        return held, p_WD, math.sqrt(v_WD[3] ** 2 + v_WD[4] ** 2 + v_WD[5] ** 2)
+
+    # -- grasping -------------------------------------------------------------
+    def body_for_grasp(self, name: str) -> GraspableBody | None:
+        """The body a grasp name selects; None for ``""`` (and ``"*"``). Raises for unknown names."""
+        if not name or name == GRASP_NEAREST:
+            return None
+        if name in self.bodies:
+            return self.bodies[name]
+        known = sorted(k for k in self.bodies if "::" not in k) or sorted(self.bodies)
+        if name in self._fixed and name not in self._free:
+            why = f"{name!r} names {self._fixed[name]}: only a free body can be a god-object"
+        elif name in self._free:
+            why = f"{name!r} is a free body, but not one of this coupling's graspable bodies"
+        else:
+            why = f"unknown body {name!r}"
+        raise ValueError(f"grasp names {why}; graspable bodies are {known}. Fix the device path or log.")
+
+    def validate_grasp_names(self, names) -> None:
+        """Raise early if any of ``names`` is not a graspable body."""
+        for name in names:
+            self.body_for_grasp(name)
+
+    def nearest_body(self, p_WD: np.ndarray, x: np.ndarray) -> GraspableBody | None:
+        """The free body whose centre of mass is nearest ``p_WD``, if within ``grasp_reach_m``."""
+        best, best_d = None, self.grasp_reach_m
+        for body in self._by_index.values():
+            d = float(np.linalg.norm(self._body_state(body, x)[1] - p_WD))
+            if d <= best_d:
+                best, best_d = body, d
+        return best
+
+    def _grasp_change(self, context, held: int) -> tuple[bool, "GraspableBody | None"]:
+        """``(changed, body)``: whether the ``grasp`` input selects another body than ``held`` (a
+        BodyIndex or −1), and which (None: release). ``"*"`` keeps what it took."""
+        name = self._grasp_port.Eval(context)
+        if name == GRASP_NEAREST:
+            if held >= 0:
+                return False, None  # keep what "*" took
+            body = self.nearest_body(
+                pose_arrays(self._X_WD_port.Eval(context))[1], self._state_port.Eval(context)
+            )
+        else:
+            body = self.body_for_grasp(name)
+        return (body.index if body else -1) != held, body
+
+    @staticmethod
+    def _body_state(body: GraspableBody, x: np.ndarray):
+        """``(q_WB, p_WG)``: the body's unit quaternion and its centre of mass in W."""
+        q = x[body.q_start : body.q_start + 4]
+        q = q / np.linalg.norm(q)  # the plant's quaternion drifts off unit norm (see _calc_terms)
+        p_WG = x[body.q_start + 4 : body.q_start + 7] + quat_to_rotation(q) @ body.p_BoBcm_B
+        return q, p_WG
+
+
+class GodObjectCoupling(GraspingCoupling, LeafSystem):
     """PD coupling of a held free body to the device's target (paper Eq. 2).
 
     .. pydrake_system::
@@ -349,33 +466,19 @@ class GodObjectCoupling(LeafSystem):
         graspable: Sequence[str] | None = None,
     ):
         super().__init__()
-        for label, value in (("max_stretch_m", max_stretch_m), ("max_twist_rad", max_twist_rad)):
-            if not value > 0.0:  # inf is allowed: no cap
-                raise ValueError(f"{label}={value!r} must be > 0 (math.inf: no force cap)")
-        self.max_stretch_m, self.max_twist_rad = float(max_stretch_m), float(max_twist_rad)
-        if not (math.isfinite(grasp_reach_m) and grasp_reach_m > 0.0):
-            raise ValueError(f"grasp_reach_m={grasp_reach_m!r} m must be > 0")
-        self.grasp_reach_m = float(grasp_reach_m)
         h = plant.time_step()
         if check_gains:
             gains.check(h)
-        self.gains = gains
-        self.plant = plant
-        self._free = graspable_bodies(plant)
-        self._fixed = fixed_bodies(plant)
-        self.bodies = self._free
-        if graspable:
-            chosen = {self.body_for_grasp(name).index for name in graspable}
-            self.bodies = {k: v for k, v in self._free.items() if v.index in chosen}
-        for name, M in (carried or {}).items():
-            body = self.body_for_grasp(name)
-            heavier = with_carried_inertia(body, M)
-            self.bodies = {k: heavier if v is body else v for k, v in self.bodies.items()}
-        self._by_index = {b.index: b for b in self.bodies.values()}
-        g = np.asarray(plant.gravity_field().gravity_vector())
-        self._g = g if gravity_compensation else np.zeros(3)
-        self._wn2, self._2zwn = gains.omega_n**2, 2.0 * gains.zeta * gains.omega_n
-        self._wr2, self._2zwr = gains.omega_r**2, 2.0 * gains.zeta_r * gains.omega_r
+        self._setup_bodies(
+            plant,
+            gains,
+            gravity_compensation,
+            carried,
+            grasp_reach_m,
+            max_stretch_m,
+            max_twist_rad,
+            graspable,
+        )
         self._force = ExternallyAppliedSpatialForce()
         self._fast = {i: self._hot_body(b) for i, b in self._by_index.items()}
 
@@ -432,71 +535,10 @@ class GodObjectCoupling(LeafSystem):
             torque_cap=t_cap,
         )
 
-    def force_caps(self, body: GraspableBody) -> tuple[float, float]:
-        """The spring-damper's force (N) and torque (N·m) caps on ``body``.
-
-        ``|f| ≤ m ωn² · max_stretch_m`` and ``|τ| ≤ λmax(I) ωr² · max_twist_rad``: what the
-        spring alone gives at that stretch and twist. Past them (a device teleport, a target
-        deep in an obstacle) the wrench keeps its direction and is scaled down to the cap;
-        gravity compensation comes on top. The ``terms`` output's last entry is 1 on a capped
-        step, and the metrics count them (``coupling_capped_steps``).
-        """
-        lam = float(np.linalg.eigvalsh(body.I_Bcm_B)[-1])
-        return (
-            body.mass * self._wn2 * self.max_stretch_m,
-            lam * self._wr2 * self.max_twist_rad,
-        )
-
-    def device_and_grasp(self, context) -> tuple[int, np.ndarray, float]:
-        """``(held BodyIndex or −1, p_WD, |v_WD|)``: what is held (the coupling's state) and where
-        the device point is and how fast it goes (its inputs), without computing the terms."""
-        held = int(context.get_discrete_state(self._grasp_state).get_value()[0])
-        p_WD = self._X_WD_port.Eval(context).translation()
-        v_WD = self._V_WD_port.Eval(context)
-        return held, p_WD, math.sqrt(v_WD[3] ** 2 + v_WD[4] ** 2 + v_WD[5] ** 2)
-
-    # -- grasping -------------------------------------------------------------
-    def body_for_grasp(self, name: str) -> GraspableBody | None:
-        """The body a grasp name selects; None for ``""`` (and ``"*"``). Raises for unknown names."""
-        if not name or name == GRASP_NEAREST:
-            return None
-        if name in self.bodies:
-            return self.bodies[name]
-        known = sorted(k for k in self.bodies if "::" not in k) or sorted(self.bodies)
-        if name in self._fixed and name not in self._free:
-            why = f"{name!r} names {self._fixed[name]}: only a free body can be a god-object"
-        elif name in self._free:
-            why = f"{name!r} is a free body, but not one of this coupling's graspable bodies"
-        else:
-            why = f"unknown body {name!r}"
-        raise ValueError(f"grasp names {why}; graspable bodies are {known}. Fix the device path or log.")
-
-    def validate_grasp_names(self, names) -> None:
-        """Raise early if any of ``names`` is not a graspable body."""
-        for name in names:
-            self.body_for_grasp(name)
-
-    def nearest_body(self, p_WD: np.ndarray, x: np.ndarray) -> GraspableBody | None:
-        """The free body whose centre of mass is nearest ``p_WD``, if within ``grasp_reach_m``."""
-        best, best_d = None, self.grasp_reach_m
-        for body in self._by_index.values():
-            d = float(np.linalg.norm(self._body_state(body, x)[1] - p_WD))
-            if d <= best_d:
-                best, best_d = body, d
-        return best
-
     def _update_grasp(self, context, discrete_state):
         held = int(context.get_discrete_state(self._grasp_state).get_value()[0])
-        name = self._grasp_port.Eval(context)
-        if name == GRASP_NEAREST:
-            if held >= 0:
-                return  # keep what "*" took
-            body = self.nearest_body(
-                pose_arrays(self._X_WD_port.Eval(context))[1], self._state_port.Eval(context)
-            )
-        else:
-            body = self.body_for_grasp(name)
-        if (body.index if body else -1) == held:
+        changed, body = self._grasp_change(context, held)
+        if not changed:
             return
         new = np.array([-1.0, 1, 0, 0, 0, 0, 0, 0])
         if body is not None:
@@ -511,14 +553,6 @@ class GodObjectCoupling(LeafSystem):
     # Plain Python floats: on 3- and 4-vectors one numpy call costs about as
     # much as the whole float expression, so the per-step calc stays near
     # 20 µs (analysis/speed_vs_error.py measures it).
-    @staticmethod
-    def _body_state(body: GraspableBody, x: np.ndarray):
-        """``(q_WB, p_WG)``: the body's unit quaternion and its centre of mass in W."""
-        q = x[body.q_start : body.q_start + 4]
-        q = q / np.linalg.norm(q)  # the plant's quaternion drifts off unit norm (see _calc_terms)
-        p_WG = x[body.q_start + 4 : body.q_start + 7] + quat_to_rotation(q) @ body.p_BoBcm_B
-        return q, p_WG
-
     def _calc_terms(self, context, value):
         out = value.get_mutable_value()
         s = context.get_discrete_state(self._grasp_state).get_value().tolist()
