@@ -205,11 +205,19 @@ HAPTIC_FLAGS = (
         "haptic.passivity_damping",
     ),
 )
+# One flag for both kinds' couplings (argparse takes a flag once); each kind's check refuses the other's.
+COUPLING_FLAG = (
+    "--coupling",
+    dict(choices=(*sc.RIGID_COUPLINGS, *sc.ARTICULATED_COUPLINGS)),
+    f"coupling of the tool: rigid {'|'.join(sc.RIGID_COUPLINGS)}; "
+    f"articulated {'|'.join(sc.ARTICULATED_COUPLINGS)}",
+    "god_object.coupling",
+)
 # The god-object kinds' own flags, by scenario config (a kind without flags needs no entry).
 KIND_FLAGS = {
-    sc.Rigid: HAPTIC_FLAGS,
+    sc.Rigid: (COUPLING_FLAG, *HAPTIC_FLAGS),
     sc.Articulated: (
-        ("--coupling", dict(choices=sc.ARTICULATED_COUPLINGS), "coupling of the tool", "god_object.coupling"),
+        COUPLING_FLAG,
         ("--jaws", dict(choices=("imposed", "simulated")),
          "imposed: the scenario's imposed joints (the paper's jaws); simulated: couple them like the rest",
          "god_object.imposed_joints"),

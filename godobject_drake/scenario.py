@@ -112,6 +112,11 @@ class Rigid:
         equal (``.inf``: no cap).
     grasp_reach_m : float
         A live grasp (``"*"``) takes the free body nearest the device within this (m).
+    coupling : str
+        ``explicit`` (the PD wrench computed in Python each plant step and applied to the body:
+        stable only below ``ωn h < 2(√(1+ζ²) − ζ)``) or ``implicit`` (the same spring made of
+        compliant constraints SAP integrates implicitly, no Python per plant step:
+        :mod:`godobject_drake.implicit`).
     """
 
     gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
@@ -120,11 +125,34 @@ class Rigid:
     max_stretch_m: float = DEFAULT_MAX_STRETCH_M
     max_twist_rad: float = DEFAULT_MAX_TWIST_RAD
     grasp_reach_m: float = 0.05
+    coupling: str = "explicit"
 
     DEVICE_SPACE: ClassVar[str] = "pose"
 
     def check(self, scenario: "Scenario") -> None:
-        """Nothing beyond its gains, which the builder checks against the plant's step."""
+        """Its coupling kind against the scene (the builder checks the gains against the step)."""
+        if self.coupling not in RIGID_COUPLINGS:
+            raise ValueError(
+                f"god_object.coupling: {self.coupling!r}; choose one of {RIGID_COUPLINGS} for a rigid "
+                "god-object"
+            )
+        if self.coupling != "implicit":
+            return
+        why = None
+        if scenario.haptic.mode == "admittance":
+            why = (
+                "haptic.mode admittance drives the held body with the device's sensed wrench, not a spring; "
+                "use haptic.mode impedance or none"
+            )
+        elif scenario.simulation.mode == "position":
+            why = "simulation.mode position imposes the held body's pose: there is no spring to integrate"
+        if why:
+            raise ValueError(
+                f"god_object.coupling: implicit with {why}. Or set god_object.coupling: explicit"
+            )
+
+
+RIGID_COUPLINGS = ("explicit", "implicit")
 
 
 ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")

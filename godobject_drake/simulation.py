@@ -410,6 +410,7 @@ class _Logs:
 
     def __init__(self, station: Station, root_context, keep: bool):
         self._logs = {name: logger.FindMutableLog(root_context) for name, logger in station.loggers.items()}
+        self._complete = station.god_object.complete_logs
         self._pending = {name: None for name in self._logs}
         self._keep = [] if keep else None
 
@@ -423,7 +424,7 @@ class _Logs:
             rows[name] = new if pending is None else np.concatenate([pending, new])
         n = min(len(r) for r in rows.values())
         self._pending = {name: (r[n:] if len(r) > n else None) for name, r in rows.items()}
-        chunk = {name: r[:n] for name, r in rows.items()}
+        chunk = self._complete({name: r[:n] for name, r in rows.items()})
         if self._keep is not None:
             self._keep.append(chunk)
         return chunk

@@ -190,8 +190,13 @@ def test_flags_override_fields_and_keep_the_rotation_ratio():
     assert s.plant.time_step == 0.002 and type(s.device).__name__ == "Relative"
     np.testing.assert_allclose(s.device.start_xyz, [-0.10, 0.0, 0.0048])  # where the path starts
     assert s.device.rate_hz == 60.0 and s.device.log.endswith("lego.yaml")
-    with pytest.raises(ScenarioError, match=r"--coupling: applies to articulated god-objects; .* rigid"):
+    # --coupling takes both kinds' couplings; each kind's check refuses the other's
+    with pytest.raises(
+        ScenarioError, match=r"god_object.coupling: 'joint_pd'; choose one of \('explicit', 'implicit'\)"
+    ):
         scenario("lego", "--coupling", "joint_pd")
+    with pytest.raises(ScenarioError, match=r"god_object.coupling: 'implicit'; choose one of \('cartesian'"):
+        scenario("laparoscopy", "--coupling", "implicit")
     with pytest.raises(ScenarioError, match=r"--device-noise: the scenario's joint-space device"):
         scenario("laparoscopy", "--device-noise", "0.001")
 

@@ -81,6 +81,11 @@ class GodObject:
             loggers[name].set_name(f"{name}_log")  # named, so GetGraphvizString reads well
         return loggers
 
+    def complete_logs(self, rows: dict) -> dict:
+        """A drained chunk of the logs (one row per plant step), with what the kind computes from
+        them after the run rather than per step (nothing by default)."""
+        return rows
+
     def add_drawing(self, builder: DiagramBuilder, meshcat, scene, scenario) -> None:
         """The kind's own drawing beside Drake's MeshcatVisualizer (nothing by default)."""
 

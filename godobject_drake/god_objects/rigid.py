@@ -8,6 +8,7 @@ per-step imposition.
 """
 
 import dataclasses
+import functools
 import math
 import warnings
 from typing import ClassVar
@@ -51,12 +52,20 @@ class RigidGodObject(GodObject):
     def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
         from godobject_drake.building import add_plant
 
-        scene = add_plant(builder, scenario)
         config = scenario.god_object
+        added = {}
+        before = None
+        if config.coupling == "implicit":
+            from godobject_drake.implicit import add_springs
+
+            def before(plant, scene_graph):
+                added["springs"] = add_springs(plant)
+
+        scene = add_plant(builder, scenario, before)
         god = add_god_object(
             builder, scene.plant, device, config.gains, scenario.feedback, haptic=scenario.haptic,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
-            **coupling_options(config),
+            springs=added.get("springs"), **coupling_options(config),
         )  # fmt: skip
         return scene, god
 
@@ -104,6 +113,49 @@ class RigidGodObject(GodObject):
 
     def _impose(self, plant, plant_context, coupling_context) -> None:
         impose_target(plant, plant_context, self.coupling, coupling_context)
+
+
+class ImplicitGodObject(RigidGodObject):
+    """A rigid god-object on the implicit coupling (:mod:`godobject_drake.implicit`): the same
+    questions answered, its terms computed from the logs after the run, its springs applied to the
+    plant between steps (:class:`~godobject_drake.implicit.CarrierHook`)."""
+
+    @functools.cached_property
+    def hook(self):
+        """What applies the coupling's grasps to the plant between steps."""
+        from godobject_drake.implicit import SpringHook
+
+        return SpringHook(self.coupling.plant, self.coupling)
+
+    def logged_ports(self, plant):
+        return {
+            "state": plant.get_state_output_port(),
+            "coupling": self.coupling.GetOutputPort("coupling_state"),
+        }
+
+    def complete_logs(self, rows: dict) -> dict:
+        from godobject_drake.implicit import implicit_terms
+
+        coupling = rows["coupling"]
+        terms = implicit_terms(self.coupling, rows["state"], coupling, self.hook.last_logged_row)
+        if len(coupling):
+            self.hook.last_logged_row = coupling[-1].copy()
+        return {**rows, "terms": terms}
+
+    def configuration(self, scenario, station) -> dict:
+        return {**super().configuration(scenario, station), "coupling": "implicit"}
+
+    def held_bodies(self, root_context) -> set[int]:
+        context = self.coupling.GetMyContextFromRoot(root_context)
+        held = int(self.coupling.GetOutputPort("held_body").Eval(context)[0])
+        return {held} if held >= 0 else set()
+
+    def prepare(self, plant_context) -> None:
+        self.hook.reset()
+        self.hook.deactivate(plant_context)
+
+    def before_step(self, plant: MultibodyPlant):
+        return self.hook
 
 
 class _RigidFold:
@@ -204,6 +256,7 @@ def add_god_object(
     connect_forces: bool = True,
     name: str = "coupling",
     check_gains: bool = True,
+    springs=None,
     **coupling_options,
 ) -> "RigidGodObject":
     """Make the plant's free bodies god-objects of ``device``: one call, after ``plant.Finalize()``.
@@ -228,23 +281,44 @@ def add_god_object(
     device's (:func:`check_haptic_gains`; stability analysis only).
     ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
     ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
+    ``springs`` (:func:`~godobject_drake.implicit.add_springs`'s, added before ``Finalize``) make
+    the coupling implicit (:class:`~godobject_drake.implicit.ImplicitCoupling`): the springs are
+    SAP's, and the coupling's Python runs at the device rate only.
     """
     feedback_gains = feedback_gains or FeedbackGains()
     haptic = haptic or sc.Haptic()
     if check_gains:
         check_haptic_gains(haptic, feedback_gains)
-    coupling = builder.AddNamedSystem(
-        name,
-        GodObjectCoupling(
-            plant, gains, device_period_s=device.period_s, check_gains=check_gains, **coupling_options
-        ),
-    )
+    period = 1.0 / haptic.rate_hz
+    if springs is not None:
+        from godobject_drake.implicit import ImplicitCoupling, ImplicitCouplingError
+
+        if haptic.mode == "admittance" or not connect_forces or coupling_options.get("carried"):
+            raise ImplicitCouplingError(
+                "the implicit coupling drives a rigid body with springs: not an admittance device "
+                "(haptic.mode admittance), the position baseline (connect_forces=False) or a carried shell"
+            )
+        coupling = builder.AddNamedSystem(
+            name,
+            ImplicitCoupling(
+                plant, gains, springs, period if haptic.mode == "impedance" else device.period_s,
+                **coupling_options,
+            ),
+        )  # fmt: skip
+        god_class = ImplicitGodObject
+    else:
+        coupling = builder.AddNamedSystem(
+            name,
+            GodObjectCoupling(
+                plant, gains, device_period_s=device.period_s, check_gains=check_gains, **coupling_options
+            ),
+        )
+        god_class = RigidGodObject
     coupling.validate_grasp_names(device.grasp_names())
     builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
     device.follow(builder, coupling)  # pseudo-haptic aids read T and G
     feedback = builder.AddNamedSystem("feedback", FeedbackPort(feedback_gains))
-    god = RigidGodObject(coupling, feedback, source=device, device=device)
-    period = 1.0 / haptic.rate_hz
+    god = god_class(coupling, feedback, source=device, device=device)
     p0, q0, _ = device.samples(0.0)[0][1]
     if haptic.mode == "impedance":
         handle = builder.AddNamedSystem(
@@ -289,7 +363,9 @@ def add_god_object(
         god.haptic = god.device = adm
     for port in ("X_WD", "V_WD", "grasp"):
         builder.Connect(god.device.GetOutputPort(port), coupling.GetInputPort(port))
-    if connect_forces:
+    if springs is not None:
+        pass  # the springs are in the plant
+    elif connect_forces:
         builder.Connect(
             coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
         )

@@ -1,0 +1,480 @@
+"""The implicit coupling (``god_object.coupling: implicit``): the paper's spring integrated by SAP.
+
+The explicit coupling (:class:`~godobject_drake.coupling.GodObjectCoupling`) computes the PD
+wrench in Python at every plant step and hands it to the plant as an applied force, so the
+discrete plant integrates it explicitly: stable only while ``ωn h < 2(√(1+ζ²) − ζ)``
+(docs/theory.md §1), and a Python call in every step. Here the same spring is made of
+**seven compliant distance constraints** between points fixed in the world and points of the
+held body, which Drake's SAP solver integrates implicitly inside its convex step: one at the
+centre of mass and a pair at ``±a`` along each principal axis of inertia, of rest length
+:data:`REST_M` (zero-length in effect). Their stiffnesses and dampings sum to the paper's
+``k = m ωn²`` and ``γ = 2 ζ m ωn`` in translation and to ``I_i ωr²`` and ``2 ζr I_i ωr`` about
+each principal axis ``i`` (:func:`spring_layout`).
+
+Drake keeps a distance constraint's bodies, points, stiffness and damping in the context
+(``SetDistanceConstraintParams``), so one set of seven springs is retargeted to whichever body a
+grasp takes and moved with the target, without changing the plant. Python runs at the device
+rate only: :class:`ImplicitCoupling`'s discrete update computes the target ``T`` at each device
+sample, and :class:`SpringHook` writes the springs' world points into the plant's context before
+the next plant step (a comparison per step otherwise, inside the safeguards' monitor, which is
+Python per step anyway: docs/design.md "The implicit coupling").
+
+**The target's velocity** enters as a lead: a world point held still between samples damps the
+body toward rest, not toward the target's velocity. Each spring's world end is put at
+``P_j + (γ_j / k_j) V_j`` (``P_j``, ``V_j`` the target's point and its velocity), so
+``k_j (P_j + (γ_j/k_j) V_j − x_j) − γ_j ẋ_j = k_j (P_j − x_j) + γ_j (V_j − ẋ_j)``: the paper's
+spring-damper, exactly, along each spring's line.
+
+**The force cap** is on the stretch, not on the force: at each device sample the target is held
+within ``max_stretch_m`` of the held body's centre of mass (and within ``max_twist_rad`` of its
+orientation), so the spring force is at most ``k · max_stretch_m`` plus damping, as the explicit
+coupling's cap. **Gravity compensation** raises every world point by ``g/ωn²``, so the springs
+carry ``m g`` with the body at its target (the pairs' raises cancel in torque).
+
+**Orientation** is carried by the points themselves (``P_j = p_WT + R_WT a_j``): no angles, so
+no singularity in any pose.
+
+**What is not the same as the explicit coupling** (measured in tests/test_implicit.py and
+docs/theory.md §7): a distance constraint damps only along its own line, so the damping is the
+paper's only where the lines follow the error; the target is sampled at the device rate (as the
+explicit coupling sees a held device), not per step; the logged coupling wrench (``terms``'
+``F_Go_W``) is the springs' force evaluated at each logged state after the run
+(:func:`implicit_terms`), not the impulse SAP applied inside its step.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import DistanceConstraintParams, MultibodyPlant
+from pydrake.multibody.tree import BodyIndex, JointIndex, SpatialInertia
+from pydrake.systems.framework import LeafSystem
+
+from godobject_drake.coupling import CouplingGains, GraspableBody, GraspingCoupling
+from godobject_drake.spatial import (
+    pose_arrays,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_rotation,
+    quats_to_rotations,
+)
+
+# The springs' rest length (m): Drake's distance constraint needs a direction. Across its rest offset
+# a spring is soft near its target (k (d − d0) ≈ k δ² / 2 d0 for δ ≲ d0), so in zero gravity a body
+# settles within ~0.3 mm of its target; with gravity the raise g/ωn² (6 mm at 40 rad/s) stretches
+# every spring along its rest direction and the spring is linear. At 1 µm SAP's linearization of a
+# near-zero distance made a held body drift (0.2 mm in 0.5 s, tests/test_implicit.py).
+REST_M = 1e-4
+AXIS_SHARE = 0.75  # the axis pairs' share of the translational stiffness (the centre spring has the rest)
+N_SPRINGS = 7
+ANCHOR_NAME = "god_object_spring_anchor"  # the massless body, welded to the world, the springs start on
+
+# The coupling's logged state (``coupling_state``): what :func:`implicit_terms` needs per row.
+_HELD, _QDG, _PDG, _XT, _VT, _CAP, _GEN = 0, slice(1, 5), slice(5, 8), slice(8, 15), slice(15, 21), 21, 22
+_N_STATE = 23
+STATE_LAYOUT = {
+    "held_body": _HELD, "q_DG": _QDG, "p_DoGo_D": _PDG, "pose_WT": _XT, "V_WT": _VT, "capped": _CAP,
+    "sample": _GEN,
+}  # fmt: skip
+
+
+class ImplicitCouplingError(ValueError):
+    """A scene the implicit coupling cannot drive (admittance, position baseline, a carried shell)."""
+
+
+def add_springs(plant: MultibodyPlant) -> tuple:
+    """Add the implicit coupling's seven springs to ``plant`` (before ``Finalize``); their ids.
+
+    They join the world to the first body for now, and :meth:`ImplicitGodObject.prepare` switches
+    them off; a grasp retargets them (:class:`SpringHook`).
+    """
+    if plant.is_finalized():
+        raise ImplicitCouplingError("add_springs() needs a plant not yet finalized")
+    jointed = {plant.get_joint(JointIndex(j)).child_body().index() for j in range(plant.num_joints())}
+    free = [BodyIndex(i) for i in range(1, plant.num_bodies()) if BodyIndex(i) not in jointed]
+    if not free:
+        raise ImplicitCouplingError(
+            "the implicit coupling holds free bodies; the plant has none yet (each body is jointed or welded)"
+        )
+    # The springs' fixed ends are on a body welded to the world, not on the world body: Drake 1.51.1
+    # and 1.58.0 end the process (a segmentation fault in the first SAP step) on an active distance
+    # constraint whose body A is the world (tests/test_implicit.py keeps the minimal case).
+    instance = plant.AddModelInstance(ANCHOR_NAME)
+    anchor = plant.AddRigidBody(ANCHOR_NAME, instance, SpatialInertia.SolidSphereWithMass(1e-6, 1e-3))
+    plant.WeldFrames(plant.world_frame(), anchor.body_frame())
+    first = plant.get_body(free[0])
+    return tuple(
+        plant.AddDistanceConstraint(
+            anchor, np.array([REST_M, 0.0, 0.0]), first, np.zeros(3), REST_M, 1.0, 0.0
+        )
+        for _ in range(N_SPRINGS)
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class SpringLayout:
+    """The seven springs for one body (:func:`spring_layout`)."""
+
+    offsets_B: np.ndarray  # 7×3: each spring's point on the body, from its centre of mass, in B (m)
+    stiffness: np.ndarray  # 7 (N/m)
+    damping: np.ndarray  # 7 (N·s/m)
+    rest_dir: np.ndarray  # 7×3: the unit direction of each spring's rest offset, in the world
+    arm_m: float  # a: the axis pairs' distance from the centre of mass (m)
+
+
+def spring_layout(body: GraspableBody, gains: CouplingGains) -> SpringLayout:
+    """Stiffnesses and points of the seven springs that make the paper's spring on ``body``.
+
+    A pair of springs ``k_i`` at ``±a u_i`` (``u_i`` a principal axis) resists a rotation about
+    each other axis ``j`` with ``2 a² k_i``; so the rotational stiffness about ``u_j`` is
+    ``2 a² Σ_{i≠j} k_i``, and ``k_i = (L_j + L_l − L_i)/2`` with ``L_i = λ_i ωr² / (2 a²)`` gives
+    ``λ_i ωr²`` about each axis (``k_i ≥ 0`` by the triangle inequality of inertia). The centre
+    spring takes the rest of ``k = m ωn²``. ``a`` is chosen so the pairs take at most
+    :data:`AXIS_SHARE` of ``k`` and of ``γ``. Dampings the same way with ``2 ζr ωr``.
+    """
+    m = body.mass
+    lam, U = np.linalg.eigh(body.I_Bcm_B)
+    lam = np.maximum(lam, 0.0)
+    k, gamma = gains.translational(m)
+    wr, zr = gains.omega_r, gains.zeta_r
+    need = [lam.sum() * wr**2 / (2.0 * AXIS_SHARE * k)]
+    if gamma > 0.0:
+        need.append(lam.sum() * 2.0 * zr * wr / (2.0 * AXIS_SHARE * gamma))
+    a = math.sqrt(max(max(need), 1e-12))
+
+    def pairs(per_axis):  # L_i -> k_i
+        L = per_axis / (2.0 * a * a)
+        return np.array([(L[1] + L[2] - L[0]), (L[0] + L[2] - L[1]), (L[0] + L[1] - L[2])]) / 2.0
+
+    kp, dp = pairs(lam * wr**2), pairs(lam * 2.0 * zr * wr)
+    k0, d0 = k - 2.0 * kp.sum(), gamma - 2.0 * dp.sum()
+    offsets = [np.zeros(3)]
+    stiffness, damping = [k0], [d0]
+    for i in range(3):
+        for sign in (1.0, -1.0):
+            offsets.append(sign * a * U[:, i])
+            stiffness.append(kp[i])
+            damping.append(dp[i])
+    # Every spring's rest length points up (against gravity), along the gravity raise: a held body at
+    # its target stretches each by exactly g/ωn² along its own line, so the springs carry m g exactly
+    # (a rest offset across the raise carried 1.6 % less: 75 µm of sag at ωn = 40 rad/s).
+    rest = np.tile([0.0, 0.0, 1.0], (N_SPRINGS, 1))
+    return SpringLayout(np.array(offsets), np.array(stiffness), np.maximum(np.array(damping), 0.0), rest, a)
+
+
+class ImplicitCoupling(GraspingCoupling, LeafSystem):
+    """The implicit coupling's device-rate half: the grasp and the target, in discrete state.
+
+    .. pydrake_system::
+
+        name: ImplicitCoupling
+        input_ports:
+        - plant_state
+        - X_WD
+        - V_WD
+        - grasp
+        output_ports:
+        - coupling_state
+        - pose_WT
+        - V_WT
+        - pose_WG
+        - V_WG
+        - held_body
+
+    At each device sample (half a plant step after it, as the explicit coupling looks at
+    ``grasp``) it reads the device and, on a grasp change, stores the grasp offset ``X_DG`` (so
+    the springs start at rest); then it computes the target ``T``, held within the caps of the
+    body's centre of mass and orientation, and counts the sample (``sample``: what tells
+    :class:`SpringHook` to move the springs). ``coupling_state`` goes to a logger straight from the
+    state (C++, no Python per step); ``pose_WT``/``V_WT``/``pose_WG``/``V_WG``/``held_body`` mean
+    what the explicit coupling's do (:class:`~godobject_drake.coupling.GodObjectCoupling`) and are
+    computed when read (the feedback port and the drawing read them at their own rates).
+    """
+
+    def __init__(
+        self,
+        plant: MultibodyPlant,
+        gains: CouplingGains,
+        springs: tuple,
+        device_period_s: float,
+        gravity_compensation: bool = True,
+        grasp_reach_m: float = 0.05,
+        max_stretch_m: float = 0.2,
+        max_twist_rad: float = math.pi,
+        graspable=None,
+    ):
+        LeafSystem.__init__(self)
+        gains.check(0.0)  # its numbers and the paper's damping range; no step limit
+        self._setup_bodies(
+            plant, gains, gravity_compensation, None, grasp_reach_m, max_stretch_m, max_twist_rad, graspable
+        )
+        if len(springs) != N_SPRINGS:
+            raise ImplicitCouplingError(f"{len(springs)} springs given; add_springs() adds {N_SPRINGS}")
+        self.springs = tuple(springs)
+        h = plant.time_step()
+        if not h > 0.0:
+            raise ImplicitCouplingError(
+                "the implicit coupling needs a discrete plant (plant.time_step > 0): SAP"
+            )
+        self.layouts = {i: spring_layout(b, gains) for i, b in self._by_index.items()}
+        self.raise_W = -self._g / self._wn2  # the springs' world ends above T: they then carry m g
+        n = plant.num_multibody_states()
+        self._state_port = self.DeclareVectorInputPort("plant_state", n)
+        self._X_WD_port = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
+        self._V_WD_port = self.DeclareVectorInputPort("V_WD", 6)
+        self._grasp_port = self.DeclareAbstractInputPort("grasp", AbstractValue.Make(""))
+        s0 = np.zeros(_N_STATE)
+        s0[_HELD] = -1.0
+        s0[_QDG] = (1.0, 0.0, 0.0, 0.0)
+        s0[_XT.start] = 1.0
+        self._state = self.DeclareDiscreteState(s0)
+        self.period_s = float(device_period_s)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.5 * h, self._update)
+        self.DeclareInitializationDiscreteUpdateEvent(self._update)
+        self.DeclareStateOutputPort("coupling_state", self._state)
+        state_ticket = {self.xd_ticket()}
+        for name, sl in (("pose_WT", _XT), ("V_WT", _VT)):
+            self.DeclareVectorOutputPort(name, sl.stop - sl.start, self._slice(sl), state_ticket)
+        self.DeclareVectorOutputPort("held_body", 1, self._slice(slice(0, 1)), state_ticket)
+        both = {self.xd_ticket(), self._state_port.ticket()}
+        self.DeclareVectorOutputPort("pose_WG", 7, lambda c, o: o.SetFromVector(self._god(c)[0]), both)
+        self.DeclareVectorOutputPort("V_WG", 6, lambda c, o: o.SetFromVector(self._god(c)[1]), both)
+
+    def _slice(self, sl):
+        def calc(context, output):
+            output.SetFromVector(context.get_discrete_state(self._state).get_value()[sl])
+
+        return calc
+
+    def state(self, context) -> np.ndarray:
+        """The coupling's state vector (:data:`STATE_LAYOUT`)."""
+        return context.get_discrete_state(self._state).get_value()
+
+    def device_and_grasp(self, context) -> tuple[int, np.ndarray, float]:
+        """As :meth:`GodObjectCoupling.device_and_grasp` (the sleep manager asks it)."""
+        held = int(self.state(context)[_HELD])
+        p_WD = self._X_WD_port.Eval(context).translation()
+        v_WD = self._V_WD_port.Eval(context)
+        return held, p_WD, float(np.linalg.norm(v_WD[3:]))
+
+    def _god(self, context) -> tuple[np.ndarray, np.ndarray]:
+        """``(pose_WG, V_WG)`` of the held body now; the target's when nothing is held."""
+        s = self.state(context)
+        held = int(s[_HELD])
+        if held < 0:
+            return s[_XT].copy(), s[_VT].copy()
+        body = self._by_index[held]
+        x = self._state_port.Eval(context)
+        q, p_WG = self._body_state(body, x)
+        v = x[body.v_start : body.v_start + 6]
+        r = quat_to_rotation(q) @ body.p_BoBcm_B
+        return np.concatenate([q, p_WG]), np.concatenate([v[:3], v[3:] + np.cross(v[:3], r)])
+
+    def _update(self, context, discrete_state):
+        s = self.state(context).copy()
+        held = int(s[_HELD])
+        changed, body = self._grasp_change(context, held)
+        q_WD, p_WD, R_WD = pose_arrays(self._X_WD_port.Eval(context))
+        V = self._V_WD_port.Eval(context)
+        x = self._state_port.Eval(context)
+        if changed:
+            held = -1 if body is None else body.index
+            if body is not None:
+                q_WG, p_WG = self._body_state(body, x)
+                s[_QDG] = quat_multiply(quat_conjugate(q_WD), q_WG)
+                s[_PDG] = R_WD.T @ (p_WG - p_WD)
+            s[_HELD] = held
+        s[_CAP] = 0.0
+        if held < 0:
+            s[_XT] = np.concatenate([q_WD, p_WD])
+            s[_VT] = V
+            if changed:
+                s[_GEN] += 1.0  # a release: the springs go off
+        else:
+            body = self._by_index[held]
+            e = R_WD @ s[_PDG]
+            q_WT = quat_multiply(q_WD, s[_QDG])
+            p_WT = p_WD + e
+            q_WG, p_WG = self._body_state(body, x)
+            stretch = float(np.linalg.norm(p_WT - p_WG))
+            if stretch > self.max_stretch_m:  # the force cap: the target within reach of the body
+                p_WT = p_WG + (p_WT - p_WG) * (self.max_stretch_m / stretch)
+                s[_CAP] = 1.0
+            q_WT, twisted = _within_twist(q_WT, q_WG, self.max_twist_rad)
+            if twisted:
+                s[_CAP] = 1.0
+            s[_XT] = np.concatenate([q_WT, p_WT])
+            s[_VT] = np.concatenate([V[:3], V[3:] + np.cross(V[:3], e)])
+            s[_GEN] += 1.0  # a new target: the springs move
+        discrete_state.get_mutable_vector(self._state).SetFromVector(s)
+
+    def world_points(self, held: int, pose_WT: np.ndarray, V_WT: np.ndarray) -> np.ndarray:
+        """The springs' world ends (7×3) for a target ``pose_WT`` moving at ``V_WT``: each target
+        point ``P_j = p_WT + R_WT a_j``, led by ``(γ_j/k_j) V_j``, raised by gravity compensation,
+        and offset by the rest length along the spring's own rest direction."""
+        layout = self.layouts[held]
+        R = quat_to_rotation(pose_WT[:4] / np.linalg.norm(pose_WT[:4]))
+        arms = layout.offsets_B @ R.T
+        velocities = V_WT[3:] + np.cross(V_WT[:3], arms)
+        lead = np.divide(
+            layout.damping, layout.stiffness, out=np.zeros(N_SPRINGS), where=layout.stiffness > 0
+        )
+        return pose_WT[4:] + arms + lead[:, None] * velocities + self.raise_W + REST_M * layout.rest_dir
+
+
+def _within_twist(q_WT: np.ndarray, q_WG: np.ndarray, max_twist: float) -> tuple[np.ndarray, bool]:
+    """``q_WT`` turned back toward ``q_WG`` to at most ``max_twist`` (rad) from it (slerp)."""
+    if max_twist >= math.pi:
+        return q_WT, False
+    d = quat_multiply(quat_conjugate(q_WG), q_WT)
+    if d[0] < 0.0:
+        d = -d
+    angle = 2.0 * math.atan2(float(np.linalg.norm(d[1:])), float(d[0]))
+    if angle <= max_twist:
+        return q_WT, False
+    axis = d[1:] / np.linalg.norm(d[1:])
+    half = 0.5 * max_twist
+    return quat_multiply(q_WG, np.concatenate([[math.cos(half)], math.sin(half) * axis])), True
+
+
+class SpringHook:
+    """Writes the coupling's target into the plant's springs, between plant steps.
+
+    Called before every plant step (the safeguards' monitor), it compares the coupling's sample
+    count with the last it applied and returns at once when they agree (every step between two
+    device samples). Otherwise the springs go off (nothing held), or point at the held body
+    (:func:`spring_layout`) with their world ends at the new target (:meth:`ImplicitCoupling.world_points`).
+    """
+
+    def __init__(self, plant: MultibodyPlant, coupling: ImplicitCoupling):
+        self.plant, self.coupling = plant, coupling
+        self.anchor = plant.GetBodyByName(ANCHOR_NAME).index()  # welded at the world's origin
+        self.reset()
+
+    def reset(self) -> None:
+        """A new context: nothing applied yet."""
+        self.applied, self.held = 0.0, -1
+        self.moves = 0
+        self.last_logged_row = None  # the coupling's last logged row (implicit_terms' ``previous``)
+
+    def deactivate(self, plant_context) -> None:
+        for cid in self.coupling.springs:
+            self.plant.SetConstraintActiveStatus(plant_context, cid, False)
+        self.held = -1
+
+    def __call__(self, plant_context, root_context) -> None:
+        s = self.coupling.state(self.coupling.GetMyContextFromRoot(root_context))
+        if s[_GEN] != self.applied:
+            self.apply(plant_context, s)
+
+    def apply(self, plant_context, s: np.ndarray) -> None:
+        coupling, plant = self.coupling, self.plant
+        held = int(s[_HELD])
+        self.applied = float(s[_GEN])
+        if held < 0:
+            self.deactivate(plant_context)
+            return
+        layout = coupling.layouts[held]
+        points_W = coupling.world_points(held, s[_XT], s[_VT])
+        points_B = layout.offsets_B + coupling._by_index[held].p_BoBcm_B
+        anchor, body = self.anchor, BodyIndex(held)
+        # A pair of zero stiffness (a flat body: λ_i = λ_j + λ_l) stays off: Drake refuses k = 0.
+        on = layout.stiffness > 0.0
+        for j, cid in enumerate(coupling.springs):
+            if on[j]:
+                params = DistanceConstraintParams(
+                    anchor,
+                    points_W[j],
+                    body,
+                    points_B[j],
+                    REST_M,
+                    float(layout.stiffness[j]),
+                    float(layout.damping[j]),
+                )
+                plant.SetDistanceConstraintParams(plant_context, cid, params)
+            if held != self.held:
+                plant.SetConstraintActiveStatus(plant_context, cid, bool(on[j]))
+        self.held = held
+        self.moves += 1
+
+
+def implicit_terms(
+    coupling: ImplicitCoupling, plant_states: np.ndarray, coupling_states: np.ndarray, previous=None
+) -> np.ndarray:
+    """The explicit coupling's ``terms`` rows (:data:`~godobject_drake.coupling.TERMS_LAYOUT`)
+    computed after the run from the logged plant and coupling states, vectorized.
+
+    Row ``i``'s wrench is the springs' at state ``i`` with the target that was in force during the
+    plant step that ended there: the coupling's row ``i − 1`` (its update comes half a step after
+    a device sample; :class:`SpringHook` hands it to the plant's next step). ``previous`` is the
+    coupling row before the first (the last of the previous chunk of logs; None at t = 0: row 0).
+
+    ``F_Go_W`` is the seven springs' wrench on the held body at its centre of mass, in W: each
+    spring's ``(k (d − d0) + γ ḋ) u`` at the logged state, ``u`` from the body's point to the
+    spring's world end (:meth:`ImplicitCoupling.world_points` of the logged target).
+    ``pose_WG``/``V_WG`` are the held body's centre-of-mass frame; nothing held: T's.
+    """
+    from godobject_drake.coupling import _TERMS, TERMS_LAYOUT
+
+    n = len(plant_states)
+    out = np.zeros((n, _TERMS))
+    if n == 0:
+        return out
+    first = coupling_states[:1] if previous is None else np.asarray(previous).reshape(1, -1)
+    S = np.concatenate([first, coupling_states[:-1]])
+    held = S[:, _HELD].round().astype(int)
+    out[:, TERMS_LAYOUT["held_body"]] = held
+    for key, sl in (("pose_WT", _XT), ("V_WT", _VT), ("pose_WG", _XT), ("V_WG", _VT)):
+        out[:, TERMS_LAYOUT[key]] = S[:, sl]
+    out[:, TERMS_LAYOUT["capped"]] = S[:, _CAP]
+    for index in np.unique(held[held >= 0]):
+        rows = np.flatnonzero(held == index)
+        body, layout = coupling._by_index[int(index)], coupling.layouts[int(index)]
+        x = plant_states[rows]
+        q = x[:, body.q_start : body.q_start + 4]
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        R_WB = quats_to_rotations(q)
+        p_WBo = x[:, body.q_start + 4 : body.q_start + 7]
+        w_B, v_Bo = x[:, body.v_start : body.v_start + 3], x[:, body.v_start + 3 : body.v_start + 6]
+        r_cm = R_WB @ body.p_BoBcm_B
+        p_WG = p_WBo + r_cm
+        # the springs' world ends, row by row as the hook placed them (the logged target)
+        qT = S[rows][:, _XT][:, :4]
+        R_WT = quats_to_rotations(qT / np.linalg.norm(qT, axis=1, keepdims=True))
+        V_WT = S[rows][:, _VT]
+        lead = np.divide(
+            layout.damping, layout.stiffness, out=np.zeros(N_SPRINGS), where=layout.stiffness > 0
+        )
+        F, T = np.zeros((len(rows), 3)), np.zeros((len(rows), 3))
+        for j in range(N_SPRINGS):
+            arm_T = R_WT @ layout.offsets_B[j]
+            P_W = (
+                S[rows][:, _XT][:, 4:] + arm_T + lead[j] * (V_WT[:, 3:] + np.cross(V_WT[:, :3], arm_T))
+                + coupling.raise_W + REST_M * layout.rest_dir[j]
+            )  # fmt: skip
+            r_B = R_WB @ layout.offsets_B[j] + r_cm
+            P_B = p_WBo + r_B
+            d_vec = P_W - P_B
+            d = np.linalg.norm(d_vec, axis=1)
+            u = d_vec / np.maximum(d, 1e-15)[:, None]
+            d_dot = -np.sum(u * (v_Bo + np.cross(w_B, r_B)), axis=1)
+            f = (layout.stiffness[j] * (d - REST_M) + layout.damping[j] * d_dot)[:, None] * u
+            F += f
+            T += np.cross(P_B - p_WG, f)
+        out[rows, TERMS_LAYOUT["pose_WG"]] = np.concatenate([q, p_WG], axis=1)
+        out[rows, TERMS_LAYOUT["V_WG"]] = np.concatenate([w_B, v_Bo + np.cross(w_B, r_cm)], axis=1)
+        out[rows, TERMS_LAYOUT["F_Go_W"]] = np.concatenate([T, F], axis=1)
+    return out
+
+
+__all__ = [
+    "ImplicitCoupling",
+    "ImplicitCouplingError",
+    "SpringHook",
+    "SpringLayout",
+    "add_springs",
+    "implicit_terms",
+    "spring_layout",
+]
