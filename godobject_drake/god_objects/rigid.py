@@ -118,7 +118,7 @@ class RigidGodObject(GodObject):
 class ImplicitGodObject(RigidGodObject):
     """A rigid god-object on the implicit coupling (:mod:`godobject_drake.implicit`): the same
     questions answered, its terms computed from the logs after the run, its springs applied to the
-    plant between steps (:class:`~godobject_drake.implicit.CarrierHook`)."""
+    plant between steps (:class:`~godobject_drake.implicit.SpringHook`)."""
 
     @functools.cached_property
     def hook(self):
@@ -144,11 +144,6 @@ class ImplicitGodObject(RigidGodObject):
 
     def configuration(self, scenario, station) -> dict:
         return {**super().configuration(scenario, station), "coupling": "implicit"}
-
-    def held_bodies(self, root_context) -> set[int]:
-        context = self.coupling.GetMyContextFromRoot(root_context)
-        held = int(self.coupling.GetOutputPort("held_body").Eval(context)[0])
-        return {held} if held >= 0 else set()
 
     def prepare(self, plant_context) -> None:
         self.hook.reset()
