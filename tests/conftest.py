@@ -171,3 +171,20 @@ def own_scene_files(tmp_path) -> str:
     for name in ("cube_post.yaml", "cube_post.sdf"):
         shutil.copy(EXAMPLES / name, tmp_path / name)
     return "godobject run cube_post.yaml --record cube_post.html --metrics cube_post.json"
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist (``-n``), the tests whose ``slow`` mark gives their ``seconds`` start
+    first, longest first; the rest keep their order. xdist's ``worksteal`` gives each worker half
+    of the list and lets an idle one take the back half of another's queue, but cannot split a
+    running test: the 10-minute random-motion run (340 s, a third of the suite on one core)
+    begun last would end the run 340 s after everything else. A plain ``pytest`` keeps the file
+    order."""
+    if not hasattr(config, "workerinput"):  # not an xdist worker
+        return
+
+    def seconds(item):
+        mark = item.get_closest_marker("slow")
+        return mark.kwargs.get("seconds", 0) if mark else 0
+
+    items.sort(key=seconds, reverse=True)  # stable: equal keys keep their order
