@@ -26,7 +26,7 @@ from pydrake.systems.framework import DiagramBuilder
 from godobject_drake import cli
 from godobject_drake.building import build_station, make_meshcat
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
-from godobject_drake.scenario import Scenario, load_scenario
+from godobject_drake.scenario import Scenario, load_scenario, scenario_to_yaml
 from godobject_drake.simulation import RunResult, simulate
 
 REPO = Path(__file__).resolve().parent.parent
@@ -65,6 +65,21 @@ def run_scene(name: str, *flags: str) -> RunResult:
 
 def lego_run(*flags: str) -> RunResult:
     return run_scene("lego", *flags)
+
+
+_SHARED_RUNS: dict[str, RunResult] = {}
+
+
+def shared_run(name: str, *flags: str) -> RunResult:
+    """:func:`run_scene`, run once a session (once a pytest-xdist worker) for each scenario the
+    flags make, however they spell it: the tests that read the same run (a scene's default path,
+    say, in test_lego, test_long_runs and test_sleeping) share it instead of each simulating it
+    again. What it returns is shared: read it, never change it."""
+    s = scenario(name, *flags)
+    key = scenario_to_yaml(s)
+    if key not in _SHARED_RUNS:
+        _SHARED_RUNS[key] = simulate(build_station(s, make_meshcat(s)), progress=False)
+    return _SHARED_RUNS[key]
 
 
 @dataclasses.dataclass
@@ -171,3 +186,20 @@ def own_scene_files(tmp_path) -> str:
     for name in ("cube_post.yaml", "cube_post.sdf"):
         shutil.copy(EXAMPLES / name, tmp_path / name)
     return "godobject run cube_post.yaml --record cube_post.html --metrics cube_post.json"
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist (``-n``), the tests whose ``slow`` mark gives their ``seconds`` start
+    first, longest first; the rest keep their order. xdist's ``worksteal`` gives each worker half
+    of the list and lets an idle one take the back half of another's queue, but cannot split a
+    running test: the 10-minute random-motion run (340 s, a third of the suite on one core)
+    begun last would end the run 340 s after everything else. A plain ``pytest`` keeps the file
+    order."""
+    if not hasattr(config, "workerinput"):  # not an xdist worker
+        return
+
+    def seconds(item):
+        mark = item.get_closest_marker("slow")
+        return mark.kwargs.get("seconds", 0) if mark else 0
+
+    items.sort(key=seconds, reverse=True)  # stable: equal keys keep their order

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import REPO, build_scene, meshcat_commands, run_scene
+from conftest import REPO, build_scene, meshcat_commands, run_scene, shared_run
 from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia
@@ -52,7 +52,7 @@ def device_log(tmp_path, name, position_at, duration_s, rate_hz=60.0):
 @pytest.fixture(scope="module", params=SHELL_MODELS)
 def default_run(request):
     """The default path (press on the block, slide over and around its edge, rest) at h = 10 ms."""
-    return probe_run("--shell", request.param, "--time-step", "0.01")
+    return shared_run("deformable_probe", "--shell", request.param, "--time-step", "0.01").metrics
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import REPO, build_scene, lego_run, scenario
+from conftest import REPO, build_scene, lego_run, scenario, shared_run
 
 from godobject_drake.coupling import graspable_bodies
 from godobject_drake.devices import IncrementLog, ScriptedDevice, load_device_path, write_increment_log
@@ -30,7 +30,7 @@ def brick_path(result, plant, name="brick_0"):
 
 
 def run_lego(*argv):
-    result = lego_run(*argv)
+    result = shared_run("lego", *argv)  # the scripted 2 s run is read by two tests
     return result, result.station.plant
 
 

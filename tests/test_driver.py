@@ -11,6 +11,7 @@ loaded machine; the timing figures themselves are measured by analysis/driver_la
 import json
 import math
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -60,9 +61,26 @@ WALL_HAND = {
 
 
 def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A UDP port on 127.0.0.1 that nothing holds, for a scene to listen on.
+
+    Not the kernel's pick (``bind(0)``): that comes from the ephemeral range, where the driver's
+    own end (``UdpLcm.connect``) and every other process's sockets take theirs, so in the gap
+    between this check and the scene's ``bind`` another test's driver, in this pytest-xdist
+    worker or another, could be given the same port. The port is drawn from below the ephemeral
+    range instead (10000 up to it), from a block of this worker's own (gw0, gw1, ...), so two
+    workers never draw the same one."""
+    low = int(open("/proc/sys/net/ipv4/ip_local_port_range").read().split()[0])
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    size = (low - 10000) // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    block = range(10000 + worker * size, 10000 + (worker + 1) * size)
+    for port in random.sample(block, len(block)):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free UDP port on 127.0.0.1 in {block}")
 
 
 def lcm_scenario(url: str, duration_s: float, scale: float = 1.0):

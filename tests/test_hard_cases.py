@@ -333,7 +333,7 @@ def test_device_at_30_hz_with_50_ms_delay_lags_by_d_plus_half_a_period():
 # -- 7. ten minutes of random device motion ---------------------------------------------------------
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=340)  # on 2 cores of an AMD EPYC: under -n it starts first (conftest.py)
 def test_ten_minutes_of_random_motion_stay_bounded():
     """Pass: 600 s of a random path (a new point every 0.25 s anywhere 7 cm or more inside the
     table's edges and clear of its wall, from 3 cm below the surface to 8 cm above it, so the

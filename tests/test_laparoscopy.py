@@ -5,7 +5,15 @@ import re
 
 import numpy as np
 import pytest
-from conftest import assert_refused, build_scene, load_script, meshcat_commands, run_scene, scenario
+from conftest import (
+    assert_refused,
+    build_scene,
+    load_script,
+    meshcat_commands,
+    run_scene,
+    scenario,
+    shared_run,
+)
 
 from godobject_drake.articulated import device_targets, joint_space_loop, linear_response
 from godobject_drake.coupling import CouplingGainError
@@ -21,7 +29,7 @@ def run(*flags):
 @pytest.fixture(scope="module")
 def default_runs():
     """The default path (10 s), god-object (Cartesian coupling) and the position baseline."""
-    return {mode: run("--mode", mode)[1] for mode in ("god_object", "position")}
+    return {mode: shared_run("laparoscopy", "--mode", mode).metrics for mode in ("god_object", "position")}
 
 
 @pytest.mark.slow

@@ -6,29 +6,29 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import REPO, build_scene, lego_run, meshcat_commands
+from conftest import REPO, build_scene, lego_run, meshcat_commands, shared_run
 
 from godobject_drake.devices import write_device_log
 from godobject_drake.metrics import METRIC_KEYS
 
 
-@pytest.fixture(scope="module")
-def default_runs():
-    """The default 8.5 s path in both modes (about 15 s of wall time together)."""
-    return {mode: lego_run("--mode", mode).metrics for mode in ("god_object", "position")}
+def default_run(mode: str) -> dict:
+    """The default 8.5 s path in one mode (about 7 s of wall time), once a session (shared with
+    test_long_runs and test_sleeping): the fast tier runs only the position baseline."""
+    return shared_run("lego", "--mode", mode).metrics
 
 
 @pytest.mark.slow
-def test_god_object_respects_the_obstacles(default_runs):
-    m = default_runs["god_object"]
+def test_god_object_respects_the_obstacles():
+    m = default_run("god_object")
     assert not m["diverged"], m["diagnosis"]
     assert m["max_penetration_m"] <= 0.0015
     assert m["max_other_body_speed_mps"] < 0.05  # nothing else is knocked over
     assert m["rms_tracking_error_m"] is not None and m["free_space_samples"] > 1000
 
 
-def test_position_baseline_goes_through_the_wall(default_runs):
-    m = default_runs["position"]
+def test_position_baseline_goes_through_the_wall():
+    m = default_run("position")
     assert m["max_penetration_m"] >= 0.005  # the brick is imposed inside the 8 mm wall
     assert m["rms_tracking_error_m"] < m["max_penetration_m"]  # it does follow the device
 

@@ -16,7 +16,7 @@ import time
 
 import msgpack
 import pytest
-from conftest import REPO, build_scene, meshcat_commands, run_scene
+from conftest import REPO, build_scene, meshcat_commands, run_scene, shared_run
 
 from godobject_drake.metrics import scene_metrics
 from godobject_drake.simulation import simulate
@@ -44,8 +44,9 @@ device: !Scripted
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["lego", "laparoscopy", "deformable_probe"])
 def test_streamed_metrics_equal_the_whole_log_ones(name):
-    """The default path, folded every simulated second, against the same logs measured at once."""
-    result = run_scene(name)
+    """The default path, folded every simulated second, against the same logs measured at once
+    (the run test_lego, test_laparoscopy, test_deformable and test_sleeping read too)."""
+    result = shared_run(name)
     streamed, whole = result.metrics, scene_metrics(result.station, result.data)
     for key, value in whole.items():
         if isinstance(value, float):

@@ -18,7 +18,10 @@ def test_readme_opens_with_the_two_commands():
     tests = (
         'python -m pip install -e ".[test]" && python -m ruff check . && python -m ruff format --check . && '
     )
-    assert blocks[1] == tests + 'python -m pytest -m "not realtime" && python -m pytest -m realtime'
+    # the suite on every core (pytest-xdist), then the wall-clock tests alone, serial, after it
+    assert blocks[1] == tests + (
+        'python -m pytest -n auto --dist worksteal -m "not realtime" && python -m pytest -m realtime'
+    )
     assert README.index("```bash") < README.index("```yaml")  # the two commands come first
 
 
