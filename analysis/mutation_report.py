@@ -29,15 +29,18 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# The units that decide what a user feels (the goal applies to these), as (module, class or
-# None, function names or None for all). A mutant is counted in the first unit it matches.
+# The units that decide what a user feels (the goal applies to these), as (module, class, a
+# tuple of classes or None, function names or None for all). A mutant is counted in the first unit it matches.
 UNITS = {
-    "coupling: force law": ("coupling", "GodObjectCoupling", {
-        "__init__", "_hot_body", "force_caps", "_calc_terms", "_calc_generalized_forces",
+    # GraspingCoupling: what the explicit and implicit couplings share (moved out of
+    # GodObjectCoupling with no change of behaviour: its setup and caps, its grasp choice)
+    "coupling: force law": ("coupling", ("GodObjectCoupling", "GraspingCoupling"), {
+        "__init__", "_setup_bodies", "_hot_body", "force_caps", "_calc_terms", "_calc_generalized_forces",
         "_calc_spatial_forces", "_slice_calc"}),
     "coupling: gains check": ("coupling", "CouplingGains", None),
-    "coupling: grasping": ("coupling", "GodObjectCoupling", {
-        "body_for_grasp", "validate_grasp_names", "nearest_body", "_update_grasp", "_body_state"}),
+    "coupling: grasping": ("coupling", ("GodObjectCoupling", "GraspingCoupling"), {
+        "body_for_grasp", "validate_grasp_names", "nearest_body", "_update_grasp", "_grasp_change",
+        "_body_state"}),
     "coupling: body lookup": ("coupling", None, {"graspable_bodies", "fixed_bodies"}),
     "coupling: carried inertia": ("coupling", None, {"with_carried_inertia"}),
     "feedback port": ("feedback", "*", None),
@@ -57,7 +60,7 @@ def unit_of(module: str, cls: str | None, function: str) -> str:
     for unit, (m, c, functions) in UNITS.items():
         if m != module:
             continue
-        if c == "*" or c == cls or (c is None and cls is None):
+        if c == "*" or cls in (c if isinstance(c, tuple) else (c,)) or (c is None and cls is None):
             if functions is None or function in functions:
                 return unit
     return f"{module}: other (tested elsewhere, not in the goal)"
