@@ -123,6 +123,14 @@ class SpringLayout:
     rest_dir: np.ndarray  # 7×3: the unit direction of each spring's rest offset, in the world
     arm_m: float  # a: the axis pairs' distance from the centre of mass (m)
 
+    @property
+    def lead_s(self) -> np.ndarray:
+        """Each spring's γ/k (s): how far ahead of its target point, times the point's velocity,
+        its world end is put (0 for a spring of no stiffness, which stays off)."""
+        return np.divide(
+            self.damping, self.stiffness, out=np.zeros(len(self.stiffness)), where=self.stiffness > 0
+        )
+
 
 def spring_layout(body: GraspableBody, gains: CouplingGains) -> SpringLayout:
     """Stiffnesses and points of the seven springs that make the paper's spring on ``body``.
@@ -230,6 +238,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
         s0[_QDG] = (1.0, 0.0, 0.0, 0.0)
         s0[_XT.start] = 1.0
         self._state = self.DeclareDiscreteState(s0)
+        self._grasp_state = self._state  # its entry 0 is the held body, as the explicit coupling's
         self.period_s = float(device_period_s)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.5 * h, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
@@ -251,13 +260,6 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
     def state(self, context) -> np.ndarray:
         """The coupling's state vector (:data:`STATE_LAYOUT`)."""
         return context.get_discrete_state(self._state).get_value()
-
-    def device_and_grasp(self, context) -> tuple[int, np.ndarray, float]:
-        """As :meth:`GodObjectCoupling.device_and_grasp` (the sleep manager asks it)."""
-        held = int(self.state(context)[_HELD])
-        p_WD = self._X_WD_port.Eval(context).translation()
-        v_WD = self._V_WD_port.Eval(context)
-        return held, p_WD, float(np.linalg.norm(v_WD[3:]))
 
     def _god(self, context) -> tuple[np.ndarray, np.ndarray]:
         """``(pose_WG, V_WG)`` of the held body now; the target's when nothing is held."""
@@ -318,9 +320,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
         R = quat_to_rotation(pose_WT[:4] / np.linalg.norm(pose_WT[:4]))
         arms = layout.offsets_B @ R.T
         velocities = V_WT[3:] + np.cross(V_WT[:3], arms)
-        lead = np.divide(
-            layout.damping, layout.stiffness, out=np.zeros(N_SPRINGS), where=layout.stiffness > 0
-        )
+        lead = layout.lead_s
         return pose_WT[4:] + arms + lead[:, None] * velocities + self.raise_W + REST_M * layout.rest_dir
 
 
@@ -444,9 +444,7 @@ def implicit_terms(
         qT = S[rows][:, _XT][:, :4]
         R_WT = quats_to_rotations(qT / np.linalg.norm(qT, axis=1, keepdims=True))
         V_WT = S[rows][:, _VT]
-        lead = np.divide(
-            layout.damping, layout.stiffness, out=np.zeros(N_SPRINGS), where=layout.stiffness > 0
-        )
+        lead = layout.lead_s
         F, T = np.zeros((len(rows), 3)), np.zeros((len(rows), 3))
         for j in range(N_SPRINGS):
             arm_T = R_WT @ layout.offsets_B[j]

@@ -241,7 +241,7 @@ def test_drake_crashes_on_a_distance_constraint_to_the_world_body():
 
 
 @pytest.mark.slow
-def test_implicit_lego_run_grasps_and_releases(tmp_path):
+def test_implicit_lego_run_grasps_and_releases():
     """The brick scene on the implicit coupling at h = 5 ms: the brick is carried, released, and
     the logs' terms and metrics are there as with the explicit coupling."""
     s = sc.shipped_scenario("lego")
