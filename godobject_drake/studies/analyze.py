@@ -52,6 +52,7 @@ from godobject_drake.studies.stability import (
     body_spectral_radius,
     closed_loop_radius,
     colgate_required_damping,
+    coupled_body_matrices,
     device_model,
     device_stiffness_limit,
     explicit_h_max,
@@ -182,6 +183,79 @@ def _pose_tool_checks(station, out: dict) -> list[Check]:
     return rows
 
 
+IMPLICIT_RATE_FLOOR = 0.8  # the implicit step response's decay rate, as a fraction of ωn, to pass
+
+
+def _is_implicit(station) -> bool:
+    """The scene's rigid god-object runs the implicit coupling (SAP's springs, docs/theory.md §7)."""
+    return getattr(station.scenario.god_object, "coupling", "explicit") == "implicit"
+
+
+def implicit_rate(omega: float, zeta: float, h: float) -> float:
+    """The decay rate of the implicit coupling's step response as a fraction of ``omega``:
+    ``−ln ρ / (ω h)`` with ρ the pole modulus of backward Euler on the spring (docs/theory.md §7;
+    for ζ = 1, ρ = 1/(1 + ω h), so ``ln(1 + ω h)/(ω h)``). 1 in the limit h → 0."""
+    radius = body_spectral_radius(BodyLoop.by_bandwidth(1.0, omega, zeta, h, scheme="implicit_euler"))
+    return -math.log(radius) / (omega * h)
+
+
+def _implicit_pose_checks(station, out: dict) -> list[Check]:
+    """What limits the implicit coupling instead of the explicit limit (docs/theory.md §7): per
+    body and axis, the step response's decay rate under backward Euler against Eq. 3's ωn
+    (accuracy: past the floor the scene is slow, not unstable, so it warns), and SAP's near-rigid
+    regime, where SAP would soften the springs to its own time scale."""
+    coupling, h = station.coupling, station.plant.time_step()
+    g = coupling.gains
+    beta = station.scenario.plant.sap_near_rigid_threshold
+    beta = 1.0 if beta is None else beta
+    per_body = []
+    for body in {b.index: b for b in coupling.bodies.values()}.values():
+        I_c = np.linalg.eigvalsh(body.I_Bcm_B)
+        axes = [("translation", body.mass, g.omega_n, g.zeta)]
+        axes += [(f"rotation {i + 1}", float(I_c[i]), g.omega_r, g.zeta_r) for i in range(3)]
+        for axis, m, w, z in axes:
+            # SAP calls a compliant constraint near-rigid when h (h k + d) / m > (2π/β)² (the
+            # spring's time scale under β h); m here is the body's mass or principal inertia.
+            per_body.append({
+                "body": body.name, "axis": axis, "inertia": m, "omega_rad_s": w, "zeta": z,
+                "omega_h": w * h, "rate_fraction": implicit_rate(w, z, h),
+                "near_rigid_value": (w * h) ** 2 + 2 * z * w * h,
+                "near_rigid_limit": (2 * math.pi / beta) ** 2 if beta > 0 else math.inf,
+            })  # fmt: skip
+    out["explicit"] = []
+    out["implicit"] = per_body
+    # The largest h whose slowest axis keeps the floor: ln(1 + x)/x falls with x = ω h.
+    w_max = max(r["omega_rad_s"] for r in per_body)
+    z_of = {r["omega_rad_s"]: r["zeta"] for r in per_body}[w_max]
+    x_floor = bisect(lambda x: implicit_rate(1.0, z_of, x) >= IMPLICIT_RATE_FLOOR, 1e-9, 1e3, 1e-6)
+    h_acc = x_floor / w_max
+    out["h_max_s"] = math.inf
+    out["h_accurate_s"] = h_acc
+    rows = [Check("simulation", "explicit limit", "all bodies", "ok", None, None, "",
+                  "none: SAP integrates the implicit coupling's springs, stable at any ω·h")]  # fmt: skip
+    for axis in ("translation", "rotation"):
+        of_axis = [r for r in per_body if r["axis"].startswith(axis)]
+        worst = min(of_axis, key=lambda r: r["rate_fraction"])
+        name = "omega_n" if axis == "translation" else "omega_n_rot"
+        rate = worst["rate_fraction"]
+        rows.append(Check(
+            "simulation", f"implicit step response, {axis}: decay rate / ωn (backward Euler)",
+            f"{worst['body']} ({len({r['body'] for r in of_axis})} bodies)",
+            "ok" if rate >= IMPLICIT_RATE_FLOOR else "warn", rate, IMPLICIT_RATE_FLOOR, "",
+            f"time_step ≤ {_le(x_floor / worst['omega_rad_s'])} s or {name} ≤ {_le(x_floor / h)} rad/s "
+            "for a response within 20 % of Eq. 3's rate (slower past it, never unstable)", bound="lower",
+        ))  # fmt: skip
+        near = max(of_axis, key=lambda r: r["near_rigid_value"] / r["near_rigid_limit"])
+        rows.append(Check(
+            "simulation", f"SAP near-rigid regime, {axis}: h(hk + d)/m against (2π/β)², β = {beta:g}",
+            near["body"], _verdict_below(near["near_rigid_value"], near["near_rigid_limit"]),
+            near["near_rigid_value"], near["near_rigid_limit"], "",
+            f"{name} ≤ {_le(2 * math.pi / (beta * h))} rad/s about, or a smaller time_step, or a lower "
+            "plant.sap_near_rigid_threshold (SAP softens a near-rigid spring to its own time scale)",
+        ))  # fmt: skip
+    return rows
+
+
 def _articulated_checks(station, out: dict, duration_s: float, check_every: int) -> list[Check]:
     """The joint-space check the builder runs (every ``check_every``-th device sample), with its
     margin: the largest bandwidth scale and step that keep the worst configuration stable."""
@@ -282,7 +356,9 @@ def _device_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     k_w = max((p["stiffness_n_m"] for p in pairs), default=0.0)
     tau = scenario.contact.relaxation_time_s or h
     g = coupling.gains
-    loop = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, k_w=k_w, b_w=k_w * tau)
+    # The implicit coupling's spring is backward Euler like the contact (docs/theory.md §7).
+    scheme = "implicit_euler" if _is_implicit(station) else "drake"
+    loop = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, k_w=k_w, b_w=k_w * tau, scheme=scheme)
     dev = DeviceParams(haptic.device_mass_kg, haptic.device_damping, T, 0)
     pipe = Pipeline(loop, fb.kd, fb.gamma_d, T)
     H = pipeline_impedance(pipe)
@@ -347,15 +423,18 @@ def _held_body(station):
 # -- checked in Drake -------------------------------------------------------------------------------------
 
 
-def _hold_scenario(scenario, body, X_WD0: RigidTransform, X_WD1: RigidTransform, duration: float):
+def _hold_scenario(scenario, body, X_WD0: RigidTransform, X_WD1: RigidTransform, duration: float,
+                   move: tuple[float, float] = (0.0, 0.05)):  # fmt: skip
     """``scenario`` driven by a device that grasps ``body`` at ``X_WD0`` and moves to ``X_WD1``
-    over 0.05 s, then holds; ``random_seed`` and everything else as the user wrote them."""
+    from ``move[0]`` to ``move[1]`` s (default over the first 0.05 s), then holds;
+    ``random_seed`` and everything else as the user wrote them."""
 
     def waypoint(t, X):
         rpy = np.degrees(RollPitchYaw(X.rotation()).vector()).tolist()
         return Waypoint(t=t, xyz=X.translation().tolist(), rpy_deg=rpy, grasp=body)
 
-    path = [waypoint(0.0, X_WD0), waypoint(0.05, X_WD1), waypoint(duration, X_WD1)]
+    path = [waypoint(0.0, X_WD0)] if move[0] > 0 else []
+    path += [waypoint(move[0], X_WD0), waypoint(move[1], X_WD1), waypoint(duration, X_WD1)]
     device = sc.Scripted(rate_hz=scenario.device.rate_hz, waypoints=path)
     s = sc.replace(scenario, **{"simulation.duration_s": duration})
     s.device = device
@@ -552,6 +631,69 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
                  predicted=predicted, simulated=simulated)  # fmt: skip
 
 
+IMPLICIT_STEP_M = 0.03  # the implicit coupling's verification steps the target this far
+
+
+def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
+    """The implicit coupling's step response in Drake against its one-body model: the held body
+    is grasped at its start and its target jumps 3 cm away from the nearest obstacle between two
+    device samples; from the first step after the target stops (one sample after the jump), the
+    model (backward Euler on the spring,
+    :func:`~godobject_drake.studies.stability.coupled_body_matrices`) is started from Drake's own
+    state and both error curves are compared until the model's falls to 1 %. Checked: the time
+    each takes to fall to 10 % of the error at that start."""
+    if not out.get("implicit"):
+        return None
+    body = _held_body(station)
+    near = _nearest_fixed_obstacle(station, body) if station.god_object.predicts_penetration else None
+    away = -near[1] if near else np.array([0.0, 0.0, 1.0])
+    X0 = _start_pose(station, body)
+    X1 = RigidTransform(X0.rotation(), X0.translation() + IMPLICIT_STEP_M * away)
+    g, h = station.coupling.gains, station.plant.time_step()
+    period = 1.0 / scenario.device.rate_hz
+    # A step: the target jumps between two device samples, once the grasp has settled. The
+    # sample after the jump reports its velocity (the backward difference, which leads the
+    # springs' world ends); from the next one the target is still.
+    jump = (math.ceil(0.1 / period) + 0.5) * period
+    still = (math.ceil(jump / period) + 1) * period
+    start = math.ceil(still / h) + 2
+    model = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, scheme="implicit_euler")
+    A, _ = coupled_body_matrices(model)
+    # Long enough for the model's error to fall to 1 % from any start state of the move.
+    horizon = max(math.ceil(8.0 / (implicit_rate(g.omega_n, g.zeta, h) * g.omega_n * h)), 50)
+    s = _hold_scenario(_without_haptics(analysis_scenario(scenario)), body.name, X0, X1,
+                       (start + horizon + 2) * h, move=(jump, jump + 1e-6))  # fmt: skip
+    result = simulate(_quiet_build(s), progress=False)
+    target = float(np.dot(X1.translation(), away))
+    x_sim = result.data["terms"][:, 18:21] @ away - target  # the body's position G along the step
+    x0, v0 = x_sim[start], (x_sim[start] - x_sim[start - 1]) / h
+    x_model, state = [], np.array([x0, v0])
+    for _ in range(horizon):
+        x_model.append(state[0])
+        state = A @ state
+    x_sim = x_sim[start : start + horizon]
+
+    def t10(x):
+        below = np.nonzero(np.abs(x) <= 0.1 * abs(x[0]))[0]
+        return below[0] * h if below.size else math.nan
+
+    predicted, simulated = t10(np.asarray(x_model)), t10(x_sim)
+    err = abs(simulated / predicted - 1.0) if predicted > 0 else math.nan
+    out["verify_implicit_rate"] = {
+        "body": body.name, "step_m": IMPLICIT_STEP_M, "start_error_m": float(x0),
+        "predicted_t10_s": predicted, "simulated_t10_s": simulated, "relative_error": err,
+        "worst_gap_over_start": float(np.max(np.abs(x_sim - np.asarray(x_model))) / abs(x0)),
+        "diverged": bool(result.metrics["diverged"]),
+    }  # fmt: skip
+    ok = err <= 0.1
+    return Check("verify", "implicit step response: time to fall to 10 % (model from Drake's state)",
+                 body.name, "ok" if ok else "warn", err, 0.1, "relative error",
+                 "model and Drake agree" if ok else
+                 "Drake's springs differ from the one-body model (the held body touching something, or "
+                 "SAP's near-rigid regime): trust Drake's response",
+                 predicted=predicted, simulated=simulated)  # fmt: skip
+
+
 def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> Check | None:
     """The articulated tool's explicit limit in Drake: the device holds the worst configuration
     of the check, then steps every channel by 0.02; a scale ``c`` on both bandwidths is stable
@@ -744,7 +886,11 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     else:
         g = station.coupling.gains
         out["gains"] = {"omega_n": g.omega_n, "zeta": g.zeta, "omega_n_rot": g.omega_r, "zeta_rot": g.zeta_r}
-        checks = _pose_tool_checks(station, out)
+        checks = (
+            _implicit_pose_checks(station, out) if _is_implicit(station) else _pose_tool_checks(station, out)
+        )
+        if _is_implicit(station):
+            out["coupling"] = "implicit"
     checks += _contact_checks(station, s, out)
     if not joint_space:
         checks += _device_checks(station, s, out)
@@ -754,6 +900,7 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     if verify:
         tol = 0.02 if quick else 0.005
         for row in (_verify_penetration(station, s, out), _verify_explicit_limit(station, s, out, tol),
+                    _verify_implicit_rate(station, s, out),
                     _verify_joint_space_limit(station, s, out, tol),
                     _verify_device_boundary(station, s, out, tol)):  # fmt: skip
             if row is not None:
