@@ -93,6 +93,12 @@ def sweep_cases(scene: str, quick: bool, repeats: int) -> tuple[bm.Case, list[bm
         ref = case(T, 0.25e-3, repeats=1, **contact("hydroelastic", "sap"))
         grid = [case(T, h, **contact(c, a)) for h in hs for c in ("proxies", "hydroelastic") for a in approx]
         grid += [case(T, 1e-3, r, **contact("proxies", "sap")) for r in (250.0, 1000.0)]
+        # The implicit coupling (SAP's springs, issue 31) beside the explicit one at each h, and at
+        # 10 ms, where the explicit coupling is refused.
+        grid += [
+            case(T, h, **contact("proxies", "sap"), **{"god_object.coupling": "implicit"})
+            for h in (*hs, 10e-3)
+        ]
         return ref, grid
     if scene == "laparoscopy":
         T = 3.0 if quick else 10.0
@@ -398,6 +404,93 @@ def equal_budget(drake: list[dict], mujoco: list[dict]) -> tuple[list[str], list
     return md, out
 
 
+def coupling_section(rows: list[dict], pen: float) -> tuple[list[str], dict]:
+    """The brick scene's two rigid couplings side by side at each h (proxies, SAP, 60 Hz): cost
+    ratio of the medians measured in this run, penetration and pose error; and the fastest of
+    each within the penetration budget ``pen`` (issue 31's goal: the implicit one ≥ 2× faster)."""
+
+    def pick(coupling: str) -> dict[float, dict]:
+        return {
+            r["config"]["time_step"]: r
+            for r in rows
+            if r["config"].get("coupling") == coupling
+            and r["config"].get("contact") == "proxies"
+            and r["config"].get("approximation") == "sap"
+            and r["config"]["device_rate"] == 60.0
+        }
+
+    explicit, implicit = pick("explicit"), pick("implicit")
+    seconds = max((r["config"]["duration"] for r in (*explicit.values(), *implicit.values())), default=0.0)
+    md = [
+        "## Explicit against implicit coupling (brick scene, proxies, SAP)",
+        "",
+        f"The first {seconds:g} s of the path (the whole path is 8.5 s: analysis/coupling_budget.py), "
+        "the same contact; the explicit coupling computes the paper's spring in "
+        "Python each step, the implicit one hands it to SAP as seven compliant constraints "
+        '(docs/design.md "The implicit coupling"). Cost ratio: implicit median over explicit '
+        "median, both measured in this run.",
+        "",
+        "| h | explicit s/s | explicit penetration | explicit pose RMS | implicit s/s | implicit penetration "
+        "| implicit pose RMS | implicit / explicit cost |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+
+    def cells(r):
+        if r is None:
+            return ["–", "–", "–"]
+        if r["refused"]:
+            return ["refused", "–", "–"]
+        if r["diverged"]:
+            return ["diverged", "–", "–"]
+        return [
+            fmt(r["cost_median_s"]),
+            fmt(r["max_penetration_m"], " mm", 1e3),
+            fmt(r["pose_rms_m"], " mm", 1e3),
+        ]
+
+    table = []
+    for h in sorted(set(explicit) | set(implicit)):
+        e, i = explicit.get(h), implicit.get(h)
+        ok = all(r and not r["refused"] and not r["diverged"] and r.get("cost_median_s") for r in (e, i))
+        ratio = i["cost_median_s"] / e["cost_median_s"] if ok else None
+        md.append(f"| {h * 1e3:g} ms | " + " | ".join(cells(e) + cells(i)) + f" | {fmt(ratio, digits=2)} |")
+        table.append({"time_step": h, "explicit": e and e["label"], "implicit": i and i["label"],
+                      "implicit_over_explicit_cost": ratio})  # fmt: skip
+
+    def fastest(by_h):
+        ok = [r for r in by_h.values() if not r["refused"] and not r["diverged"] and r.get("cost_median_s")
+              and r["max_penetration_m"] <= pen]  # fmt: skip
+        return min(ok, key=lambda r: r["cost_median_s"]) if ok else None
+
+    e, i = fastest(explicit), fastest(implicit)
+    speedup = e["cost_median_s"] / i["cost_median_s"] if (e and i) else None
+    md += [
+        "",
+        f"Within {pen * 1e3:g} mm of penetration, the fastest explicit configuration is "
+        f"`{e['label'] if e else 'none'}` and the fastest implicit one `{i['label'] if i else 'none'}`: "
+        f"the implicit coupling is **{fmt(speedup, '×', digits=2)}** as fast (issue 31's goal: ≥ 2×).",
+        "",
+    ]
+    summary = {"rows": table, "fastest_explicit": e and e["label"], "fastest_implicit": i and i["label"],
+               "implicit_speedup_within_budget": speedup}  # fmt: skip
+    return md, summary
+
+
+def machine() -> str:
+    """``nproc`` and the CPU model, printed beside every absolute figure."""
+    import os
+
+    model = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores ({len(os.sched_getaffinity(0))} usable), {model}"
+
+
 SCALE_BRICKS = (8, 16, 32, 64, 128)
 
 
@@ -468,6 +561,10 @@ def scale_section(rows: list[dict], out: Path) -> tuple[list[str], dict]:
             cells.append(fmt(cost))
             table.setdefault(k, {})[n] = cost
         md.append(f"| {n} | " + " | ".join(cells) + " |")
+    md += ["", "The cost of 64 bricks against 8 in this run (issue 31's goal for Drake, sleep on: ≤ 2×):", ""]
+    for k in keys:
+        c8, c64 = table[k].get(8), table[k].get(64)
+        md.append(f"- {k}: {fmt(c64 / c8 if (c8 and c64) else None, '×', digits=2)}")
     md.append("")
     return md, table
 
@@ -487,7 +584,7 @@ def performance_goals(scene: str, rows: list[dict]) -> list[tuple]:
             for r in at_1ms
             if r["config"].get("contact") in (None, "proxies")
             and r["config"].get("approximation") in (None, "sap")
-            and r["config"].get("coupling") in (None, "cartesian")
+            and r["config"].get("coupling") in (None, "cartesian", "explicit")
         ]
         picks = [("default configuration, h = 1 ms", default)]
         picks.append(
@@ -517,26 +614,35 @@ def brick_profile(seconds: float = 2.0) -> dict:
     from godobject_drake.simulation import simulate
 
     lego = replace(shipped_scenario("lego"), **{"simulation.duration_s": seconds})
-    station = build_station(lego)
-    prof = cProfile.Profile()
-    prof.enable()
-    result = simulate(station, progress=False)
-    prof.disable()
     steps = round(seconds / 1e-3)
-    stats = pstats.Stats(prof).stats
-    by_module: dict[str, float] = {}
-    advance = 0.0
-    for (file, _line, func), (_cc, _nc, tt, _ct, _callers) in stats.items():
-        if "AdvanceTo" in func:
-            advance += tt
-            continue
-        key = (
-            Path(file).stem if "godobject_drake" in file else ("pydrake bindings" if file == "~" else "other")
-        )
-        by_module[key] = by_module.get(key, 0.0) + tt
-    per_step = {
-        k: v / steps * 1e6 for k, v in sorted(by_module.items(), key=lambda kv: -kv[1]) if v / steps > 1e-7
-    }
+
+    def profiled(scenario) -> tuple:
+        """One run under cProfile: (result, Drake's C++ µs per step, Python µs per step by module)."""
+        station = build_station(scenario)
+        prof = cProfile.Profile()
+        prof.enable()
+        result = simulate(station, progress=False)
+        prof.disable()
+        by_module: dict[str, float] = {}
+        advance = 0.0
+        for (file, _line, func), (_cc, _nc, tt, _ct, _callers) in pstats.Stats(prof).stats.items():
+            if "AdvanceTo" in func:
+                advance += tt
+                continue
+            stem = Path(file).stem
+            key = stem if "godobject_drake" in file else ("pydrake bindings" if file == "~" else "other")
+            by_module[key] = by_module.get(key, 0.0) + tt
+        per_step = {
+            k: v / steps * 1e6
+            for k, v in sorted(by_module.items(), key=lambda kv: -kv[1])
+            if v / steps > 1e-7
+        }
+        return result, advance / steps * 1e6, per_step
+
+    result, advance_us, per_step = profiled(lego)
+    # The implicit coupling's Python per step: what remains is the safeguards' monitor and the
+    # springs' hook (docs/design.md "The implicit coupling").
+    _, _, per_step_implicit = profiled(replace(lego, **{"god_object.coupling": "implicit"}))
     # The plant alone: the same scene, nothing grasped, 8 bricks resting (32 contacts).
     builder = DiagramBuilder()
     bare = add_plant(builder, lego)
@@ -559,6 +665,8 @@ def brick_profile(seconds: float = 2.0) -> dict:
     # the other.
     plain = simulate(build_station(lego), progress=False)
     plain_us = plain.metrics["wall_time_s"] / steps * 1e6
+    implicit = simulate(build_station(replace(lego, **{"god_object.coupling": "implicit"})), progress=False)
+    implicit_us = implicit.metrics["wall_time_s"] / steps * 1e6
     plant_ctx = bare.plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
     for i in bare.plant.GetFloatingBaseBodies():
         body = bare.plant.get_body(i)
@@ -572,14 +680,18 @@ def brick_profile(seconds: float = 2.0) -> dict:
     asleep_us = (time.perf_counter() - t0) * 1e3
     return {
         "step_us": result.metrics["wall_time_s"] / steps * 1e6,
-        "drake_cpp_us": advance / steps * 1e6,
+        "drake_cpp_us": advance_us,
         "python_us_by_module": per_step,
+        "python_us_by_module_implicit": per_step_implicit,
         "plant_alone_us": plant_us,
         "resting_contacts": contacts,
         "geometry_query_us": query_us,
         "plant_asleep_us": asleep_us,
         "scene_unprofiled_us": plain_us,
         "non_plant_us": plain_us - asleep_us,
+        "scene_implicit_us": implicit_us,
+        "scene_over_floor": plain_us / asleep_us,
+        "scene_implicit_over_floor": implicit_us / asleep_us,
         "sleep_mean_bodies": result.metrics.get("sleep_mean_bodies"),
     }
 
@@ -638,6 +750,7 @@ def main(argv=None) -> int:
         "scenes": {},
         "coupling_overhead_us": overhead,
         "brick_profile": profile,
+        "machine": machine(),
     }
     md = [
         "# Speed against error",
@@ -648,6 +761,9 @@ def main(argv=None) -> int:
         "god-object's frame in the run and in the reference, sampled every 10 ms; energy error: largest "
         "difference of the rigid bodies' kinetic + potential energy. `refused`: the explicit coupling's "
         "gains are past its stability limit at that h (docs/theory.md §1) and the scene refuses to run.",
+        "",
+        f"Machine: {machine()}. Absolute costs carry to no other machine; the ratios between rows "
+        "measured in this run do.",
         "",
     ]
     goals = []
@@ -680,6 +796,8 @@ def main(argv=None) -> int:
             section, table = scale_section(scale_rows, args.out)
             md += section
             summary["scale"] = {k: {str(n): v for n, v in t.items()} for k, t in table.items()}
+            section, summary["couplings"] = coupling_section(rows, PENETRATION_BUDGET_M[scene])
+            md += section
             cost64 = table.get("Drake, sleep on", {}).get(64)
             goals.append((scene, "64 bricks, h = 1 ms, sleep on", "bricks=64", 1 / cost64 if cost64 else None,
                           GOAL_64_BRICKS))  # fmt: skip
@@ -723,6 +841,19 @@ def main(argv=None) -> int:
             f"scene, unprofiled, {profile['scene_unprofiled_us']:.0f} µs: the scene's "
             f"**non-plant cost is {profile['non_plant_us']:.0f} µs per step** (device, coupling, "
             "loggers, safeguards and sleep checks, the simulator's own events), both measured in this run.",
+            "",
+            f"**Against that floor** (ratios of this run): the scene with the explicit coupling costs "
+            f"{profile['scene_over_floor']:.2f}× the plant's step, with the implicit coupling "
+            f"{profile['scene_implicit_over_floor']:.2f}× ({profile['scene_implicit_us']:.0f} µs; its floor "
+            "includes SAP's seven coupling constraints, which this plant-alone step does not solve). "
+            "Issue 31's goal: ≤ 1.15×.",
+            "",
+            "Python with the implicit coupling (cProfile, the same 2 s), µs per plant step by module: "
+            + ", ".join(f"{k} {v:.1f}" for k, v in profile["python_us_by_module_implicit"].items())
+            + ". As above these are the whole run's Python divided by its steps: the work at device "
+            "samples (the `implicit` module's grasp and target, sleep checks) and after the run (the "
+            "logged terms, the metrics) counted in. Only the safeguards' monitor runs at every step; "
+            "it also moves the springs' ends at the first step after each sample.",
         ]
     elapsed = time.perf_counter() - t_start
     summary["elapsed_s"] = elapsed

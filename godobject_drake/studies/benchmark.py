@@ -94,6 +94,8 @@ def describe(scenario: Scenario, short: bool = False) -> str:
             parts.append(god.shell)
         else:
             parts += [scenario.contact.geometry, scenario.plant.discrete_contact_approximation]
+            if god.coupling != "explicit":  # the explicit coupling's labels stay as they were
+                parts.append(god.coupling)
     if scenario.device.rate_hz != 60.0:
         parts.append(f"dev={scenario.device.rate_hz:g}Hz")
     if scenario.bricks:
@@ -105,13 +107,16 @@ def describe(scenario: Scenario, short: bool = False) -> str:
 
 def case_config(scenario: Scenario, case: Case) -> dict:
     """What a case varies, as a flat dict for reports: scene, time_step, duration, device_rate,
-    and per kind contact and approximation (rigid), coupling (articulated; the MuJoCo mode for a
-    MuJoCo case), shell (deformable), engine, repeats; None where it does not apply."""
+    and per kind contact and approximation (rigid), coupling (rigid: explicit or implicit;
+    articulated; the MuJoCo mode for a MuJoCo case), shell (deformable), engine, repeats; None
+    where it does not apply."""
     god = scenario.god_object
     mujoco = case.engine == "mujoco"
     bricks = isinstance(god, sc.Rigid)  # the brick scene: contact settings, brick count, sleep
     rigid = bricks and not mujoco
-    coupling = god.coupling if isinstance(god, sc.Articulated) else (case.mujoco_mode if mujoco else None)
+    coupling = (
+        case.mujoco_mode if mujoco else (god.coupling if isinstance(god, sc.Articulated | sc.Rigid) else None)
+    )
     return {
         "scene": scenario.name,
         "time_step": scenario.time_step,
