@@ -320,3 +320,23 @@ def test_analyze_reports_what_limits_the_implicit_coupling_and_checks_it_in_drak
     # Translation along the springs' line: SAP's step is the model's linear one to well under 0.1 %.
     assert v["worst_gap_over_start"] < 1e-3
     assert out["verdict"] == "ok"
+
+
+@pytest.mark.slow(seconds=25)
+def test_implicit_coupling_closes_the_haptic_impedance_loop_passively():
+    """The simulated impedance device on the implicit coupling, as tests/test_device_modes.py runs
+    it on the explicit one (a hand pushing the handle along the brick path, proportional feedback
+    gains, the passivity controller): the device never gives the user energy, and the feedback
+    takes from the handle at least the energy its spring holds at the end, ½ kd s², with s the
+    target's distance past the brick the wall stopped."""
+    from conftest import shared_run
+
+    result = shared_run("lego", "--coupling", "implicit", "--duration", "2.0", "--haptic", "impedance",
+                        "--kd", "20", "--gamma-d", "0.2", "--passivity-damping", "100")  # fmt: skip
+    m = result.metrics
+    assert not m["diverged"] and m["coupling"] == "implicit"
+    s = np.linalg.norm(result.coupling_terms("pose_WT")[-1, 4:] - result.coupling_terms("pose_WG")[-1, 4:])
+    spring = 0.5 * 20 * s**2
+    assert s > 0.1 and -1.05 * spring < m["haptic_feedback_work_j"] < -spring
+    assert m["haptic_energy_to_user_j"] <= 1e-9
+    assert m["passivity_observed_energy_j"] >= -1e-6
