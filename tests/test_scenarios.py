@@ -115,7 +115,7 @@ def test_the_command_and_the_script_agree(tmp_path):
         )  # fmt: skip
         assert proc.returncode == 0, proc.stderr
         out[key] = json.loads(path.read_text())
-    timing = {"wall_time_s", "real_time_factor", "step_cost_us", "metrics_time_s"}
+    timing = {"wall_time_s", "cpu_time_s", "real_time_factor", "step_cost_us", "metrics_time_s"}
     assert {k: v for k, v in out["module"].items() if k not in timing} == {
         k: v for k, v in out["script"].items() if k not in timing
     }

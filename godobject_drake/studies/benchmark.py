@@ -153,10 +153,10 @@ def god_object_body(scenario: Scenario) -> str:
 def run_case(case: Case) -> dict:
     """Run ``case`` ``repeats`` times; its cost, penetration and first-run trajectory.
 
-    Returns a dict with ``config`` (:func:`case_config`), ``label``, ``wall_s_per_sim_s`` (one
-    per repeat), ``max_penetration_m``, ``diverged``/``diagnosis``, ``refused`` (the error
-    text when the scene refuses the configuration, e.g. gains past the explicit limit at
-    this h), and the trajectory ``times``, ``p_WG`` (N×3), ``q_WG`` (N×4, wxyz),
+    Returns a dict with ``config`` (:func:`case_config`), ``label``, ``wall_s_per_sim_s`` and
+    ``cpu_s_per_sim_s`` (one per repeat), ``max_penetration_m``, ``diverged``/``diagnosis``,
+    ``refused`` (the error text when the scene refuses the configuration, e.g. gains past the
+    explicit limit at this h), and the trajectory ``times``, ``p_WG`` (N×3), ``q_WG`` (N×4, wxyz),
     ``energy_j`` (N).
     """
     from godobject_drake.building import build_station
@@ -168,14 +168,21 @@ def run_case(case: Case) -> dict:
     out = {"config": case_config(scenario, case), "label": case.label, "refused": None}
     if case.engine == "mujoco":
         return {**out, **_run_mujoco(scenario, case)}
-    walls = []
+    walls, cpus = [], []
     for k in range(case.repeats):
         try:
             result = simulate(build_station(scenario), progress=False)
         except (CouplingGainError, ValueError) as e:
-            return {**out, "refused": str(e), "wall_s_per_sim_s": [], "diverged": False}
+            return {
+                **out,
+                "refused": str(e),
+                "wall_s_per_sim_s": [],
+                "cpu_s_per_sim_s": [],
+                "diverged": False,
+            }
         metrics = result.metrics
         walls.append(metrics["wall_time_s"] / max(metrics["sim_time_s"], 1e-12))
+        cpus.append(metrics["cpu_time_s"] / max(metrics["sim_time_s"], 1e-12))
         if k == 0:
             first = result
         if metrics["diverged"]:
@@ -185,6 +192,7 @@ def run_case(case: Case) -> dict:
     )
     out.update(
         wall_s_per_sim_s=walls,
+        cpu_s_per_sim_s=cpus,
         max_penetration_m=first.metrics["max_penetration_m"],
         diverged=bool(first.metrics["diverged"]),
         diagnosis=first.metrics["diagnosis"],
@@ -365,6 +373,7 @@ def _run_mujoco(scenario: Scenario, case: Case) -> dict:
     energy = rigid_energy(r["p_WB"], r["q_WB"], r["v_WB"], r["w_WB"], masses, inertias)
     return {
         "wall_s_per_sim_s": list(r["wall_s_per_sim_s"]),
+        "cpu_s_per_sim_s": list(r["cpu_s_per_sim_s"]),
         "max_penetration_m": r["max_penetration_m"],
         "diverged": bool(r["diverged"]),
         "diagnosis": r["diagnosis"],

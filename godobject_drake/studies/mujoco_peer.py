@@ -361,7 +361,7 @@ def _run_once(model, path, mode, duration_s, h, device_rate_hz, sample_dt_s, nam
     qvel = np.full((n_samples, len(names), 6), np.nan)
     max_pen, diagnosis, k, next_tick, awake = 0.0, None, 0, 0, 0
 
-    wall0 = time.perf_counter()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
     for j in range(n_steps + 1):
         while k < n_samples and sample_step[k] == j:
             qpos[k], qvel[k] = data.qpos[qidx], data.qvel[vidx]
@@ -379,8 +379,8 @@ def _run_once(model, path, mode, duration_s, h, device_rate_hz, sample_dt_s, nam
         awake += data.ntree_awake
         if data.ncon:
             max_pen = max(max_pen, -float(data.contact.dist.min()))
-    wall = time.perf_counter() - wall0
-    return qpos[:k], qvel[:k], max_pen, wall, data.time, diagnosis, awake / max(j, 1)
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    return qpos[:k], qvel[:k], max_pen, (wall, cpu), data.time, diagnosis, awake / max(j, 1)
 
 
 def run_mujoco(
@@ -419,8 +419,9 @@ def run_mujoco(
     dict
         ``times`` (N,), ``body_names``, ``p_WB`` (N, 8, 3) m, ``q_WB`` (N, 8, 4) wxyz,
         ``v_WB`` (N, 8, 3) m/s of the centre, ``w_WB`` (N, 8, 3) rad/s in W,
-        ``max_penetration_m``, ``wall_s_per_sim_s`` (one per repeat: loop wall time over
-        the simulated time reached, which is ``duration_s`` unless the run diverged),
+        ``max_penetration_m``, ``wall_s_per_sim_s`` and ``cpu_s_per_sim_s`` (one per repeat: the
+        loop's wall and CPU time over the simulated time reached, which is ``duration_s`` unless
+        the run diverged),
         ``diverged``, ``diagnosis``, ``mujoco_version``, ``mode``, ``time_step_s``,
         ``mean_awake_trees`` (the last run's, per step).
         A diverged run stops at the first bad sample; the arrays end there.
@@ -431,13 +432,14 @@ def run_mujoco(
     )
     names = brick_names(bricks)
     path = ScriptedDevice(load_device_path(DEVICE_PATH).waypoints, period_s=1.0 / device_rate_hz)
-    walls, max_pen = [], 0.0
+    walls, cpus, max_pen = [], [], 0.0
     for _ in range(int(repeats)):
-        qpos, qvel, pen, wall, sim_time, diagnosis, awake = _run_once(
+        qpos, qvel, pen, (wall, cpu), sim_time, diagnosis, awake = _run_once(
             model, path, mode, duration_s, time_step_s, device_rate_hz, sample_dt_s, names
         )
         max_pen = max(max_pen, pen)
         walls.append(wall / sim_time if sim_time > 0 else math.inf)
+        cpus.append(cpu / sim_time if sim_time > 0 else math.inf)
         if diagnosis:
             break
     n = len(qpos)
@@ -450,6 +452,7 @@ def run_mujoco(
         "w_WB": _world_angular_velocity(qpos.reshape(-1, 7), qvel.reshape(-1, 6)).reshape(n, len(names), 3),
         "max_penetration_m": max_pen,
         "wall_s_per_sim_s": walls,
+        "cpu_s_per_sim_s": cpus,
         "diverged": diagnosis is not None,
         "diagnosis": diagnosis,
         "mujoco_version": mujoco.__version__,
