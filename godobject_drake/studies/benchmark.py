@@ -202,8 +202,9 @@ def run_case(case: Case) -> dict:
         energy_j=energy,
     )
     if isinstance(scenario.god_object, sc.Rigid):
+        # Every stride-th step: at h = 4 ms that is every 8 ms, not every 10.
         stride = max(1, round(SAMPLE_DT_S / scenario.time_step))
-        out.update(engine_neutral_errors(scenario, first.states[::stride]))
+        out.update(engine_neutral_errors(scenario, first.states[::stride], stride * scenario.time_step))
     return out
 
 
@@ -238,9 +239,10 @@ def trajectory(plant, states: np.ndarray, time_step: float, body_name: str):
     return times, np.array(p), np.array(q), np.array(energy)
 
 
-def engine_neutral_errors(scenario: Scenario, states: np.ndarray) -> dict:
-    """What both engines define the same way, from the free bodies' sampled poses (every
-    :data:`SAMPLE_DT_S`), measured by the same code whatever engine ran them:
+def engine_neutral_errors(scenario: Scenario, states: np.ndarray, sample_dt_s: float = SAMPLE_DT_S) -> dict:
+    """What both engines define the same way, from the free bodies' poses sampled every
+    ``sample_dt_s`` (:data:`SAMPLE_DT_S`, or the nearest whole number of plant steps to it),
+    measured by the same code whatever engine ran them:
 
     - ``true_penetration_m``: the held body's deepest overlap with any other true shape
       (:class:`~godobject_drake.metrics.TrueShapeMetrics`: boxes by separating axes);
@@ -265,7 +267,7 @@ def engine_neutral_errors(scenario: Scenario, states: np.ndarray) -> dict:
     shapes = TrueShapeMetrics(parts.plant, parts.scene_graph)
     overlap = shapes.overlaps(body.index, states)  # (N, M)
     n = len(states)
-    times = np.arange(n) * SAMPLE_DT_S
+    times = np.arange(n) * sample_dt_s
     device = make_device(scenario.device)
     samples = dict(device.samples(max(times[-1], 0.0) if n else 0.0))
     ticks = np.floor(times / device.period_s + 1e-9) * device.period_s
