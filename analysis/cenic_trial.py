@@ -2,6 +2,7 @@
 """CENIC (error-controlled convex integration of a continuous plant) against SAP on the brick scene.
 
     python analysis/cenic_trial.py [--duration 8.5] [--out results.json] [--repeats 1] [--no-baseline]
+    python analysis/cenic_trial.py --table results.json   # an earlier run's table again
         [--accuracies 1e-1 1e-2 3e-3 1e-3] [--sap-steps 1e-3 2e-3] [--sanity radau3] [--sanity-duration 0.5]
 
 Issue 31, part 3: is Drake's ``cenic`` integration scheme (a ``time_step = 0`` plant advanced
@@ -257,7 +258,13 @@ def main(argv=None) -> int:
     parser.add_argument("--sanity-accuracy", type=float, default=1e-3)
     parser.add_argument("--sanity-duration", type=float, default=0.5)
     parser.add_argument("--sanity-cpu-cap", type=float, default=120.0, help="CPU s before a sanity run stops")
+    parser.add_argument("--table", metavar="RESULTS_JSON", help="print an earlier run's table; run nothing")
     args = parser.parse_args(argv)
+    if args.table:
+        report = json.loads(Path(args.table).read_text())
+        report["rows"] = summarize([(row["config"], row["runs"]) for row in report["rows"]])
+        print_table(report)
+        return 0
 
     from importlib.metadata import version
 
@@ -290,6 +297,7 @@ def main(argv=None) -> int:
         "cpu": cpu_model(),
         "drake": version("drake"),
         "python": sys.version.split()[0],
+        "loadavg_1min_at_start": os.getloadavg()[0],
         "command": " ".join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)]),
     }
     runs = {label(c): [] for c in configs + sanity}
@@ -303,39 +311,64 @@ def main(argv=None) -> int:
         result = run(c, scenario, min(duration, args.sanity_duration))
         runs[label(c)].append(result)
 
+    rows = summarize([(c, runs[label(c)]) for c in configs + sanity])
+    report = {"machine": machine, "duration_s": duration, "rows": rows}
+    print_table(report)
+    Path(args.out).write_text(json.dumps(report, indent=1))
+    print(f"\nwrote {args.out}")
+    return 0
+
+
+def summarize(runs: list[tuple[dict, list[dict]]]) -> list[dict]:
+    """One row per configuration: its first run's figures, the median cost of its repeats, and
+    ``speedup_vs_sap_1ms``: SAP 1 ms's cost over its own, the median of the repeats' own ratios
+    (each repeat ran every configuration back to back, so a ratio shares its machine's load),
+    or the ratio of the medians for a configuration run once."""
+    sap1 = next(([x["cpu_s_per_sim_s"] for x in rs] for c, rs in runs if label(c) == "SAP h=1 ms"), [])
     rows = []
-    for c in configs + sanity:
-        rs = runs[label(c)]
+    for c, rs in runs:
+        costs = [x["cpu_s_per_sim_s"] for x in rs]
+        speedup = None
+        if sap1 and None not in costs and None not in sap1:
+            if len(rs) == len(sap1):
+                speedup = statistics.median(b / x for b, x in zip(sap1, costs, strict=True))
+            else:
+                speedup = statistics.median(sap1) / statistics.median(costs)
         first = rs[0]
-        costs = [x["cpu_s_per_sim_s"] for x in rs if x["cpu_s_per_sim_s"] is not None]
         rows.append({
             "label": label(c), "config": c, "runs": rs,
-            "cpu_s_per_sim_s": statistics.median(costs) if costs else None,
+            "cpu_s_per_sim_s": statistics.median(x for x in costs if x is not None) if any(costs) else None,
+            "speedup_vs_sap_1ms": speedup,
             **{k: first[k] for k in ("sim_time_s", "max_penetration_m", "rms_tracking_error_m", "steps",
                                      "rejected", "largest_step_s", "diverged", "error", "stopped_early")},
         })  # fmt: skip
-    base = next((row["cpu_s_per_sim_s"] for row in rows if row["label"] == "SAP h=1 ms"), None)
-    print(f"\nBrick scene, {duration:g} s path. nproc {machine['nproc']}, {machine['cpu']}, "
-          f"Drake {machine['drake']}, Python {machine['python']}. `{machine['command']}`\n")  # fmt: skip
+    return rows
+
+
+def print_table(report: dict) -> None:
+    """The report as a markdown table, with the machine and the command above it."""
+    machine = report["machine"]
+    load = machine.get("loadavg_1min_at_start")
+    load = "" if load is None else f", load average at start {load:.2f}"
+    print(f"\nBrick scene, {report['duration_s']:g} s path. nproc {machine['nproc']}, {machine['cpu']}, "
+          f"Drake {machine['drake']}, Python {machine['python']}"
+          f"{load}. `{machine['command']}`\n")  # fmt: skip
     print(
         "| configuration | simulated s | max penetration (mm) | RMS tracking (mm) | CPU s / sim s "
         "| speed-up vs SAP 1 ms | steps | rejected | largest step (ms) | diverged / error |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for row in rows:
+    for row in report["rows"]:
         cost = row["cpu_s_per_sim_s"]
-        track = row["rms_tracking_error_m"]
+        track, speed = row["rms_tracking_error_m"], row["speedup_vs_sap_1ms"]
         print(
             f"| {row['label']} | {row['sim_time_s']:.3g}{' (stopped early)' if row['stopped_early'] else ''} "
             f"| {row['max_penetration_m'] * 1e3:.3f} | {'—' if track is None else f'{track * 1e3:.2f}'} "
             f"| {'—' if cost is None else f'{cost:.3f}'} "
-            f"| {'—' if not (cost and base) else f'{base / cost:.2f}×'} | {row['steps']} | {row['rejected']} "
+            f"| {'—' if speed is None else f'{speed:.2f}×'} "
+            f"| {row['steps']} | {row['rejected']} "
             f"| {row['largest_step_s'] * 1e3:.3g} | {row['error'] or ('yes' if row['diverged'] else 'no')} |"
         )
-    report = {"machine": machine, "duration_s": duration, "rows": rows}
-    Path(args.out).write_text(json.dumps(report, indent=1))
-    print(f"\nwrote {args.out}")
-    return 0
 
 
 if __name__ == "__main__":
