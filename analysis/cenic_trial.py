@@ -283,7 +283,8 @@ def main(argv=None) -> int:
         if scheme not in schemes:
             parser.error(
                 f"integration scheme {scheme!r} is not in this Drake ({version('drake')}): it has "
-                f"{', '.join(schemes)}. cenic needs Drake ≥ 1.58 (pip install drake==1.58.0, Python ≥ 3.12)"
+                f"{', '.join(schemes)}. Both of the project's Drake pins have cenic (1.51.1 for Python 3.11, "
+                "1.58.0 for ≥ 3.12): pip install -e . installs the one for your Python"
             )
     configs = [{"kind": "simulate", "h": 1e-3}] if args.baseline else []
     configs += [{"kind": "sap", "h": h} for h in args.sap_steps]

@@ -13,8 +13,8 @@ from pydrake.systems.analysis import GetIntegrationSchemes
 SCRIPT = str(REPO / "analysis" / "cenic_trial.py")
 DRAKE = version("drake")
 NO_CENIC = (
-    f"Drake {DRAKE} has no 'cenic' integration scheme (it came with Drake 1.58: pip install drake==1.58.0, "
-    "which needs Python ≥ 3.12)"
+    f"Drake {DRAKE} has no 'cenic' integration scheme (GetIntegrationSchemes()); the project's pins, "
+    "1.51.1 and 1.58.0, both have it: pip install -e . installs the one for your Python"
 )
 
 
@@ -59,12 +59,12 @@ def test_trial_short_path(tmp_path):
 @pytest.mark.slow(seconds=5)
 def test_trial_refuses_an_unknown_scheme(tmp_path):
     """A scheme this Drake does not have is refused before anything runs, naming the version and
-    the schemes it has (on Drake 1.51 that is cenic itself)."""
+    the schemes it has and where to get cenic (both of the project's Drake pins have it)."""
     run = subprocess.run(
         [sys.executable, SCRIPT, "--sanity", "no_such_scheme", "--out", str(tmp_path / "r.json")],
         capture_output=True, text=True, cwd=tmp_path, timeout=60,
     )  # fmt: skip
     assert run.returncode == 2
     assert f"'no_such_scheme' is not in this Drake ({DRAKE})" in run.stderr
-    assert "runge_kutta3" in run.stderr and "cenic needs Drake ≥ 1.58" in run.stderr
+    assert "runge_kutta3" in run.stderr and "Both of the project's Drake pins have cenic" in run.stderr
     assert not (tmp_path / "r.json").exists()
