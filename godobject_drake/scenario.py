@@ -697,7 +697,13 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     span two parts."""
     h = s.plant.time_step
     if not (isinstance(h, float | int) and math.isfinite(h) and h > 0):
-        _fail(where, "plant.time_step", f"{h!r} s; SAP is discrete: give a step h > 0 (e.g. 0.001)")
+        _fail(
+            where,
+            "plant.time_step",
+            f"{h!r} s; SAP is discrete: give a step h > 0 (e.g. 0.001). A continuous plant (time_step 0, "
+            "Drake's cenic integrator) is not offered: on the brick scene it was slower than SAP at "
+            "equal penetration (docs/results.md, 'CENIC against SAP'; analysis/cenic_trial.py measures it)",
+        )
     if h < MIN_TIME_STEP_S:
         _fail(
             where,

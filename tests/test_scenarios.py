@@ -147,7 +147,10 @@ def test_a_device_tag_that_does_not_exist_lists_the_kinds(tmp_path):
     ("text", "message"),
     [
         ("simulation: {duration_s: -1.0}", r"simulation\.duration_s: -1\.0 s must be > 0"),
-        ("plant: {time_step: 0.0}", r"plant\.time_step: 0\.0 s; SAP is discrete"),
+        (
+            "plant: {time_step: 0.0}",
+            r"plant\.time_step: 0\.0 s; SAP is discrete.* cenic integrator\) is not offered.*cenic_trial\.py",
+        ),
         ("contact: {geometry: hydroelastic}", r"contact\.geometry: hydroelastic needs plant\.contact_model"),
         ("haptic: {mode: impedence}", r"haptic\.mode: 'impedence'; choose one of"),
         ("device: !Scripted {rate_hz: 0.0}", r"device\.rate_hz: 0\.0 Hz must be > 0"),
