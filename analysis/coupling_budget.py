@@ -12,6 +12,7 @@ a loaded machine inflates far less than the wall time). Rows:
 - Drake, proxies and SAP, with the explicit and the implicit coupling at h = 1, 2, 4, 5 and
   10 ms, each with the shipped force cap (``max_stretch_m`` 0.2 m) and a 5 cm one (a lower cap
   presses the wall less: at equal caps the contact, not the coupling, sets the depth);
+- the scale: 8 and 64 bricks on the path's first 3 s at h = 1 ms, sleeping on, each coupling;
 - MuJoCo (the ``bench`` extra) with its best low-penetration settings of the speed report (a
   weld or the perturbation spring, contact time constant 2 h or its default, sleeping islands)
   at h = 0.5, 1 and 2 ms.
@@ -46,6 +47,8 @@ MUJOCO_HS = (0.5e-3, 1e-3, 2e-3)
 PENETRATION_BUDGET_M = 1e-3
 TRACKING_BUDGET_M = 2e-3
 BASELINE = ("explicit", 1e-3, 0.2)
+SCALE_BRICKS = (8, 64)  # the scale rows: the path's first 3 s, h = 1 ms, sleeping on
+SCALE_S = 3.0
 
 
 def cases(duration: float, mujoco: bool) -> list[tuple[dict, bm.Case]]:
@@ -59,6 +62,13 @@ def cases(duration: float, mujoco: bool) -> list[tuple[dict, bm.Case]]:
                 label = f"{coupling} h={h * 1e3:g}ms cap={cap * 1e2:g}cm"
                 out.append(({"engine": "drake", "coupling": coupling, "h": h, "cap_m": cap},
                             bm.make_case(s, label=label, repeats=1)))  # fmt: skip
+    for coupling in ("explicit", "implicit"):
+        for n in SCALE_BRICKS:
+            s = variant("lego", SCALE_S, 1e-3, **contact("proxies", "sap"),
+                        **{"god_object.coupling": coupling, "bricks": n, "sleep.enabled": True})  # fmt: skip
+            label = f"{coupling} h=1ms {n} bricks ({SCALE_S:g} s)"
+            out.append(({"engine": "drake", "coupling": coupling, "h": 1e-3, "bricks": n},
+                        bm.make_case(s, label=label, repeats=1)))  # fmt: skip
     if mujoco:
         for h in MUJOCO_HS:
             for mode in ("weld", "perturb"):
@@ -120,6 +130,8 @@ def main(argv=None) -> int:
             "free_tracking_rms_m": r.get("free_tracking_rms_m"),
             "crossed_wall": r.get("crossed_wall"),
         })  # fmt: skip
+    scale = [r for r in rows if r.get("bricks")]
+    rows = [r for r in rows if not r.get("bricks")]
     base = next(
         r for r in rows if (r["engine"], r["coupling"], r["h"], r.get("cap_m")) == ("drake", *BASELINE)
     )
@@ -181,6 +193,22 @@ def main(argv=None) -> int:
             "explicit": e and e["label"], "implicit": i and i["label"], "mujoco": m and m["label"],
             "implicit_speed_over_explicit": speedup, "drake_speed_over_mujoco": vs_mujoco,
         })  # fmt: skip
+    md += [
+        "",
+        f"## Scale: 64 bricks against 8 (the path's first {SCALE_S:g} s, h = 1 ms, sleeping on)",
+        "",
+        "| coupling | 8 bricks CPU s/s | 64 bricks CPU s/s | 64 / 8 |",
+        "|---|---|---|---|",
+    ]
+    summary["scale"] = []
+    for coupling in ("explicit", "implicit"):
+        by_n = {r["bricks"]: r for r in scale if r["coupling"] == coupling}
+        c8, c64 = (by_n[n]["cost_median_s"] if n in by_n else None for n in SCALE_BRICKS)
+        ratio = c64 / c8 if (c8 and c64) else None
+        md.append(f"| {coupling} | {fmt(c8)} | {fmt(c64)} | {fmt(ratio, '×', digits=3)} |")
+        summary["scale"].append(
+            {"coupling": coupling, "cost_8_s": c8, "cost_64_s": c64, "ratio_64_over_8": ratio}
+        )
     elapsed = time.perf_counter() - t0
     summary["elapsed_s"] = elapsed
     md += ["", f"Run time {elapsed:.0f} s on this machine.", ""]
