@@ -20,7 +20,10 @@ Each device period the loop:
    maps it) and renders it through :class:`ForceSafety`:
 
    - **watchdog**: no feedback for ``watchdog_periods`` device periods (the scene stalled, was
-     killed or never started): zero force until feedback comes again (``watchdog_trips``);
+     killed or never started): zero force until feedback comes again (``watchdog_trips``). A
+     message's age counts from the poll before the one that handed it over, the earliest it can
+     have arrived: one that waited in the socket while the driver itself was held up is as old
+     as that wait, so a force the scene sent before it died is never rendered past the watchdog;
    - **stop**: the scene's ``<feedback>_STOP`` message: zero force at once (``scene_stops``);
    - **rated limits**: the force's magnitude is cut to the device's rated maximum
      (``force_clamps``) and its change per period to the rated rate (``rate_clamps``);
@@ -162,6 +165,11 @@ class Driver:
         self.exit_on_stop, self.channel = exit_on_stop, channel
         self.counts = dict.fromkeys(DRIVER_STATUS_KEYS, 0)
         self.feedback = None  # (force in the device frame, scene time s, arrival time)
+        # The earliest a message handled now can have arrived: the previous poll. A message that
+        # waited in the socket while this process was not running (a loaded machine) is as old
+        # as that wait, and the watchdog must count it so: read at its handling, a command the
+        # scene sent before it died rendered past the watchdog time.
+        self._arrived_after: float | None = None
         self.stopped = False
         self.heard_scene = False
         self.offset = np.zeros(3)  # the clutch's re-indexing
@@ -186,7 +194,7 @@ class Driver:
         if not np.all(np.isfinite(f)):
             self.counts["bad_feedback"] += 1
             return
-        now = time.monotonic()
+        now = time.monotonic() if self._arrived_after is None else self._arrived_after
         if self.feedback is not None:
             self.gaps.append(now - self.feedback[2])
         self.feedback = (f, m.timestamp * 1e-6, now)
@@ -219,6 +227,7 @@ class Driver:
         start = time.monotonic()
         next_tick = start
         was_fresh = False
+        previous_poll = start
         try:
             while not self.stop_requested:
                 now = time.monotonic()
@@ -242,8 +251,15 @@ class Driver:
                     sent, self.held = self.held, None
                 utime = round((now - start) * 1e6) + 1
                 self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
+                # What this poll hands over arrived after the previous poll, at the earliest: its
+                # age is counted from there (fail-safe: a message that sat out a stall is stale).
+                # Its age is taken when the force is rendered, after the poll (the process may be
+                # held up anywhere in the loop).
+                self._arrived_after, poll = previous_poll, time.monotonic()
                 self.lcm.HandleSubscriptions(0)
-                fresh = self.feedback is not None and now - self.feedback[2] <= self.watchdog_s
+                previous_poll = poll
+                rendered_at = time.monotonic()
+                fresh = self.feedback is not None and rendered_at - self.feedback[2] <= self.watchdog_s
                 if was_fresh and not fresh:
                     self.counts["watchdog_trips"] += 1
                 was_fresh = fresh

@@ -435,3 +435,52 @@ def test_the_clutch_holds_the_pose_sent_and_resumes_without_a_jump():
     assert sent[-1][0] - device.p[0] == pytest.approx(driver.offset[0], abs=1e-12)
     assert driver.offset[0] > 0.03  # the 4 cm moved while clutched (less the handle's lag)
     assert all(np.all(np.array(r[7:10]) == 0.0) for r in rows)  # nothing heard: no force ever
+
+
+class _LateLink(_QuietLink):
+    """Hands the driver one feedback message (2 N along x) at each poll from the ``first``-th on,
+    after holding the driver up for ``stall_s`` at the ``first``-th: a message that arrived while
+    the driver was not running, as on a loaded machine with the scene killed meanwhile."""
+
+    def __init__(self, first: int, stall_s: float, force_n: float = 2.0):
+        super().__init__()
+        self.first, self.stall_s, self.force_n = first, stall_s, force_n
+        self.polls, self.handlers = 0, {}
+
+    def Subscribe(self, channel, handler):
+        self.handlers[channel] = handler
+
+    def HandleSubscriptions(self, timeout_millis=0):
+        self.polls += 1
+        if self.polls < self.first:
+            return 0
+        if self.polls == self.first:
+            time.sleep(self.stall_s)
+        m = lcmt_force_torque()
+        m.timestamp, m.fx = self.polls, self.force_n
+        self.handlers[FEEDBACK_CHANNEL](m.encode())
+        return 1
+
+
+def test_a_message_that_waited_out_a_stall_is_as_old_as_the_stall():
+    """A feedback message handed over after the driver was held up 60 ms (six times its 10 ms
+    watchdog) may have been sent 60 ms earlier, by a scene since killed: it renders no force.
+    The driver counts a message from the start of the poll before the one that handed it over
+    (the earliest it can have arrived), so the next one, handed over by the poll after the
+    stalled one, is stale too; from the one after, one period apart, they are fresh again and
+    the force comes back (ramped at the rated rate). Before the fix, the stale message counted
+    from its handling and was rendered at once."""
+    hand = HandPath(np.array([0.0, 5.0]), np.zeros((2, 3)), np.ones(2, bool), np.zeros(2, bool))
+    device = drv.EmulatedDevice(hand, start_on_scene=False)
+    link = _LateLink(first=20, stall_s=0.06)
+    driver = drv.Driver(device, link, RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
+                        max_force_n=12.0, grasp="always")  # fmt: skip
+    driver.run(0.2)
+    rows = driver.rows[:-1]
+    state = [r[11] for r in rows]
+    rendered = np.array([r[7:10] for r in rows])
+    first_heard = next(i for i, r in enumerate(rows) if not math.isnan(r[10]))
+    assert state[first_heard : first_heard + 2] == ["watchdog"] * 2
+    assert np.all(rendered[first_heard : first_heard + 2] == 0.0)
+    assert state[first_heard + 2] == "ok"  # two periods later: a fresh message
+    assert np.linalg.norm(rendered[-1]) == pytest.approx(2.0, rel=1e-9)
