@@ -635,20 +635,21 @@ IMPLICIT_STEP_M = 0.03  # the implicit coupling's verification steps the target 
 
 
 def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
-    """The implicit coupling's step response in Drake against its one-body model: the held body
-    is grasped at its start and its target jumps 3 cm away from the nearest obstacle between two
-    device samples; from the first step after the target stops (one sample after the jump), the
-    model (backward Euler on the spring,
-    :func:`~godobject_drake.studies.stability.coupled_body_matrices`) is started from Drake's own
-    state and both error curves are compared until the model's falls to 1 %. Checked: the time
-    each takes to fall to 10 % of the error at that start."""
+    """The implicit coupling's step response in Drake against its one-body model, twice: the held
+    body is grasped at its start and its target jumps 3 cm away from the nearest obstacle
+    (``along``: for the brick, up, along the springs' vertical lines), or, lifted 3 cm away first,
+    3 cm across the springs' lines (``across``: horizontal), between two device samples. From
+    the first step after the target stops (one sample after the jump) the model (backward Euler
+    on the spring, :func:`~godobject_drake.studies.stability.coupled_body_matrices`) is started
+    from Drake's own state and both error curves are compared until the model's falls to 1 %.
+    Checked: the time each takes to fall to 10 % of the error at that start, the worse of the
+    two directions."""
     if not out.get("implicit"):
         return None
     body = _held_body(station)
     near = _nearest_fixed_obstacle(station, body) if station.god_object.predicts_penetration else None
     away = -near[1] if near else np.array([0.0, 0.0, 1.0])
     X0 = _start_pose(station, body)
-    X1 = RigidTransform(X0.rotation(), X0.translation() + IMPLICIT_STEP_M * away)
     g, h = station.coupling.gains, station.plant.time_step()
     period = 1.0 / scenario.device.rate_hz
     # A step: the target jumps between two device samples, once the grasp has settled. The
@@ -661,37 +662,58 @@ def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
     A, _ = coupled_body_matrices(model)
     # Long enough for the model's error to fall to 1 % from any start state of the move.
     horizon = max(math.ceil(8.0 / (implicit_rate(g.omega_n, g.zeta, h) * g.omega_n * h)), 50)
-    s = _hold_scenario(_without_haptics(analysis_scenario(scenario)), body.name, X0, X1,
-                       (start + horizon + 2) * h, move=(jump, jump + 1e-6))  # fmt: skip
-    result = simulate(_quiet_build(s), progress=False)
-    target = float(np.dot(X1.translation(), away))
-    x_sim = result.data["terms"][:, 18:21] @ away - target  # the body's position G along the step
-    x0, v0 = x_sim[start], (x_sim[start] - x_sim[start - 1]) / h
-    x_model, state = [], np.array([x0, v0])
-    for _ in range(horizon):
-        x_model.append(state[0])
-        state = A @ state
-    x_sim = x_sim[start : start + horizon]
+    base = _without_haptics(analysis_scenario(scenario))
 
-    def t10(x):
-        below = np.nonzero(np.abs(x) <= 0.1 * abs(x[0]))[0]
-        return below[0] * h if below.size else math.nan
+    def step(X_from: RigidTransform, direction: np.ndarray) -> dict:
+        X_to = RigidTransform(X_from.rotation(), X_from.translation() + IMPLICIT_STEP_M * direction)
+        s = _hold_scenario(base, body.name, X0, X_to, (start + horizon + 2) * h, move=(jump, jump + 1e-6))
+        if X_from is not X0:  # lifted clear first, over the first 0.05 s, then held
+            rpy = np.degrees(RollPitchYaw(X0.rotation()).vector()).tolist()
+            lifted = Waypoint(t=0.05, xyz=X_from.translation().tolist(), rpy_deg=rpy, grasp=body.name)
+            path = s.device.waypoints
+            s.device = sc.Scripted(rate_hz=s.device.rate_hz, waypoints=[path[0], lifted,
+                                   dataclasses.replace(lifted, t=jump), *path[2:]])  # fmt: skip
+        result = simulate(_quiet_build(s), progress=False)
+        target = float(np.dot(X_to.translation(), direction))
+        x_sim = result.data["terms"][:, 18:21] @ direction - target  # the body's G along the step
+        x0, v0 = x_sim[start], (x_sim[start] - x_sim[start - 1]) / h
+        x_model, state = [], np.array([x0, v0])
+        for _ in range(horizon):
+            x_model.append(state[0])
+            state = A @ state
+        x_sim, x_model = x_sim[start : start + horizon], np.asarray(x_model)
 
-    predicted, simulated = t10(np.asarray(x_model)), t10(x_sim)
-    err = abs(simulated / predicted - 1.0) if predicted > 0 else math.nan
-    out["verify_implicit_rate"] = {
-        "body": body.name, "step_m": IMPLICIT_STEP_M, "start_error_m": float(x0),
-        "predicted_t10_s": predicted, "simulated_t10_s": simulated, "relative_error": err,
-        "worst_gap_over_start": float(np.max(np.abs(x_sim - np.asarray(x_model))) / abs(x0)),
-        "diverged": bool(result.metrics["diverged"]),
-    }  # fmt: skip
-    ok = err <= 0.1
-    return Check("verify", "implicit step response: time to fall to 10 % (model from Drake's state)",
-                 body.name, "ok" if ok else "warn", err, 0.1, "relative error",
+        def t10(x):
+            below = np.nonzero(np.abs(x) <= 0.1 * abs(x[0]))[0]
+            return below[0] * h if below.size else math.nan
+
+        predicted, simulated = t10(x_model), t10(x_sim)
+        return {
+            "direction": direction.tolist(), "start_error_m": float(x0),
+            "predicted_t10_s": predicted, "simulated_t10_s": simulated,
+            "relative_error": abs(simulated / predicted - 1.0) if predicted > 0 else math.nan,
+            "worst_gap_over_start": float(np.max(np.abs(x_sim - x_model)) / abs(x0)),
+            "diverged": bool(result.metrics["diverged"]),
+        }  # fmt: skip
+
+    # Along the springs' lines (their rest direction and the gravity raise are vertical), where a
+    # distance constraint's damping is the paper's; and across them, 3 cm clear of the obstacle,
+    # where it is not (docs/design.md, "a moving body sags and leads").
+    up = np.array([0.0, 0.0, 1.0])
+    across = away - np.dot(away, up) * up
+    across = across / np.linalg.norm(across) if np.linalg.norm(across) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    lifted = RigidTransform(X0.rotation(), X0.translation() + IMPLICIT_STEP_M * away)
+    runs = {"along": step(X0, away), "across": step(lifted, across)}
+    out["verify_implicit_rate"] = {"body": body.name, "step_m": IMPLICIT_STEP_M, **runs}
+    worst = max(runs, key=lambda k: runs[k]["relative_error"])
+    err, ok = runs[worst]["relative_error"], runs[worst]["relative_error"] <= 0.1
+    return Check("verify", f"implicit step response: time to fall to 10 %, worst of along and across the "
+                 f"springs' lines ({worst})", body.name, "ok" if ok else "warn", err, 0.1, "relative error",
                  "model and Drake agree" if ok else
-                 "Drake's springs differ from the one-body model (the held body touching something, or "
-                 "SAP's near-rigid regime): trust Drake's response",
-                 predicted=predicted, simulated=simulated)  # fmt: skip
+                 "trust Drake's response: a distance constraint damps only along its line, so across the "
+                 "springs' lines the implicit coupling is not the paper's damper (docs/design.md)",
+                 predicted=runs[worst]["predicted_t10_s"],
+                 simulated=runs[worst]["simulated_t10_s"])  # fmt: skip
 
 
 def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> Check | None:
