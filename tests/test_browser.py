@@ -222,3 +222,50 @@ def test_tether_keeps_the_ghost_at_the_wall(browser, tmp_path):
         red[name] = int(np.sum((image[..., 0] > 180) & (image[..., 1] < 70) & (image[..., 2] < 70)))
         page.close()
     assert red["mouse_untethered"] > red["mouse_tethered"] + 500, red
+
+
+def test_fem_tissue_recording_shows_the_surface_pressed_where_the_tool_is(browser, tmp_path):
+    """The laparoscopy scene with FEM tissue (organs.model fem, 6 cells a side), the interface
+    pushing straight down on the uterus's top (models/laparoscopy/deep_press_path.yaml): in the
+    recording, with everything but the tissue's surface markers hidden, the last frame differs
+    from the first, and the pixels that changed lie around the top of the organ, where the
+    tool presses (the screen point of (0, 0, 25 mm), projected by the page's own camera)."""
+    from godobject_drake import scenario as sc
+    from godobject_drake.building import build_station, make_meshcat
+    from godobject_drake.simulation import simulate
+
+    html = tmp_path / "tissue.html"
+    s = sc.shipped_scenario("laparoscopy", "organs: {model: fem, cells: 6}\nsimulation: {duration_s: 0.9}")
+    s = sc.replace(s, **{"device.path": str(REPO / "models/laparoscopy/deep_press_path.yaml"),
+                         "recording.file": str(html)})  # fmt: skip
+    m = simulate(build_station(s, make_meshcat(s)), progress=False).metrics
+    assert m["tissue_max_displacement_m"] > 3e-3  # the run pressed it (millimetres)
+    page = browser.new_page(viewport=VIEW)
+    page.goto(html.as_uri())
+    page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
+    end = page.evaluate("() => viewer.animator.duration")
+    page.evaluate(
+        '() => { viewer.set_property(["drake"], "visible", false); '
+        'viewer.set_property(["godobject"], "visible", false); viewer.set_dirty(); }'
+    )
+    frames = []
+    for at in (0.0, end):
+        page.evaluate("(t) => { viewer.animator.pause(); viewer.animator.seek(t); viewer.set_dirty(); }", at)
+        time.sleep(0.5)
+        frames.append(shot(page, f"recording_tissue_at_{at:g}s"))
+    moved = changed(*frames)
+    assert moved.mean() > 0.0005, moved.mean()
+    # Where the tool presses, on screen: Drake's world point through the scene's Z-up rotation
+    # and the camera, as the viewer draws it.
+    x, y = page.evaluate(
+        """() => { const v = viewer.camera.position.clone().set(0, 0, 0.025);
+        viewer.scene.localToWorld(v); v.project(viewer.camera);
+        const c = viewer.renderer.domElement;
+        return [(v.x + 1) / 2 * c.clientWidth, (1 - v.y) / 2 * c.clientHeight]; }"""
+    )
+    rows, cols = np.nonzero(moved)
+    centre = np.array([cols.mean(), rows.mean()])
+    spread = np.hypot(cols - x, rows - y)
+    assert np.hypot(*(centre - (x, y))) < 0.08 * VIEW["width"], (centre, (x, y))
+    assert np.mean(spread < 0.15 * VIEW["width"]) > 0.8, np.mean(spread < 0.15 * VIEW["width"])
+    page.close()
