@@ -125,17 +125,18 @@ def test_hard_case_deep_push_never_pops_through():
     assert 3e-3 < m["tissue_max_displacement_m"] < 0.025  # pressed, not through its 25 mm half height
 
 
-@pytest.mark.slow(seconds=60)
+@pytest.mark.slow(seconds=40)
 def test_sphere_into_fem_block_follows_hertz():
-    """A 5 mm sphere pressed 0.5 and 1 mm into a 1 mm-graded block (E 50 kPa, ν 0.45): the force
-    from Drake's contact results equals the actuator's reaction, and is within the stated
-    tolerance of Hertz corrected for the block's held bottom (docs/guide/laparoscopy.md)."""
-    setup = IndentationSetup(fine_m=1e-3, half_width_m=0.015, depth_m=0.015, growth=2.0, time_step_s=0.02)
+    """A 5 mm sphere pressed 0.5 and 1 mm into a 30 × 30 × 15 mm block graded from 1 mm cells
+    (E 50 kPa, ν 0.45, its bottom held): the force from Drake's contact results equals the
+    actuator's reaction, and lies above Hertz corrected for the held bottom by the stated
+    margins (measured +22.5 % and +10.7 %: linear tetrahedra are stiff, the more so where the
+    contact radius, 1.6 and 2.2 mm, spans fewer cells; docs/guide/laparoscopy.md)."""
+    setup = IndentationSetup(fine_m=1e-3, half_width_m=0.015, depth_m=0.015, growth=2.0, time_step_s=0.01)
     out = indent(setup, [0.5e-3, 1e-3])
     for d_cmd, d in zip(out["depth_cmd_m"], out["depth_m"], strict=True):
-        assert d == pytest.approx(d_cmd, rel=0.05)
+        assert d == pytest.approx(d_cmd, rel=0.01)  # the sphere went where it was sent
     assert np.allclose(out["force_contact_N"], np.abs(out["force_actuator_N"]), rtol=1e-3)
-    assert all(abs(e) < TOLERANCE_COARSE for e in out["layer_error"]), out["layer_error"]
-
-
-TOLERANCE_COARSE = 0.30
+    error = out["layer_error"]
+    assert 0.0 < error[0] < 0.30 and 0.0 < error[1] < 0.15, error
+    assert error[1] < error[0]  # the wider contact is better resolved
