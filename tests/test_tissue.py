@@ -130,7 +130,7 @@ def test_sphere_into_fem_block_follows_hertz():
     """A 5 mm sphere pressed 0.5 and 1 mm into a 30 × 30 × 15 mm block graded from 1 mm cells
     (E 50 kPa, ν 0.45, its bottom held): the force from Drake's contact results equals the
     actuator's reaction, and lies above Hertz corrected for the held bottom by the stated
-    margins (measured +22.5 % and +10.7 %: linear tetrahedra are stiff, the more so where the
+    margins (measured +21.8 % and +10.4 %: linear tetrahedra are stiff, the more so where the
     contact radius, 1.6 and 2.2 mm, spans fewer cells; docs/guide/laparoscopy.md)."""
     setup = IndentationSetup(fine_m=1e-3, half_width_m=0.015, depth_m=0.015, growth=2.0, time_step_s=0.01)
     out = indent(setup, [0.5e-3, 1e-3])

@@ -105,6 +105,7 @@ class IndentationSetup:
     ramp_s: float = 0.2
     hold_s: float = 0.2
     kp: float = 1.0e5
+    sphere_resolution_m: float = 0.25e-3  # Drake's mesh of the rigid sphere for deformable contact
 
     def block(self):
         side = graded_axis(self.fine_m, self.fine_extent_m, self.half_width_m, self.growth)
@@ -148,7 +149,7 @@ def indent(setup: IndentationSetup, depths, vtk_dir: str | Path | None = None) -
     sphere_props = ProximityProperties()
     AddContactMaterial(dissipation=None, point_stiffness=None, friction=CoulombFriction(0.0, 0.0),
                        properties=sphere_props)  # fmt: skip
-    AddRigidHydroelasticProperties(0.1 * setup.fine_m, sphere_props)
+    AddRigidHydroelasticProperties(setup.sphere_resolution_m, sphere_props)
     plant.RegisterCollisionGeometry(sphere, RigidTransform(), Sphere(R), "sphere", sphere_props)
     plant.Finalize()
     target = builder.AddSystem(ConstantVectorSource(np.zeros(2)))
@@ -217,11 +218,12 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=float, default=0.02, help="block half width and depth (m)")
     parser.add_argument("--growth", type=float, default=1.6, help="cell growth past the fine region")
     parser.add_argument("--step", type=float, default=0.01, help="time step (s)")
+    parser.add_argument("--sphere-resolution", type=float, default=0.25e-3, help="the sphere's mesh hint (m)")
     parser.add_argument("--json", type=Path, help="write the results here")
     args = parser.parse_args(argv)
     setup = IndentationSetup(fine_m=args.fine, fine_extent_m=args.extent, poissons_ratio=args.nu,
                              half_width_m=args.size, depth_m=args.size, growth=args.growth,
-                             time_step_s=args.step)  # fmt: skip
+                             time_step_s=args.step, sphere_resolution_m=args.sphere_resolution)  # fmt: skip
     out = indent(setup, args.depths)
     rows = zip(out["depth_m"], out["force_contact_N"], out["force_actuator_N"], out["hertz_N"], out["error"],
                out["layer_N"], out["layer_error"], strict=True)  # fmt: skip
