@@ -54,7 +54,16 @@ from godobject_drake.sleeping import SleepManager
 def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=None) -> SceneParts:
     """The scenario's plant: its config, directives, ``bricks`` and contact settings; finalized."""
 
+    tissue = []
+
     def before(plant, scene_graph):
+        if scenario.organs.model == "fem":
+            from godobject_drake.tissue import FemOrgan
+
+            try:
+                tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
+            except ValueError as e:
+                raise sc.ScenarioError(str(e)) from None
         if scenario.bricks:
             try:
                 add_bricks(plant, scenario.bricks)
@@ -87,6 +96,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
                 "not move"
             )
     check_free_bodies(scene.plant)
+    scene.tissue = tissue[0] if tissue else None
     return scene
 
 

@@ -320,6 +320,39 @@ def write_metrics(path: str | Path, metrics: dict | list) -> None:
     write_atomically(path, dumps_metrics(metrics))
 
 
+class TissueMetrics:
+    """FEM tissue under an articulated tool (:class:`~godobject_drake.tissue.TissueObserver`'s
+    summary rows), folded chunk by chunk: the deepest, largest and longest over the run."""
+
+    def __init__(self):
+        self.max_disp = self.max_strain = self.max_pen = self.max_force = 0.0
+        self.inside_steps = 0
+        self.force_at_max = np.zeros(3)
+
+    def update(self, rows: np.ndarray) -> None:
+        rows = np.asarray(rows, float).reshape(-1, 7)
+        if not len(rows):
+            return
+        self.max_disp = max(self.max_disp, float(rows[:, 0].max()))
+        self.max_strain = max(self.max_strain, float(rows[:, 1].max()))
+        self.max_pen = max(self.max_pen, float(rows[:, 2].max()))
+        self.inside_steps += int(np.count_nonzero(rows[:, 3] > 0.5))
+        force = np.linalg.norm(rows[:, 4:7], axis=1)
+        k = int(np.argmax(force))
+        if force[k] > self.max_force:
+            self.max_force, self.force_at_max = float(force[k]), -rows[k, 4:7]
+
+    def result(self) -> dict:
+        return {
+            "tissue_max_displacement_m": self.max_disp,
+            "tissue_max_strain": self.max_strain,
+            "tool_penetration_into_tissue_m": self.max_pen,
+            "tool_tip_inside_tissue_steps": self.inside_steps,
+            "max_tissue_contact_force_N": self.max_force,
+            "tool_force_at_max_N": [float(v) for v in self.force_at_max],
+        }
+
+
 class ToolMetrics:
     """Penetration, tip tracking and trocar offset of an articulated tool, folded in chunk by chunk.
 

@@ -327,6 +327,43 @@ class ShellVisualizer(LeafSystem):
         mc.SetTransform(f"{pre}/device", pose_from_array(self._pose_WT.Eval(context)), t)
 
 
+class TissueVisualizer(LeafSystem):
+    """Draws FEM tissue (:class:`~godobject_drake.tissue.FemOrgan`) as it deforms.
+
+    .. pydrake_system::
+
+        name: TissueVisualizer
+        input_ports:
+        - surface_positions
+
+    As :class:`ShellVisualizer`: recordings do not replay changing triangle meshes (Drake
+    issue #23206), so each surface vertex above the attachment is a small sphere moved every
+    frame, under ``/{organ name}_tissue/``.
+    """
+
+    def __init__(self, meshcat: Meshcat, organ, publish_period_s: float = 1.0 / DEFAULT_FPS):
+        super().__init__()
+        self._meshcat, self._prefix = meshcat, f"/{organ.name}_tissue"
+        self._surface = self.DeclareVectorInputPort("surface_positions", 3 * len(organ.surface))
+        rest = organ.rest_W[organ.surface]
+        cut = rest[:, 2].max() - organ.spec.attached_below_m
+        self._drawn = np.flatnonzero(rest[:, 2] > cut)  # the held part does not move
+        marker = 0.3 * float(np.ptp(organ.rest_W[:, 2])) / organ.spec.cells  # a third of a cell
+        for i in self._drawn:
+            meshcat.SetObject(f"{self._prefix}/{i}", Sphere(marker), TISSUE_RGBA)
+        self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
+        self.DeclareInitializationPublishEvent(self._publish)
+
+    def _publish(self, context):
+        t = context.get_time()
+        p = self._surface.Eval(context).reshape(-1, 3)
+        for i in self._drawn:
+            self._meshcat.SetTransform(f"{self._prefix}/{i}", RigidTransform(p[i]), t)
+
+
+TISSUE_RGBA = Rgba(0.85, 0.45, 0.5, 1.0)
+
+
 LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
 
 

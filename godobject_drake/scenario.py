@@ -49,6 +49,7 @@ from godobject_drake.device_kinds import (  # noqa: F401  the scenario's names f
 )
 from godobject_drake.feedback import FeedbackGains
 from godobject_drake.sleeping import Sleep
+from godobject_drake.tissue import Organs
 
 
 class ScenarioError(ValueError):
@@ -503,6 +504,10 @@ class Scenario:
     sleep : Sleep
         When resting free bodies are locked, so they cost nothing (``--sleep on|off``; README
         "Sleeping bodies").
+    organs : Organs
+        Rigid organs (the default: the directives' shapes) or FEM tissue (``--set
+        organs.model=fem``: the laparoscopy scene's uterus as a Drake FEM body,
+        :mod:`godobject_drake.tissue`).
     haptic, simulation, visualization, recording, metrics :
         See their classes.
     """
@@ -523,6 +528,7 @@ class Scenario:
     metrics: Metrics = dataclasses.field(default_factory=Metrics)
     bricks: int = 0
     sleep: Sleep = dataclasses.field(default_factory=Sleep)
+    organs: Organs = dataclasses.field(default_factory=Organs)
 
     @property
     def kind(self) -> str:
@@ -687,7 +693,7 @@ def _fail(where: str, field: str, message: str):
 
 # The scenario's parts that check themselves, in the order a user reads them.
 SELF_CHECKED = ("contact", "simulation", "haptic", "device", "god_object", "workspace", "visualization",
-                "recording", "metrics")  # fmt: skip
+                "recording", "metrics", "organs")  # fmt: skip
 
 
 def check_scenario(s: Scenario, where: str = "scenario") -> None:
@@ -757,6 +763,13 @@ def _check_across(s: Scenario, device_kind, where: str) -> None:
             where,
             "contact.geometry",
             "hydroelastic needs plant.contact_model hydroelastic or hydroelastic_with_fallback (it is point)",
+        )
+    if s.organs.model == "fem" and s.plant.discrete_contact_approximation != "sap":
+        _fail(
+            where,
+            "organs.model",
+            f"fem needs plant.discrete_contact_approximation sap (Drake's deformable bodies are SAP only); "
+            f"it is {s.plant.discrete_contact_approximation!r}: set it to sap, or organs.model: rigid",
         )
     device, kind, space = s.device, s.kind, s.god_object.DEVICE_SPACE
     if device_kind.space != space:

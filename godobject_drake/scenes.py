@@ -135,6 +135,7 @@ class SceneParts:
     plant: MultibodyPlant
     scene_graph: SceneGraph
     contact: str
+    tissue: object = None  # a godobject_drake.tissue.FemOrgan with organs.model fem
 
 
 def add_plant(

@@ -222,3 +222,52 @@ def test_tether_keeps_the_ghost_at_the_wall(browser, tmp_path):
         red[name] = int(np.sum((image[..., 0] > 180) & (image[..., 1] < 70) & (image[..., 2] < 70)))
         page.close()
     assert red["mouse_untethered"] > red["mouse_tethered"] + 500, red
+
+
+def test_fem_tissue_recording_shows_the_surface_pressed_where_the_tool_is(browser, tmp_path):
+    """The laparoscopy scene with FEM tissue (organs.model fem, 6 cells a side), the interface
+    pushing straight down on the uterus's top (models/laparoscopy/deep_press_path.yaml). In the
+    recording the tissue's surface markers are where the viewer draws them: between the first
+    and the last frame the ones that moved most on screen are the ones around the organ's top,
+    where the tool presses (the screen point of (0, 0, 25 mm), projected by the page's own
+    camera), and far from it they barely moved (the whole organ sags under gravity, ~0.5 mm)."""
+    from godobject_drake import scenario as sc
+    from godobject_drake.building import build_station, make_meshcat
+    from godobject_drake.simulation import simulate
+
+    html = tmp_path / "tissue.html"
+    s = sc.shipped_scenario("laparoscopy", "organs: {model: fem, cells: 6}\nsimulation: {duration_s: 0.9}")
+    s = sc.replace(s, **{"device.path": str(REPO / "models/laparoscopy/deep_press_path.yaml"),
+                         "recording.file": str(html)})  # fmt: skip
+    m = simulate(build_station(s, make_meshcat(s)), progress=False).metrics
+    assert m["tissue_max_displacement_m"] > 3e-3  # the run pressed it (millimetres)
+    page = browser.new_page(viewport=VIEW)
+    page.goto(html.as_uri())
+    page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
+    end = page.evaluate("() => viewer.animator.duration")
+    project = """(p) => { const v = viewer.camera.position.clone().set(p[0], p[1], p[2]);
+        viewer.scene.localToWorld(v); v.project(viewer.camera); const c = viewer.renderer.domElement;
+        return [(v.x + 1) / 2 * c.clientWidth, (1 - v.y) / 2 * c.clientHeight]; }"""
+    markers = """() => { const node = viewer.scene_tree.find(["uterus_tissue"]); const out = [];
+        const c = viewer.renderer.domElement;
+        for (const name of Object.keys(node.children)) {
+            const v = viewer.camera.position.clone(); node.children[name].object.getWorldPosition(v);
+            v.project(viewer.camera);
+            out.push([(v.x + 1) / 2 * c.clientWidth, (1 - v.y) / 2 * c.clientHeight]); }
+        return out; }"""
+    screens, frames = [], []
+    for at in (0.0, end):
+        page.evaluate("(t) => { viewer.animator.pause(); viewer.animator.seek(t); viewer.set_dirty(); }", at)
+        time.sleep(0.5)
+        frames.append(shot(page, f"recording_tissue_at_{at:g}s"))
+        screens.append(np.array(page.evaluate(markers)))
+    assert changed(*frames).mean() > 0.0005  # the picture changed
+    tool = np.array(page.evaluate(project, [0.0, 0.0, 0.025]))
+    moved = np.linalg.norm(screens[1] - screens[0], axis=1)  # px, per marker
+    near = np.linalg.norm(screens[0] - tool, axis=1) < 0.05 * VIEW["width"]  # within 64 px of the top
+    assert near.any() and (~near).any()
+    # The markers that moved most are around the tool; those away from it moved far less.
+    top = np.argsort(moved)[-3:]
+    assert near[top].all(), (moved[top], np.linalg.norm(screens[0][top] - tool, axis=1))
+    assert moved[near].max() > 3.0 * np.median(moved[~near]), (moved[near].max(), np.median(moved[~near]))
+    page.close()

@@ -23,7 +23,17 @@ from godobject_drake.scenes import SceneParts, exclude_self_collisions
 
 @dataclasses.dataclass
 class ArticulatedGodObject(GodObject):
-    """An articulated god-object (:func:`add_articulated`)."""
+    """An articulated god-object (:func:`add_articulated`).
+
+    Attributes
+    ----------
+    tissue, tissue_observer :
+        With ``organs.model: fem``: the :class:`~godobject_drake.tissue.FemOrgan` and its
+        :class:`~godobject_drake.tissue.TissueObserver` (logged, drawn, folded into the metrics).
+    """
+
+    tissue: object = None
+    tissue_observer: object = None
 
     kind: ClassVar[str] = "articulated"
     device_space: ClassVar[str] = "joint"
@@ -49,7 +59,10 @@ class ArticulatedGodObject(GodObject):
         return scene, god
 
     def logged_ports(self, plant):
-        return {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}
+        ports = {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}
+        if self.tissue_observer is not None:
+            ports["tissue"] = self.tissue_observer.GetOutputPort("summary")
+        return ports
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
         from godobject_drake.recording import ToolGhostVisualizer
@@ -59,15 +72,35 @@ class ArticulatedGodObject(GodObject):
             "device_tool_ghost", ToolGhostVisualizer(meshcat, self.tool, scene.scene_graph, period)
         )
         builder.Connect(self.source.GetOutputPort("q_device"), ghost.GetInputPort("q_device"))
+        if self.tissue_observer is not None:
+            from godobject_drake.recording import TissueVisualizer
+
+            drawing = builder.AddNamedSystem(
+                "tissue_visualizer", TissueVisualizer(meshcat, self.tissue, period)
+            )
+            builder.Connect(
+                self.tissue_observer.GetOutputPort("surface_positions"),
+                drawing.GetInputPort("surface_positions"),
+            )
 
     def new_metrics(self, station):
         return _ToolFold(station, self)
 
     def configuration(self, scenario, station) -> dict:
-        return {
+        out = {
             "coupling": scenario.god_object.coupling,
             "imposed_joints": list(scenario.god_object.imposed_joints),
         }
+        if self.tissue is not None:  # the rigid organs' keys stay as they were
+            organs = scenario.organs
+            out.update(
+                organs="fem",
+                tissue_vertices=self.tissue.vertex_count,
+                tissue_tetrahedra=self.tissue.tet_count,
+                tissue_youngs_modulus_pa=organs.youngs_modulus_pa,
+                tissue_poissons_ratio=organs.poissons_ratio,
+            )
+        return out
 
     def prepare(self, plant_context) -> None:
         """Lock the imposed joints (SAP then holds them where they are set)."""
@@ -96,18 +129,29 @@ class _ToolFold:
         tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
         self._acc = ToolMetrics(station.diagram, plant, station.scene_graph, god.tool, tip,
                                 config.pivot_body or None)  # fmt: skip
+        self._tissue = None
+        if god.tissue_observer is not None:
+            from godobject_drake.metrics import TissueMetrics
+
+            self._tissue = TissueMetrics()
 
     def fold(self, rows: dict, data: dict, finite):
         self._acc.update(rows["state"], rows["q_device"])
+        if self._tissue is not None:
+            self._tissue.update(rows["tissue"])
         return self._acc.take_tips(len(data["state"]), finite)
 
     def result(self) -> dict:
         out = self._acc.result()
+        tissue = self._tissue.result() if self._tissue is not None else {}
+        if tissue:  # the tool's penetration is into the deformed tissue (and the rigid organs')
+            out["max_penetration_m"] = max(out["max_penetration_m"], tissue["tool_penetration_into_tissue_m"])
         return {
             "max_penetration_m": out["max_penetration_m"],
             "rms_tracking_error_m": out["tip_tracking_rms_m"],
             "max_other_body_speed_mps": None,
             **out,
+            **tissue,
         }
 
 
@@ -152,4 +196,13 @@ def add_articulated(
         plant.get_body_spatial_velocities_output_port(), feedback.GetInputPort("body_spatial_velocities")
     )
     mode = "god_object" if connect_forces else "position"
-    return ArticulatedGodObject(coupling, feedback, source=device, device=device, mode=mode)
+    god = ArticulatedGodObject(coupling, feedback, source=device, device=device, mode=mode)
+    tissue = getattr(scene, "tissue", None)
+    if tissue is not None:
+        from godobject_drake.tissue import tool_capsules
+
+        god.tissue = tissue
+        god.tissue_observer = tissue.connect(
+            builder, plant, tool_capsules(plant, scene.scene_graph, tool.model)
+        )
+    return god

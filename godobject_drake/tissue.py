@@ -1,0 +1,481 @@
+"""Deformable organs: FEM tissue in place of a rigid organ (the laparoscopy scene's uterus).
+
+The rigid scene models an organ as a rigid shape with a soft point-contact
+stiffness: its "penetration" stands for the tissue's indentation, and the organ
+is drawn undeformed. With ``organs.model: fem`` the organ is a Drake FEM
+deformable body instead (linear tetrahedra, corotated material, integrated
+implicitly in SAP), held to the pelvis where it attaches, and the tool's
+contact deforms it.
+
+Drake 1.51 meshes a deformable Sphere or Box from a resolution hint but not an
+Ellipsoid ("We don't yet generate deformable meshes for Ellipsoid"), so the
+tetrahedral mesh is made here (:func:`ellipsoid_tet_mesh`): a cube grid of
+``cells`` cells a side, each cell split into Kuhn's six tetrahedra (which
+share its main diagonal, so neighbouring cells' faces match), mapped radially
+onto the unit ball and scaled to the ellipsoid's radii. It is written as a
+legacy VTK file (:func:`write_vtk`), which ``RegisterDeformableBody`` reads
+through a ``Mesh`` shape. The same grid, graded, gives the block of the
+contact-mechanics check (:mod:`godobject_drake.studies.indentation`).
+
+The organ replaces the rigid shape's collision and drawing: its proximity and
+illustration roles are removed from the pelvis's geometry of that name (the
+rigid body and its other organs are untouched), and the FEM body is fixed by
+``AddFixedConstraint`` to the pelvis body (welded to the world by the
+directives) by a zero-displacement wall boundary condition on every vertex
+more than ``attached_below_m`` under the organ's top. (Drake 1.51's
+``AddFixedConstraint`` to the welded pelvis is accepted at build time but stops
+the first step: "Adding constraint to a clique with zero number of velocities
+is not allowed"; to the world body it segfaults.)
+"""
+
+import dataclasses
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (
+    AddContactMaterial,
+    Capsule,
+    GeometryConfigurationVector,
+    GeometryInstance,
+    Mesh,
+    ProximityProperties,
+    Role,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.fem import DeformableBodyConfig
+from pydrake.multibody.plant import ContactResults, CoulombFriction, MultibodyPlant
+from pydrake.systems.framework import LeafSystem
+
+TISSUE_MODELS = ("rigid", "fem")
+
+# Kuhn's split of a cell into 6 tetrahedra; corners numbered by bits (x = 1, y = 2, z = 4).
+# All six share the diagonal 0–7, so the split of a shared face is the same from both cells.
+_KUHN = ((0, 1, 3, 7), (0, 1, 5, 7), (0, 2, 3, 7), (0, 2, 6, 7), (0, 4, 5, 7), (0, 4, 6, 7))
+
+
+def grid_tet_mesh(xs, ys, zs) -> tuple[np.ndarray, np.ndarray]:
+    """A tetrahedral mesh of the box grid ``xs × ys × zs`` (increasing coordinates, m).
+
+    Returns ``(V (n, 3), T (6 cells, 4))``, every tetrahedron positively oriented
+    (``(v1 − v0) × (v2 − v0) · (v3 − v0) > 0``, as Drake's VolumeMesh wants).
+    """
+    xs, ys, zs = (np.asarray(a, float) for a in (xs, ys, zs))
+    for name, a in (("xs", xs), ("ys", ys), ("zs", zs)):
+        if a.ndim != 1 or len(a) < 2 or not np.all(np.diff(a) > 0):
+            raise ValueError(f"{name}: {a!r} must be ≥ 2 increasing coordinates")
+    nx, ny, nz = len(xs), len(ys), len(zs)
+    X, Y, Z = np.meshgrid(xs, ys, zs, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    index = np.arange(nx * ny * nz).reshape(nx, ny, nz)
+    i, j, k = (a.ravel() for a in np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), np.arange(nz - 1),
+                                              indexing="ij"))  # fmt: skip
+    corners = np.stack([index[i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)] for c in range(8)], axis=1)
+    T = np.concatenate([corners[:, list(t)] for t in _KUHN])
+    return V, orient(V, T)
+
+
+def tet_volumes(V: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Signed volumes of the tetrahedra (m³)."""
+    a, b, c, d = (V[T[:, m]] for m in range(4))
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
+
+
+def orient(V: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``T`` with negatively oriented tetrahedra's two vertices swapped (all volumes > 0)."""
+    T = np.array(T)
+    negative = tet_volumes(V, T) < 0
+    T[negative] = T[negative][:, [0, 2, 1, 3]]
+    return T
+
+
+def ellipsoid_tet_mesh(radii, cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A tetrahedral ellipsoid of semi-axes ``radii`` (m): a cube grid of ``cells`` a side
+    mapped radially onto the ball (``p ‖p‖∞ / ‖p‖₂``), then scaled.
+
+    Returns ``(V, T, surface)``: vertices, tetrahedra and the indices of the surface
+    vertices (those on the cube's faces). ``cells`` even, ≥ 2.
+    """
+    if not (isinstance(cells, int) and cells >= 2 and cells % 2 == 0):
+        raise ValueError(f"cells: {cells!r} must be an even integer ≥ 2 (the centre is a grid vertex)")
+    s = np.linspace(-1.0, 1.0, cells + 1)
+    V, T = grid_tet_mesh(s, s, s)
+    inf = np.max(np.abs(V), axis=1)
+    two = np.linalg.norm(V, axis=1)
+    scale = np.divide(inf, two, out=np.zeros_like(inf), where=two > 0)
+    V = V * scale[:, None] * np.asarray(radii, float)
+    surface = np.flatnonzero(np.isclose(inf, 1.0))
+    return V, orient(V, T), surface
+
+
+def write_vtk(path: str | Path, V: np.ndarray, T: np.ndarray) -> Path:
+    """Write a legacy-ASCII VTK unstructured grid of tetrahedra (cell type 10), as Drake reads."""
+    path = Path(path)
+    lines = ["# vtk DataFile Version 3.0", "tetrahedral mesh (godobject_drake.tissue)", "ASCII",
+             "DATASET UNSTRUCTURED_GRID", f"POINTS {len(V)} double"]  # fmt: skip
+    lines += [f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in V]
+    lines.append(f"CELLS {len(T)} {5 * len(T)}")
+    lines += [f"4 {a} {b} {c} {d}" for a, b, c, d in T]
+    lines.append(f"CELL_TYPES {len(T)}")
+    lines += ["10"] * len(T)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def surface_triangles(T: np.ndarray) -> np.ndarray:
+    """The boundary faces of a tetrahedral mesh (faces used by one tetrahedron), outward."""
+    faces = np.concatenate([T[:, [1, 2, 3]], T[:, [0, 3, 2]], T[:, [0, 1, 3]], T[:, [0, 2, 1]]])
+    key = np.sort(faces, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    return faces[first[counts == 1]]
+
+
+@dataclasses.dataclass
+class Organs:
+    """The organs of the laparoscopy scene: rigid (the default) or FEM tissue.
+
+    Attributes
+    ----------
+    model : str
+        ``rigid``: the organs are rigid shapes with a soft point-contact stiffness (the
+        directives' model files as they are). ``fem``: the organ named ``organ`` becomes a
+        Drake FEM deformable body of the same ellipsoid.
+    organ : str
+        The pelvis's geometry replaced (an ellipsoid collision geometry, ``model::name``).
+    youngs_modulus_pa, poissons_ratio, density_kg_m3 :
+        The tissue's material (Pa, –, kg/m³); ν in [0, 0.5).
+    mass_damping_per_s, stiffness_damping_s :
+        Rayleigh damping: α (1/s) and β (s), damping matrix α M + β K.
+    cells : int
+        Cells across the organ's mesh per axis (even): 8 gives 729 vertices, 3072 tetrahedra.
+    attached_below_m : float
+        Vertices lower than this below the organ's top (m) are fixed to the pelvis.
+    friction : float
+        Coulomb friction of the tissue (static = dynamic).
+    relaxation_time_s : float
+        SAP's relaxation time of the tissue's contact (s): its contact is a near-rigid
+        constraint damped over this time; the tissue's own elasticity gives the force.
+    """
+
+    model: str = "rigid"
+    organ: str = "pelvis::uterus"
+    youngs_modulus_pa: float = 5.0e4
+    poissons_ratio: float = 0.45
+    density_kg_m3: float = 1000.0
+    mass_damping_per_s: float = 0.0
+    stiffness_damping_s: float = 0.01
+    cells: int = 8
+    attached_below_m: float = 0.035
+    friction: float = 0.2
+    relaxation_time_s: float = 0.01
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.model not in TISSUE_MODELS:
+            raise ValueError(
+                f"model: {self.model!r}; choose one of {TISSUE_MODELS} (rigid: the rigid organs with a soft "
+                "point contact; fem: FEM tissue), e.g. --set organs.model=fem"
+            )
+        positive = (
+            ("youngs_modulus_pa", self.youngs_modulus_pa),
+            ("density_kg_m3", self.density_kg_m3),
+            ("attached_below_m", self.attached_below_m),
+            ("relaxation_time_s", self.relaxation_time_s),
+        )
+        for name, value in positive:
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: {value!r} must be a finite number > 0")
+        if not (isinstance(self.poissons_ratio, int | float) and 0.0 <= self.poissons_ratio < 0.5):
+            raise ValueError(
+                f"poissons_ratio: {self.poissons_ratio!r} must be in [0, 0.5) (soft tissue: about 0.45)"
+            )
+        for name in ("mass_damping_per_s", "stiffness_damping_s", "friction"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: {value!r} must be a finite number ≥ 0")
+        if not (isinstance(self.cells, int) and 2 <= self.cells <= 24 and self.cells % 2 == 0):
+            raise ValueError(
+                f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
+                "and steps far below real time)"
+            )
+
+    def body_config(self) -> DeformableBodyConfig:
+        config = DeformableBodyConfig()
+        config.set_youngs_modulus(self.youngs_modulus_pa)
+        config.set_poissons_ratio(self.poissons_ratio)
+        config.set_mass_density(self.density_kg_m3)
+        config.set_mass_damping_coefficient(self.mass_damping_per_s)
+        config.set_stiffness_damping_coefficient(self.stiffness_damping_s)
+        return config
+
+
+class FemOrgan:
+    """An organ made a FEM deformable body (built by :func:`add_fem_organ` before ``Finalize()``).
+
+    Attributes
+    ----------
+    body_id, geometry_id :
+        The deformable body's and its geometry's ids.
+    rest_W : (n, 3)
+        The mesh's rest vertices in W.
+    surface : np.ndarray
+        Indices of the surface vertices.
+    triangles : (m, 3)
+        The surface's triangles (vertex indices into ``rest_W``), outward.
+    attached : int
+        How many vertices are fixed to the pelvis.
+    """
+
+    def __init__(self, plant: MultibodyPlant, scene_graph, spec: Organs, vtk_dir: str | Path | None = None):
+        spec.check()
+        if plant.time_step() <= 0:
+            raise ValueError("organs.model: fem needs a discrete SAP plant (plant.time_step > 0)")
+        self.spec = spec
+        inspector = scene_graph.model_inspector()
+        host, gid = _find_geometry(plant, inspector, spec.organ)
+        shape = inspector.GetShape(gid)
+        if type(shape).__name__ != "Ellipsoid":
+            raise ValueError(
+                f"organs.organ: {spec.organ!r} is a {type(shape).__name__}; the FEM organ is meshed from an "
+                "Ellipsoid collision geometry: name one"
+            )
+        radii = (shape.a(), shape.b(), shape.c())
+        X_BG = inspector.GetPoseInFrame(gid)
+        X_WB = _welded_pose(plant, host)
+        X_WG = X_WB @ X_BG
+        # The rigid organ stops touching and being drawn; the FEM body takes its place.
+        source = plant.get_source_id()
+        for role in (Role.kProximity, Role.kIllustration, Role.kPerception):
+            for other in _geometries_named(plant, inspector, host, inspector.GetName(gid)):
+                if inspector.GetProperties(other, role) is not None:
+                    scene_graph.RemoveRole(source, other, role)
+        V, T, self.surface = ellipsoid_tet_mesh(radii, spec.cells)
+        self.triangles = surface_triangles(T)
+        self.tet_count = len(T)
+        vtk_dir = Path(vtk_dir or tempfile.mkdtemp(prefix="godobject_tissue_"))
+        name = spec.organ.split("::")[-1]
+        path = write_vtk(vtk_dir / f"{name}_{spec.cells}.vtk", V, T)
+        instance = GeometryInstance(X_WG, Mesh(str(path)), f"{name}_fem")
+        props = ProximityProperties()
+        friction = CoulombFriction(spec.friction, spec.friction)
+        AddContactMaterial(dissipation=None, point_stiffness=None, friction=friction, properties=props)
+        props.AddProperty("material", "relaxation_time", spec.relaxation_time_s)
+        instance.set_proximity_properties(props)
+        model = plant.mutable_deformable_model()
+        self.instance = plant.AddModelInstance(f"{name}_fem")
+        self.body_id = model.RegisterDeformableBody(instance, self.instance, spec.body_config(), 1.0)
+        self.geometry_id = model.GetGeometryId(self.body_id)
+        self.rest_W = np.asarray(model.GetReferencePositions(self.body_id)).reshape(-1, 3)
+        # The attachment: a box under the organ, from its bottom to attached_below_m under its top.
+        top = float(self.rest_W[:, 2].max())
+        cut = top - spec.attached_below_m
+        bottom = float(self.rest_W[:, 2].min())
+        if not cut > bottom:
+            raise ValueError(
+                f"organs.attached_below_m: {spec.attached_below_m} m reaches below the organ's bottom "
+                f"({(top - bottom) * 1e3:.1f} mm under its top): give less, so some vertices are held"
+            )
+        # Held by Drake's wall boundary condition (zero displacement below the plane z = cut).
+        # AddFixedConstraint to the welded pelvis builds but fails at the first step in Drake 1.51:
+        # "Adding constraint to a clique with zero number of velocities is not allowed" (a welded
+        # body is in the world's clique); the pelvis does not move, so the wall condition is the same.
+        model.SetWallBoundaryCondition(self.body_id, np.array([0.0, 0.0, cut]), np.array([0.0, 0.0, 1.0]))
+        self.attached = int(np.count_nonzero(self.rest_W[:, 2] < cut))
+        if self.attached == 0:
+            raise ValueError("organs.attached_below_m: no vertex is held; give a larger value")
+        self.name = name
+
+    @property
+    def vertex_count(self) -> int:
+        return len(self.rest_W)
+
+    def connect(self, builder, plant, capsules=()) -> "TissueObserver":
+        """Add a :class:`TissueObserver` of the tool's ``capsules`` (:func:`tool_capsules`)."""
+        observer = builder.AddNamedSystem(f"{self.name}_tissue_observer", TissueObserver(self, capsules))
+        builder.Connect(
+            plant.get_deformable_body_configuration_output_port(),
+            observer.GetInputPort("deformable_configuration"),
+        )
+        builder.Connect(plant.get_body_poses_output_port(), observer.GetInputPort("body_poses"))
+        builder.Connect(plant.get_contact_results_output_port(), observer.GetInputPort("contact_results"))
+        return observer
+
+
+def _find_geometry(plant, inspector, scoped: str):
+    names = []
+    for i in range(plant.num_bodies()):
+        from pydrake.multibody.tree import BodyIndex
+
+        body = plant.get_body(BodyIndex(i))
+        for gid in plant.GetCollisionGeometriesForBody(body):
+            names.append(inspector.GetName(gid))
+            if inspector.GetName(gid) == scoped:
+                return body, gid
+    raise ValueError(
+        f"organs.organ: {scoped!r} is not a collision geometry of this scene (it has {sorted(names)}); "
+        "organs.model: fem replaces one of them (the laparoscopy scene's pelvis::uterus)"
+    )
+
+
+def _geometries_named(plant, inspector, body, name):
+    frame = plant.GetBodyFrameIdOrThrow(body.index())
+    return [g for g in inspector.GetGeometries(frame) if inspector.GetName(g) == name]
+
+
+def _welded_pose(plant: MultibodyPlant, body) -> RigidTransform:
+    """The pose in W of a body welded to the world (through welds only), before Finalize."""
+    X = RigidTransform()
+    b = body
+    world = plant.world_body().index()
+    while b.index() != world:
+        joints = [
+            plant.get_joint(j)
+            for j in plant.GetJointIndices()
+            if plant.get_joint(j).child_body().index() == b.index()
+        ]
+        if not joints or joints[0].type_name() != "weld":
+            raise ValueError(
+                f"organs.organ: its body {b.name()!r} is not welded to the world; the FEM organ is held to a "
+                "welded body (weld it in the directives)"
+            )
+        j = joints[0]
+        X = (
+            j.frame_on_parent().GetFixedPoseInBodyFrame()
+            @ j.X_FM()
+            @ j.frame_on_child().GetFixedPoseInBodyFrame().inverse()
+            @ X
+        )
+        b = j.parent_body()
+    return X
+
+
+class TissueObserver(LeafSystem):
+    """The tissue's surface and what the tool does to it, per step.
+
+    .. pydrake_system::
+
+        name: TissueObserver
+        input_ports:
+        - deformable_configuration
+        - body_poses
+        - contact_results
+        output_ports:
+        - surface_positions
+        - summary
+
+    ``surface_positions``: the surface vertices in W ``[x0 y0 z0 x1 ...]``.
+    ``summary`` (:data:`SUMMARY`): the largest surface displacement (m) and
+    tetrahedron strain (largest principal Green strain); the tool's
+    penetration into the deformed surface (m: the deepest surface vertex
+    inside any of the tool's capsules, its radius minus its distance to the
+    capsule's axis); whether a capsule's end lies inside the deformed surface
+    (1: a pop-through); and the contact force on the tissue in W (N, from
+    Drake's contact results: the tool feels its opposite).
+    """
+
+    SUMMARY = ("max_displacement_m", "max_strain", "tool_penetration_m", "tip_inside", "fx_N", "fy_N", "fz_N")
+
+    def __init__(self, organ: FemOrgan, capsules=()):
+        super().__init__()
+        self._organ = organ
+        self._gid = organ.geometry_id
+        self._config = self.DeclareAbstractInputPort(
+            "deformable_configuration", AbstractValue.Make(GeometryConfigurationVector())
+        )
+        self._poses = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
+        self._contacts = self.DeclareAbstractInputPort(
+            "contact_results", AbstractValue.Make(ContactResults())
+        )
+        self._capsules = list(capsules)  # (body index, X_BG, radius, half length): capsules along G's z
+        self.DeclareVectorOutputPort("surface_positions", 3 * len(organ.surface), self._surface)
+        self.DeclareVectorOutputPort("summary", len(self.SUMMARY), self._summary)
+
+    def positions(self, context) -> np.ndarray:
+        return np.asarray(self._config.Eval(context).value(self._gid)).reshape(-1, 3)
+
+    def _surface(self, context, output):
+        output.SetFromVector(self.positions(context)[self._organ.surface].ravel())
+
+    def contact_force(self, context) -> np.ndarray:
+        """The net contact force on the tissue (N, W)."""
+        results = self._contacts.Eval(context)
+        f = np.zeros(3)
+        for i in range(results.num_deformable_contacts()):
+            info = results.deformable_contact_info(i)
+            if info.id_A() == self._gid:
+                f += info.F_Ac_W().translational()
+            elif info.id_B() == self._gid:
+                f -= info.F_Ac_W().translational()
+        return f
+
+    def _summary(self, context, output):
+        p = self.positions(context)
+        organ = self._organ
+        u = p - organ.rest_W
+        displacement = float(np.max(np.linalg.norm(u[organ.surface], axis=1)))
+        strain = max_tet_strain(organ, p) if displacement > 1e-6 else 0.0  # at rest: none
+        depth, inside = 0.0, False
+        if self._capsules:
+            poses = self._poses.Eval(context)
+            lower, upper = p.min(axis=0), p.max(axis=0)
+            for index, X_BG, radius, half in self._capsules:
+                X_WG = poses[index] @ X_BG
+                a, axis = X_WG.translation(), X_WG.rotation().matrix()[:, 2]
+                ends = np.array([a - half * axis, a + half * axis])
+                if np.any(ends.max(axis=0) + radius < lower) or np.any(ends.min(axis=0) - radius > upper):
+                    continue  # the capsule's box misses the organ's: nothing to measure
+                d, i = capsule_against_surface(p, organ.surface, organ.triangles, a, axis, radius, half)
+                depth, inside = max(depth, d), inside or i
+        output.SetFromVector([displacement, strain, depth, float(inside), *self.contact_force(context)])
+
+
+def tool_capsules(plant: MultibodyPlant, scene_graph, model) -> list:
+    """``(body index, X_BG, radius, half length)`` of every capsule collision geometry of ``model``."""
+    inspector = scene_graph.model_inspector()
+    out = []
+    for b in plant.GetBodyIndices(model):
+        for gid in plant.GetCollisionGeometriesForBody(plant.get_body(b)):
+            shape = inspector.GetShape(gid)
+            if isinstance(shape, Capsule):
+                out.append((int(b), inspector.GetPoseInFrame(gid), shape.radius(), 0.5 * shape.length()))
+    return out
+
+
+def max_tet_strain(organ: FemOrgan, p: np.ndarray) -> float:
+    """The largest principal Green strain magnitude over the tetrahedra (rotation-free)."""
+    cache = getattr(organ, "_strain_cache", None)
+    if cache is None:
+        T = _organ_tets(organ)
+        X = organ.rest_W
+        Dm = np.stack([X[T[:, k]] - X[T[:, 0]] for k in (1, 2, 3)], axis=2)
+        organ._strain_cache = cache = (T, np.linalg.inv(Dm))
+    T, Dm_inv = cache
+    Ds = np.stack([p[T[:, k]] - p[T[:, 0]] for k in (1, 2, 3)], axis=2)
+    F = Ds @ Dm_inv
+    E = 0.5 * (np.swapaxes(F, 1, 2) @ F - np.eye(3))
+    return float(np.max(np.abs(np.linalg.eigvalsh(E))))
+
+
+def _organ_tets(organ: FemOrgan) -> np.ndarray:
+    _, T, _ = ellipsoid_tet_mesh((1.0, 1.0, 1.0), organ.spec.cells)  # same connectivity
+    return T
+
+
+def capsule_against_surface(p, surface, triangles, a, axis, radius, half) -> tuple[float, bool]:
+    """How deep the deepest surface vertex is inside a capsule (centre ``a``, unit ``axis``,
+    ``radius``, half length ``half``), and whether its lower end lies inside the closed surface
+    (generalized winding number of the triangles ``triangles`` of positions ``p``)."""
+    q = p[surface] - a
+    t = np.clip(q @ axis, -half, half)
+    d = np.linalg.norm(q - t[:, None] * axis, axis=1)
+    depth = float(max(0.0, radius - d.min()))
+    end = a - half * axis
+    A, B, C = (p[triangles[:, k]] - end for k in range(3))
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (A, B, C))
+    det = np.einsum("ij,ij->i", A, np.cross(B, C))
+    den = la * lb * lc + np.einsum("ij,ij->i", A, B) * lc + np.einsum("ij,ij->i", B, C) * la
+    den += np.einsum("ij,ij->i", C, A) * lb
+    winding = np.sum(np.arctan2(det, den)) / (2.0 * math.pi)
+    return depth, bool(winding > 0.5)
