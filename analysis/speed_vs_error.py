@@ -489,19 +489,7 @@ def coupling_section(rows: list[dict], pen: float) -> tuple[list[str], dict]:
     return md, summary
 
 
-def machine() -> str:
-    """``nproc`` and the CPU model, printed beside every absolute figure."""
-    import os
-
-    model = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores ({len(os.sched_getaffinity(0))} usable), {model}"
+machine = bm.machine  # nproc and the CPU model (coupling_budget.py imports it from here)
 
 
 SCALE_BRICKS = (8, 16, 32, 64, 128)

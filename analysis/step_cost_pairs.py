@@ -21,6 +21,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from godobject_drake.studies.benchmark import cpu_model
+
 SCENES = {  # scene: (overrides, simulated seconds)
     "lego": ("", 4.0),
     "laparoscopy": ("", 4.0),
@@ -44,16 +46,6 @@ with warnings.catch_warnings():
 steps = round(m["sim_time_s"] / m["time_step_s"])
 print(json.dumps({"step_cost_us": m["step_cost_us"], "cpu_us": 1e6 * cpu / steps, "diverged": m["diverged"]}))
 """
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def step_cost(tree: Path, scene: str) -> float:

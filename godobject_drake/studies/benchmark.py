@@ -135,6 +135,28 @@ def case_config(scenario: Scenario, case: Case) -> dict:
     }
 
 
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; elsewhere ``platform.processor()``)."""
+    import platform
+    from pathlib import Path
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def machine() -> str:
+    """``nproc`` and the CPU model, to print beside every absolute figure."""
+    import os
+
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{os.cpu_count()} cores ({usable} usable), {cpu_model()}"
+
+
 def god_object_body(scenario: Scenario) -> str:
     """The body whose pose is "the god-object's pose": the first body a rigid scene's device
     grasps, an articulated tool's tip body, a deformable probe's core."""
