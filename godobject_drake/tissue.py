@@ -30,7 +30,9 @@ is not allowed"; to the world body it segfaults.)
 
 import dataclasses
 import math
+import shutil
 import tempfile
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -254,7 +256,11 @@ class FemOrgan:
         V, T, self.surface = ellipsoid_tet_mesh(radii, spec.cells)
         self.triangles = surface_triangles(T)
         self.tet_count = len(T)
-        vtk_dir = Path(vtk_dir or tempfile.mkdtemp(prefix="godobject_tissue_"))
+        if vtk_dir is None:  # a folder of this organ's own, removed with it (or at exit)
+            vtk_dir = tempfile.mkdtemp(prefix="godobject_tissue_")
+            weakref.finalize(self, shutil.rmtree, vtk_dir, True)
+        vtk_dir = Path(vtk_dir)
+        self.vtk_dir = vtk_dir
         name = spec.organ.split("::")[-1]
         path = write_vtk(vtk_dir / f"{name}_{spec.cells}.vtk", V, T)
         instance = GeometryInstance(X_WG, Mesh(str(path)), f"{name}_fem")

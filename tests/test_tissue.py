@@ -140,3 +140,25 @@ def test_sphere_into_fem_block_follows_hertz():
     error = out["layer_error"]
     assert 0.0 < error[0] < 0.30 and 0.0 < error[1] < 0.15, error
     assert error[1] < error[0]  # the wider contact is better resolved
+
+
+def test_the_organs_mesh_folder_is_removed_when_the_process_ends():
+    """The tetrahedral mesh is written to a folder of its own for Drake to read; every run left
+    one in the temporary directory. It goes with the organ, or at the latest when the process
+    ends (a diagram's Python systems live as long as Drake holds them, often to the end)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys; sys.path.insert(0, 'tests')\n"
+        "from test_tissue import fem_scenario\n"
+        "from godobject_drake.building import build_station\n"
+        "folder = build_station(fem_scenario(cells=2)).god_object.tissue.vtk_dir\n"
+        "assert any(folder.glob('*.vtk'))\n"
+        "print(folder)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    folder = Path(out.stdout.strip().splitlines()[-1])
+    assert folder.name.startswith("godobject_tissue_") and not folder.exists()
