@@ -44,6 +44,22 @@ def symplectic_euler_radius(M, K, D, time_step: float) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(symplectic_euler_matrix(M, K, D, time_step)))))
 
 
+def semi_implicit_matrix(M, K, D, K_i, D_i, time_step: float) -> np.ndarray:
+    """:func:`symplectic_euler_matrix` with implicit terms beside the explicit coupling: a spring
+    ``K_i`` and damper ``D_i`` that the plant integrates at the step's end (SAP's contact, a FEM
+    body pressed by the tool, docs/theory.md §8)::
+
+        (M + h D_i + h² K_i) v⁺ = M v − h (K + K_i) q − h D v,   q⁺ = q + h v⁺
+
+    With ``K_i = D_i = 0`` it is :func:`symplectic_euler_matrix`.
+    """
+    M, K, D, K_i, D_i = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (M, K, D, K_i, D_i))
+    n, h = M.shape[0], float(time_step)
+    A_hat = M + h * D_i + h * h * K_i
+    S, R = np.linalg.solve(A_hat, K + K_i), np.linalg.solve(A_hat, M - h * D)
+    return np.block([[np.eye(n) - h * h * S, h * R], [-h * S, R]])
+
+
 def device_wall_matrix(
     mass: float,
     damping: float,

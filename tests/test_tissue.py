@@ -10,11 +10,16 @@ from conftest import REPO
 
 from godobject_drake import scenario as sc
 from godobject_drake.building import build_station
+from godobject_drake.limits import semi_implicit_matrix, symplectic_euler_matrix
 from godobject_drake.simulation import simulate
 from godobject_drake.studies.indentation import IndentationSetup, hertz_force, indent, layer_correction
+from godobject_drake.studies.stability import BodyLoop, coupled_body_matrices
 from godobject_drake.tissue import (
     ellipsoid_tet_mesh,
     grid_tet_mesh,
+    linear_stiffness_matrix,
+    ray_surface_hit,
+    static_compliance,
     surface_triangles,
     tet_volumes,
 )
@@ -162,3 +167,94 @@ def test_the_organs_mesh_folder_is_removed_when_the_process_ends():
     assert out.returncode == 0, out.stderr
     folder = Path(out.stdout.strip().splitlines()[-1])
     assert folder.name.startswith("godobject_tissue_") and not folder.exists()
+
+
+# -- the tissue's stiffness from the FEM model, and analyze -----------------------------------------------
+
+
+def test_linear_fem_bar_gives_ea_over_l_exactly():
+    """A 10 × 10 × 30 mm bar of linear tetrahedra, its bottom held, pulled by a uniform traction
+    on its top (consistent nodal shares, area/3 per triangle corner): with ν = 0 the uniaxial
+    stress state is exact for linear elements, so the stiffness is E A / L to rounding."""
+    xs, zs = np.linspace(0.0, 0.01, 3), np.linspace(0.0, 0.03, 7)
+    V, T = grid_tet_mesh(xs, xs, zs)
+    K = linear_stiffness_matrix(V, T, 5.0e4, 0.0)
+    top = np.flatnonzero(np.isclose(V[:, 2], 0.03))
+    tris = surface_triangles(T)
+    shares: dict[int, float] = {}
+    for tri in tris[np.all(np.isin(tris, top), axis=1)]:
+        area = 0.5 * np.linalg.norm(np.cross(V[tri[1]] - V[tri[0]], V[tri[2]] - V[tri[0]]))
+        for v in tri:
+            shares[int(v)] = shares.get(int(v), 0.0) + area / 3.0
+    total = sum(shares.values())
+    assert total == pytest.approx(1e-4)
+    c = static_compliance(K, np.isclose(V[:, 2], 0.0), {v: a / total for v, a in shares.items()}, [0, 0, 1])
+    assert 1.0 / c == pytest.approx(5.0e4 * 1e-4 / 0.03, rel=1e-9)  # 166.67 N/m
+    # Free, the matrix has the six rigid motions as its null space, and no other.
+    eig = np.linalg.eigvalsh(K.toarray())
+    assert np.sum(np.abs(eig) < 1e-9 * eig.max()) == 6
+
+
+def test_ray_meets_the_ellipsoid_where_geometry_says():
+    """The ray down the z axis meets the 8-cell uterus at its top vertex (the pole, a grid
+    vertex: weight 1 on it); a ray from inside finds no entry from outside (it goes out)."""
+    V, T, _ = ellipsoid_tet_mesh(RADII, 8)
+    tris = surface_triangles(T)
+    t, _, w, normal = ray_surface_hit(V, tris, [0.0, 0.0, 0.1], [0.0, 0.0, -1.0])
+    assert t == pytest.approx(0.1 - RADII[2], abs=1e-12)
+    assert np.max(w) == pytest.approx(1.0) and normal[2] > 0.9
+    assert ray_surface_hit(V, tris, [0.0, 0.0, 0.1], [0.0, 0.0, 1.0]) is None  # pointing away
+
+
+def test_semi_implicit_loop_is_the_one_body_model_with_its_wall():
+    """A second implementation: for one degree of freedom, the joint-space matrix with an
+    implicit spring beside the explicit coupling is the one-body model's ``drake`` scheme
+    (coupling explicit, contact implicit), and with no implicit term it is symplectic Euler."""
+    m, k, g, k_w, b_w, h = 0.3, 120.0, 8.0, 1200.0, 12.0, 2e-3
+    A = semi_implicit_matrix([[m]], [[k]], [[g]], [[k_w]], [[b_w]], h)
+    A_ref, _ = coupled_body_matrices(BodyLoop(m, k, g, h, k_w=k_w, b_w=b_w, scheme="drake"))
+    assert np.allclose(A, A_ref, rtol=1e-12, atol=1e-15)
+    M = np.array([[2.0, 0.3], [0.3, 1.0]])
+    K, D = np.array([[50.0, 5.0], [5.0, 20.0]]), np.diag([3.0, 1.0])
+    zero = np.zeros((2, 2))
+    A0 = semi_implicit_matrix(M, K, D, zero, zero, 0.01)
+    assert np.allclose(A0, symplectic_euler_matrix(M, K, D, 0.01), rtol=0, atol=1e-15)
+
+
+def test_analyze_reads_the_tissue_stiffness_from_the_fem_model():
+    """analyze on the FEM scene (4 cells, no Drake run): the tissue's stiffness where the tube's
+    axis meets the organ (the pole, at the deepest push of the default path) from the linear
+    FEM, the indentation ``k_tip (d − δ) = k δ``, and the explicit limit with the tissue."""
+    from godobject_drake.studies.analyze import analyze
+
+    out = analyze(fem_scenario(cells=4, duration=10.0), quick=True)
+    t = out["tissue"]
+    assert t["stiffness_n_m"] > t["hertz_tangent_1mm_n_m"]  # a coarse mesh is stiffer than the continuum
+    k, K, d = t["stiffness_n_m"], t["tool_stiffness_n_m"], t["push_m"]
+    assert t["predicted_indentation_m"] == pytest.approx(K * d / (K + k), rel=1e-12)
+    # The coupling's stiffness at the tip along the tube: m ωn² of what the insertion slides
+    # (the tube, 150 g, and its jaws, 4 g each; the gimbal, trocar and sleeve stay), ωn = 20.
+    assert K == pytest.approx((0.15 + 2 * 0.004) * 20.0**2, rel=1e-9)
+    rows = {r["name"].split(" (")[0]: r for r in out["checks"]}
+    assert rows["explicit limit, joint space, pressing the tissue"]["verdict"] == "ok"
+    assert t["spectral_radius"] < 1.0
+
+
+@pytest.mark.slow(seconds=60)
+def test_analyze_verify_tissue_stiffness_agrees_with_drake():
+    """analyze --verify presses the tool into the 4-cell organ in Drake to surface displacements
+    of about 0.5 and 1 mm: the tissue's force over its displacement agrees with the linear FEM's
+    stiffness (measured −4 %: Drake's corotated tissue is softer at 1 mm, its contact spreads
+    over the jaws), and the force on the tool with the coupling's pull (measured −4 %)."""
+    from godobject_drake.studies.analyze import analyze
+
+    out = analyze(fem_scenario(cells=4, duration=10.0), quick=True, verify=True)
+    v = out["verify_tissue"]
+    assert not v["diverged"]
+    first, last = v["runs"]
+    assert first["displacement_m"] == pytest.approx(0.5e-3, rel=0.25)
+    assert last["displacement_m"] == pytest.approx(1e-3, rel=0.25)
+    assert last["stiffness_n_m"] == pytest.approx(v["predicted_stiffness_n_m"], rel=0.1)
+    assert last["force_n"] == pytest.approx(last["predicted_force_n"], rel=0.1)
+    rows = [r for r in out["checks"] if r["section"] == "verify" and "tissue" in r["name"]]
+    assert rows and rows[0]["verdict"] == "ok"

@@ -297,6 +297,221 @@ def _articulated_checks(station, out: dict, duration_s: float, check_every: int)
     ]  # fmt: skip
 
 
+# -- FEM tissue -------------------------------------------------------------------------------------------
+
+
+def _tissue_pose(station, q_device: np.ndarray) -> dict | None:
+    """The articulated tool at ``q_device`` with its imposed joints (the jaws) at 0 (closed: one
+    contact) against the FEM organ's rest surface: the tube's axis from the tip body's origin
+    (``d``, toward the tip), how far the tool reaches past that origin along it, and where the
+    axis meets the surface; None if the axis misses the organ."""
+    from godobject_drake.tissue import ray_surface_hit, tool_capsules
+
+    tool, plant = station.coupling.tool, station.plant
+    organ = station.god_object.tissue
+    q = np.array(q_device, float)
+    for k, joint in enumerate(tool.joints):
+        if joint.imposed:
+            q[k] = 0.0
+    ctx = tool.set_device_state(q)
+    tip = plant.GetBodyByName(station.scenario.god_object.tip_body, tool.model)
+    X = plant.EvalBodyPoseInWorld(ctx, tip)
+    p, d = X.translation(), -X.rotation().matrix()[:, 2]
+    reach, radius = -math.inf, math.inf
+    for index, X_BG, r, half in tool_capsules(plant, station.scene_graph, tool.model):
+        X_WG = plant.EvalBodyPoseInWorld(ctx, plant.get_body(BodyIndex(index))) @ X_BG
+        for end in (-half, half):
+            e = float((X_WG.translation() + end * X_WG.rotation().matrix()[:, 2] - p) @ d) + r
+            if e > reach:
+                reach, radius = e, r
+    # From behind the tip and outside the organ, so that a tip already inside finds the entry.
+    back = float(np.max(np.linalg.norm(organ.rest_W - p, axis=1))) + 0.01
+    hit = ray_surface_hit(organ.rest_W, organ.triangles, p - back * d, d)
+    if hit is None:
+        return None
+    return {"q": q, "p": p, "d": d, "reach_m": reach, "tip_radius_m": radius, "distance_m": hit[0] - back,
+            "depth_m": reach - (hit[0] - back), "ctx": ctx, "tip": tip}  # fmt: skip
+
+
+def _tissue_press(station, duration_s: float) -> dict | None:
+    """Where the tool presses the FEM organ hardest on the device's path (the sample whose tool
+    reaches deepest past the rest surface along its axis), with what the analysis needs there:
+    the tissue's stiffness from the FEM model, the coupling's stiffness at the tip along the
+    axis, the joint that slides the tip along it, and the joint-space loop."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+
+    from godobject_drake.tissue import contact_stiffness
+
+    tool, plant = station.coupling.tool, station.plant
+    poses = [_tissue_pose(station, q) for q in station.device.samples(duration_s)]
+    poses = [x for x in poses if x is not None]
+    if not poses:
+        return None
+    pose = max(poses, key=lambda x: x["depth_m"])
+    q, p, d = pose["q"], pose["p"], pose["d"]
+    slide = None  # the device joint that moves the tip body along d (the insertion)
+    for k in range(len(q)):
+        dq = np.zeros_like(q)
+        dq[k] = 1e-4
+        moved = _tissue_pose(station, q + dq)
+        dp = moved["p"] - p if moved is not None else np.zeros(3)
+        if np.linalg.norm(dp) > 0 and abs(dp @ d) > 0.999 * np.linalg.norm(dp):
+            slide = (k, float(dp @ d) / 1e-4)
+            break
+    organ = station.god_object.tissue
+    back = float(np.max(np.linalg.norm(organ.rest_W - p, axis=1))) + 0.01
+    contact = contact_stiffness(organ, p - back * d, d)
+    coupling, h = station.coupling, plant.time_step()
+    q_touch = q.copy()
+    if slide is not None:
+        q_touch[slide[0]] -= pose["depth_m"] / slide[1]
+    loop = joint_space_loop(tool, coupling.coupling, coupling.gains, q_touch, h)
+    ctx = tool.set_device_state(q_touch)
+    W = plant.world_frame()
+    J = plant.CalcJacobianTranslationalVelocity(
+        ctx, JacobianWrtVariable.kV, pose["tip"].body_frame(), np.zeros(3), W, W
+    )
+    Jd = d @ J[:, tool.coupled_v()]
+    k_tip = 1.0 / float(Jd @ np.linalg.solve(loop.K, Jd))
+    spec = organ.spec
+    E_star = spec.youngs_modulus_pa / (1.0 - spec.poissons_ratio**2)
+    return {
+        "q_touch": q_touch, "slide": slide, "loop": loop, "Jd": Jd, "d": d,
+        "organ": organ.name, "cells": spec.cells, "point_W": contact["point_W"],
+        "direction_W": d.tolist(), "stiffness_n_m": contact["stiffness_n_m"], "tool_stiffness_n_m": k_tip,
+        "push_m": max(pose["depth_m"], 0.0), "tip_radius_m": pose["tip_radius_m"],
+        "hertz_tangent_1mm_n_m": 2.0 * E_star * math.sqrt(pose["tip_radius_m"] * 1e-3),
+        "stiffness_damping_s": spec.stiffness_damping_s,
+    }  # fmt: skip
+
+
+def _tissue_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
+    """The FEM organ's stiffness where the tool presses it (from the FEM model, not a point
+    stiffness), the indentation and force it gives under the device's deepest push, and the
+    joint-space explicit limit with the tissue in the loop (docs/theory.md §8)."""
+    if getattr(station.god_object, "tissue", None) is None:
+        return []
+    press = _tissue_press(station, scenario.simulation.duration_s)
+    out["_tissue_press"] = press
+    if press is None:
+        out["tissue"] = None
+        return [Check("tissue", "stiffness at the tool's contact", "organ", "info", None, None, "",
+                      "the tool's axis never points at the FEM organ on the device's path")]  # fmt: skip
+    k, K = press["stiffness_n_m"], press["tool_stiffness_n_m"]
+    push = press["push_m"]
+    depth = K * push / (K + k)
+    force = k * depth
+    tissue = {key: v for key, v in press.items() if key not in ("q_touch", "slide", "loop", "Jd", "d")}
+    tissue.update(predicted_indentation_m=depth, predicted_force_n=force)
+    rows = [
+        Check("tissue", f"stiffness at the tool's contact (linear FEM of the {press['cells']}-cell mesh, "
+              "point force)", press["organ"], "info", k, None, "N/m",
+              f"Hertz's tangent for the {press['tip_radius_m'] * 1e3:g} mm tip at 1 mm: "
+              f"{press['hertz_tangent_1mm_n_m']:.4g} N/m; the mesh is stiffer than the continuum until its "
+              "surface triangles are smaller than the contact: raise organs.cells"),
+        Check("tissue", f"indentation under the device's deepest push ({push * 1e3:.3g} mm past the surface)",
+              press["organ"], "info", depth, None, "m",
+              f"k_tip (d − δ) = k δ: the coupling's stiffness at the tip along the tube, "
+              f"{K:.4g} N/m, against the tissue's {k:.4g} N/m; force {force:.3g} N"),
+    ]  # fmt: skip
+    coupling, h = station.coupling, station.plant.time_step()
+    if coupling.coupling == "joint_pd_sap":
+        why = "implicit (SAP's PD actuators): unconditionally stable"
+        rows.append(Check("simulation", "explicit limit, joint space, pressing the tissue", "tool", "ok",
+                          None, None, "", why))  # fmt: skip
+        out["tissue"] = tissue
+        return rows
+    from godobject_drake.limits import semi_implicit_matrix
+
+    loop, Jd = press["loop"], press["Jd"]
+    K_i = k * np.outer(Jd, Jd)
+    D_i = press["stiffness_damping_s"] * K_i  # the tissue's Rayleigh damping β K at the contact
+
+    def radius(c: float) -> float:
+        A = semi_implicit_matrix(loop.M, c * c * loop.K, c * loop.D, K_i, D_i, h)
+        return float(np.max(np.abs(np.linalg.eigvals(A))))
+
+    scale = bisect(lambda c: radius(c) < 1.0, 1e-3, 1e3, 1e-4) if radius(1e-3) < 1.0 else float("nan")
+    tissue.update(spectral_radius=radius(1.0), bandwidth_scale_max=scale)
+    out["tissue"] = tissue
+    g = coupling.gains
+    rows.append(Check(
+        "simulation", f"explicit limit, joint space, pressing the tissue ({k:.4g} N/m at the tip, implicit)",
+        "tool", _verdict_below(1.0, scale), 1.0, scale, "× gains (bandwidth scale)",
+        f"omega_n ≤ {_le(WARN_FRACTION * g.omega_n * scale)} and omega_n_rot ≤ "
+        f"{_le(WARN_FRACTION * g.omega_r * scale)} rad/s (limit ×{scale:.4g}), or coupling joint_pd_sap",
+    ))  # fmt: skip
+    return rows
+
+
+def _verify_tissue(station, scenario, out: dict) -> list[Check]:
+    """Press the tool into the FEM organ in Drake where the analysis found the deepest push,
+    along the tube's axis with the jaws closed, to two holds whose predicted surface displacement
+    is 0.5 and 1 mm; at each, the tissue's force over its largest surface displacement against
+    the linear FEM's stiffness, and the force on the tool against the coupling's pull."""
+    press = out.get("_tissue_press")
+    if press is None or press["slide"] is None:
+        return []
+    k, K = press["stiffness_n_m"], press["tool_stiffness_n_m"]
+    device = scenario.device
+    mix = np.array(device.mix, float) if device.mix else np.eye(len(device.channels))
+    joint, rate = press["slide"]
+    d = press["d"]
+
+    def at(t: float, inside: float) -> JointWaypoint:
+        q = press["q_touch"].copy()
+        q[joint] += inside / rate
+        channels = np.linalg.lstsq(mix, q, rcond=None)[0]
+        return JointWaypoint(t, dict(zip(device.channels, channels.tolist(), strict=True)))
+
+    displacements = (0.5e-3, 1e-3)
+    pushes = [u * (K + k) / K for u in displacements]  # k δ = K (d − δ) with δ = u
+    path, t, holds = [at(0.0, -3e-3), at(0.1, -3e-3)], 0.1, []
+    for push in pushes:
+        path += [at(t + 0.3, push), at(t + 0.7, push)]
+        t += 0.7
+        holds.append(t)
+    s = analysis_scenario(scenario)
+    s.device = sc.ScriptedJoints(channels=list(device.channels), mix=device.mix, limits=device.limits,
+                                 rate_hz=device.rate_hz, waypoints=path)  # fmt: skip
+    s.simulation.duration_s = t
+    result = simulate(_quiet_build(s), progress=False)
+    h = station.plant.time_step()
+    rows_out, checks = [], []
+    for push, u_pred, t_hold in zip(pushes, displacements, holds, strict=True):
+        i = round(t_hold / h)
+        window = result.data["tissue"][max(i - round(0.05 / h), 0) : i]
+        force = float(np.mean(window[:, 4:7] @ d))  # on the tissue, along the push
+        u = float(np.mean(window[:, 0]))
+        rows_out.append({"push_m": push, "predicted_displacement_m": u_pred, "displacement_m": u,
+                         "force_n": force, "stiffness_n_m": force / u if u > 0 else float("nan"),
+                         "predicted_force_n": K * (push - u_pred)})  # fmt: skip
+    out["verify_tissue"] = {
+        "runs": rows_out,
+        "predicted_stiffness_n_m": k,
+        "diverged": bool(result.metrics["diverged"]),
+    }
+    last = rows_out[-1]
+    err = abs(last["stiffness_n_m"] / k - 1.0)
+    checks.append(Check(
+        "verify", f"tissue stiffness at the contact: Drake's force / surface displacement at "
+        f"{last['displacement_m'] * 1e3:.2g} mm against the linear FEM", press["organ"],
+        "ok" if err <= 0.1 else "warn", err, 0.1, "relative error",
+        "model and Drake agree" if err <= 0.1 else
+        "Drake's corotated tissue under contact departs from linear statics: trust Drake's force",
+        predicted=k, simulated=last["stiffness_n_m"],
+    ))  # fmt: skip
+    err_f = abs(last["force_n"] / last["predicted_force_n"] - 1.0)
+    checks.append(Check(
+        "verify", f"force on the tool, target {last['push_m'] * 1e3:.3g} mm past the surface", "tool",
+        "ok" if err_f <= 0.1 else "warn", err_f, 0.1, "relative error",
+        "model and Drake agree" if err_f <= 0.1 else
+        "the tool sits deeper than the surface's displacement (contact compliance): trust Drake's force",
+        predicted=last["predicted_force_n"], simulated=last["force_n"],
+    ))  # fmt: skip
+    return checks
+
+
 # -- contact ----------------------------------------------------------------------------------------------
 
 
@@ -914,6 +1129,7 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
         if _is_implicit(station):
             out["coupling"] = "implicit"
     checks += _contact_checks(station, s, out)
+    checks += _tissue_checks(station, s, out)
     if not joint_space:
         checks += _device_checks(station, s, out)
     else:
@@ -927,7 +1143,9 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
                     _verify_device_boundary(station, s, out, tol)):  # fmt: skip
             if row is not None:
                 checks.append(row)
+        checks += _verify_tissue(station, s, out)
     order = {"fail": 3, "warn": 2, "ok": 1, "info": 0}
+    out.pop("_tissue_press", None)
     out["checks"] = [c.as_dict() for c in checks]
     out["verdict"] = max((c.verdict for c in checks), key=order.__getitem__, default="ok")
     out["elapsed_s"] = time.perf_counter() - start
