@@ -4,15 +4,19 @@ The explicit coupling (:class:`~godobject_drake.coupling.GodObjectCoupling`) com
 wrench in Python at every plant step and hands it to the plant as an applied force, so the
 discrete plant integrates it explicitly: stable only while ``ωn h < 2(√(1+ζ²) − ζ)``
 (docs/theory.md §1), and a Python call in every step. Here the same spring is made of
-**seven compliant distance constraints** between points fixed in the world and points of the
-held body, which Drake's SAP solver integrates implicitly inside its convex step: one at the
-centre of mass and a pair at ``±a`` along each principal axis of inertia, of rest length
-:data:`REST_M` (zero-length in effect). Their stiffnesses and dampings sum to the paper's
-``k = m ωn²`` and ``γ = 2 ζ m ωn`` in translation and to ``I_i ωr²`` and ``2 ζr I_i ωr`` about
-each principal axis ``i`` (:func:`spring_layout`).
+**compliant distance constraints** between points fixed in the world and points of the held
+body, which Drake's SAP solver integrates implicitly inside its convex step: three springs along
+x, y and z of the world at each of five points of the body (its centre of mass and four on a
+tetrahedron about it, :func:`spring_layout`), each spring :data:`LENGTH_M` long at rest with its
+world end that far beyond its target point along its axis. A distance constraint acts and damps
+along its own line only; these lines stay along the world axes to within the error over
+:data:`LENGTH_M` (2e-6 rad at the 0.2 m force cap), so each spring is linear along its axis, the
+three at a point are a zero-length spring with the same stiffness and damping in every
+direction, and the sums are the paper's
+``k = m ωn²`` and ``γ = 2 ζ m ωn`` in translation and ``I ωr²`` and ``2 ζr ωr I`` in rotation.
 
 Drake keeps a distance constraint's bodies, points, stiffness and damping in the context
-(``SetDistanceConstraintParams``), so one set of seven springs is retargeted to whichever body a
+(``SetDistanceConstraintParams``), so one set of springs is retargeted to whichever body a
 grasp takes and moved with the target, without changing the plant. Python runs at the device
 rate only: :class:`ImplicitCoupling`'s discrete update computes the target ``T`` at each device
 sample, and :class:`SpringHook` writes the springs' world points into the plant's context before
@@ -23,23 +27,24 @@ Python per step anyway: docs/design.md "The implicit coupling").
 body toward rest, not toward the target's velocity. Each spring's world end is put at
 ``P_j + (γ_j / k_j) V_j`` (``P_j``, ``V_j`` the target's point and its velocity), so
 ``k_j (P_j + (γ_j/k_j) V_j − x_j) − γ_j ẋ_j = k_j (P_j − x_j) + γ_j (V_j − ẋ_j)``: the paper's
-spring-damper, exactly, along each spring's line.
+spring-damper along each spring's axis, so in every direction.
 
 **The force cap** is on the stretch, not on the force: at each device sample the target is held
 within ``max_stretch_m`` of the held body's centre of mass (and within ``max_twist_rad`` of its
 orientation), so the spring force is at most ``k · max_stretch_m`` plus damping, as the explicit
 coupling's cap. **Gravity compensation** raises every world point by ``g/ωn²``, so the springs
-carry ``m g`` with the body at its target (the pairs' raises cancel in torque).
+carry ``m g`` with the body at its target (the same raise at every point: no torque).
 
 **Orientation** is carried by the points themselves (``P_j = p_WT + R_WT a_j``): no angles, so
 no singularity in any pose.
 
 **What is not the same as the explicit coupling** (measured in tests/test_implicit.py and
-docs/theory.md §7): a distance constraint damps only along its own line, so the damping is the
-paper's only where the lines follow the error; the target is sampled at the device rate (as the
-explicit coupling sees a held device), not per step; the logged coupling wrench (``terms``'
-``F_Go_W``) is the springs' force evaluated at each logged state after the run
-(:func:`implicit_terms`), not the impulse SAP applied inside its step.
+docs/theory.md §7): the spring is integrated by backward Euler, not explicitly; the target is
+sampled at the device rate (as the explicit coupling sees a held device), not per step; the
+logged coupling wrench (``terms``' ``F_Go_W``) is the springs' force evaluated at each logged
+state after the run (:func:`implicit_terms`), not the impulse SAP applied inside its step. Until
+the springs were laid along the three axes (seven springs, all vertical), the coupling did not
+damp across them: a moving body sagged and led by millimetres (docs/design.md).
 """
 
 import dataclasses
@@ -61,14 +66,22 @@ from godobject_drake.spatial import (
     quats_to_rotations,
 )
 
-# The springs' rest length (m): Drake's distance constraint needs a direction. Across its rest offset
-# a spring is soft near its target (k (d − d0) ≈ k δ² / 2 d0 for δ ≲ d0), so in zero gravity a body
-# settles within ~0.3 mm of its target; with gravity the raise g/ωn² (6 mm at 40 rad/s) stretches
-# every spring along its rest direction and the spring is linear. At 1 µm SAP's linearization of a
-# near-zero distance made a held body drift (0.2 mm in 0.5 s, tests/test_implicit.py).
-REST_M = 1e-4
-AXIS_SHARE = 0.75  # the axis pairs' share of the translational stiffness (the centre spring has the rest)
-N_SPRINGS = 7
+# Each spring's length at rest (m). A spring of stiffness k_j along the world axis e, its world end
+# LENGTH_M beyond its target point P along e and its rest length LENGTH_M, pulls its body point x
+# with k_j (e·(P − x)) e and damps the point's velocity along e with γ_j, up to |P − x|/LENGTH_M:
+# across e its length changes by |P − x|² / (2 LENGTH_M) and its line tilts by |P − x| / LENGTH_M.
+# Three such springs along x, y and z at one point are a zero-length spring there, the same in
+# every direction, integrated implicitly by SAP along all three axes. Long because the world end
+# leads the target by (γ/k) V, which a device step makes large for one sample (2 m for a 2 cm step
+# in 1 ms at ωn = 20 rad/s): the body of tests/test_implicit.py's step then moved sideways by
+# 136 µm with 100 m springs, 1.4 µm with 10 km, 0.14 µm with 100 km. A double resolves 1.5e-11 m
+# at 100 km, and Drake's zero-distance singularity is far away.
+LENGTH_M = 1e5
+AXIS_SHARE = 0.75  # the vertex points' share of k and γ when the centre must take the remainder of one
+POINTS = 5  # the centre of mass and four points on a tetrahedron about it
+N_SPRINGS = 3 * POINTS
+# A regular tetrahedron's vertices: Σ t = 0, Σ t tᵀ = (4/3) I.
+_TETRAHEDRON = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float) / math.sqrt(3.0)
 ANCHOR_NAME = "god_object_spring_anchor"  # the massless body, welded to the world, the springs start on
 
 # The coupling's logged state (``coupling_state``): what :func:`implicit_terms` needs per row.
@@ -85,7 +98,7 @@ class ImplicitCouplingError(ValueError):
 
 
 def add_springs(plant: MultibodyPlant) -> tuple:
-    """Add the implicit coupling's seven springs to ``plant`` (before ``Finalize``); their ids.
+    """Add the implicit coupling's springs (:data:`N_SPRINGS`) to ``plant`` (before ``Finalize``); their ids.
 
     They join the world to the first body for now, and :meth:`ImplicitGodObject.prepare` switches
     them off; a grasp retargets them (:class:`SpringHook`).
@@ -107,7 +120,7 @@ def add_springs(plant: MultibodyPlant) -> tuple:
     first = plant.get_body(free[0])
     return tuple(
         plant.AddDistanceConstraint(
-            anchor, np.array([REST_M, 0.0, 0.0]), first, np.zeros(3), REST_M, 1.0, 0.0
+            anchor, np.array([LENGTH_M, 0.0, 0.0]), first, np.zeros(3), LENGTH_M, 1.0, 0.0
         )
         for _ in range(N_SPRINGS)
     )
@@ -115,13 +128,12 @@ def add_springs(plant: MultibodyPlant) -> tuple:
 
 @dataclasses.dataclass(frozen=True)
 class SpringLayout:
-    """The seven springs for one body (:func:`spring_layout`)."""
+    """The springs for one body (:func:`spring_layout`): three per point, along x, y, z of W."""
 
-    offsets_B: np.ndarray  # 7×3: each spring's point on the body, from its centre of mass, in B (m)
-    stiffness: np.ndarray  # 7 (N/m)
-    damping: np.ndarray  # 7 (N·s/m)
-    rest_dir: np.ndarray  # 7×3: the unit direction of each spring's rest offset, in the world
-    arm_m: float  # a: the axis pairs' distance from the centre of mass (m)
+    offsets_B: np.ndarray  # N×3: each spring's point on the body, from its centre of mass, in B (m)
+    stiffness: np.ndarray  # N (N/m)
+    damping: np.ndarray  # N (N·s/m)
+    axis_W: np.ndarray  # N×3: the world axis along which each spring's world end lies beyond its target point
 
     @property
     def lead_s(self) -> np.ndarray:
@@ -133,43 +145,39 @@ class SpringLayout:
 
 
 def spring_layout(body: GraspableBody, gains: CouplingGains) -> SpringLayout:
-    """Stiffnesses and points of the seven springs that make the paper's spring on ``body``.
+    """Stiffnesses and points of the springs that make the paper's spring on ``body``.
 
-    A pair of springs ``k_i`` at ``±a u_i`` (``u_i`` a principal axis) resists a rotation about
-    each other axis ``j`` with ``2 a² k_i``; so the rotational stiffness about ``u_j`` is
-    ``2 a² Σ_{i≠j} k_i``, and ``k_i = (L_j + L_l − L_i)/2`` with ``L_i = λ_i ωr² / (2 a²)`` gives
-    ``λ_i ωr²`` about each axis (``k_i ≥ 0`` by the triangle inequality of inertia). The centre
-    spring takes the rest of ``k = m ωn²``. ``a`` is chosen so the pairs take at most
-    :data:`AXIS_SHARE` of ``k`` and of ``γ``. Dampings the same way with ``2 ζr ωr``.
+    Each point ``r_p`` (from the centre of mass) holds three springs along x, y, z of the world:
+    a zero-length spring of isotropic stiffness ``k_p`` and damping ``c_p``. Points with
+    ``Σ k_p r_p = 0`` give no coupling between translation and rotation, a translational stiffness
+    ``Σ k_p`` and a rotational one ``Σ k_p (|r_p|² I − r_p r_pᵀ)``. Four points ``U diag(s) t_v``
+    on a tetrahedron (``t_v`` its unit vertices, ``U`` the principal axes of inertia) with ``k_t``
+    each give ``Σ k_t r rᵀ = (4/3) k_t U diag(s²) Uᵀ``; with ``s_i² = 3 ωr² μ_i / (4 k_t)``, ``μ_i
+    = (λ_j + λ_l − λ_i)/2`` (the body's second moment along axis i, ≥ 0 by the triangle inequality
+    of inertia), that is ``I ωr²`` about every axis. Their damping ``c_t = (2 ζr / ωr) k_t`` gives
+    ``2 ζr ωr I``. The centre point takes the rest of ``k = m ωn²`` and ``γ = 2 ζ m ωn``; when
+    ``γ/k = 2 ζr/ωr`` (the same gains in rotation and translation) the vertices take all of both
+    and the centre's springs stay off, otherwise the vertices take :data:`AXIS_SHARE` of the
+    tighter one (Drake refuses a spring of zero stiffness with damping).
     """
     m = body.mass
     lam, U = np.linalg.eigh(body.I_Bcm_B)
     lam = np.maximum(lam, 0.0)
+    mu = np.maximum(0.5 * lam.sum() - lam, 0.0)
     k, gamma = gains.translational(m)
     wr, zr = gains.omega_r, gains.zeta_r
-    need = [lam.sum() * wr**2 / (2.0 * AXIS_SHARE * k)]
-    if gamma > 0.0:
-        need.append(lam.sum() * 2.0 * zr * wr / (2.0 * AXIS_SHARE * gamma))
-    a = math.sqrt(max(max(need), 1e-12))
-
-    def pairs(per_axis):  # L_i -> k_i
-        L = per_axis / (2.0 * a * a)
-        return np.array([(L[1] + L[2] - L[0]), (L[0] + L[2] - L[1]), (L[0] + L[1] - L[2])]) / 2.0
-
-    kp, dp = pairs(lam * wr**2), pairs(lam * 2.0 * zr * wr)
-    k0, d0 = k - 2.0 * kp.sum(), gamma - 2.0 * dp.sum()
-    offsets = [np.zeros(3)]
-    stiffness, damping = [k0], [d0]
-    for i in range(3):
-        for sign in (1.0, -1.0):
-            offsets.append(sign * a * U[:, i])
-            stiffness.append(kp[i])
-            damping.append(dp[i])
-    # Every spring's rest length points up (against gravity), along the gravity raise: a held body at
-    # its target stretches each by exactly g/ωn² along its own line, so the springs carry m g exactly
-    # (a rest offset across the raise carried 1.6 % less: 75 µm of sag at ωn = 40 rad/s).
-    rest = np.tile([0.0, 0.0, 1.0], (N_SPRINGS, 1))
-    return SpringLayout(np.array(offsets), np.array(stiffness), np.maximum(np.array(damping), 0.0), rest, a)
+    ratio = 2.0 * zr / wr  # c/k of the vertex springs
+    balanced = math.isclose(gamma, ratio * k, rel_tol=1e-9)
+    limit = k if (ratio == 0.0 or gamma <= 0.0) else min(k, gamma / ratio)
+    kt = 0.25 * limit * (1.0 if balanced else AXIS_SHARE)
+    ct = ratio * kt
+    k0, c0 = (0.0, 0.0) if balanced else (k - 4.0 * kt, max(gamma - 4.0 * ct, 0.0))
+    s = np.sqrt(3.0 * wr**2 * mu / (4.0 * kt))
+    points = np.vstack([np.zeros(3), (_TETRAHEDRON * s) @ U.T])
+    kp, cp = np.array([k0, kt, kt, kt, kt]), np.array([c0, ct, ct, ct, ct])
+    return SpringLayout(
+        np.repeat(points, 3, axis=0), np.repeat(kp, 3), np.repeat(cp, 3), np.tile(np.eye(3), (POINTS, 1))
+    )
 
 
 class ImplicitCoupling(GraspingCoupling, LeafSystem):
@@ -313,15 +321,15 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
         discrete_state.get_mutable_vector(self._state).SetFromVector(s)
 
     def world_points(self, held: int, pose_WT: np.ndarray, V_WT: np.ndarray) -> np.ndarray:
-        """The springs' world ends (7×3) for a target ``pose_WT`` moving at ``V_WT``: each target
+        """The springs' world ends (N×3) for a target ``pose_WT`` moving at ``V_WT``: each target
         point ``P_j = p_WT + R_WT a_j``, led by ``(γ_j/k_j) V_j``, raised by gravity compensation,
-        and offset by the rest length along the spring's own rest direction."""
+        and :data:`LENGTH_M` beyond it along the spring's world axis."""
         layout = self.layouts[held]
         R = quat_to_rotation(pose_WT[:4] / np.linalg.norm(pose_WT[:4]))
         arms = layout.offsets_B @ R.T
         velocities = V_WT[3:] + np.cross(V_WT[:3], arms)
         lead = layout.lead_s
-        return pose_WT[4:] + arms + lead[:, None] * velocities + self.raise_W + REST_M * layout.rest_dir
+        return pose_WT[4:] + arms + lead[:, None] * velocities + self.raise_W + LENGTH_M * layout.axis_W
 
 
 def _within_twist(q_WT: np.ndarray, q_WG: np.ndarray, max_twist: float) -> tuple[np.ndarray, bool]:
@@ -380,7 +388,7 @@ class SpringHook:
         points_W = coupling.world_points(held, s[_XT], s[_VT])
         points_B = layout.offsets_B + coupling._by_index[held].p_BoBcm_B
         anchor, body = self.anchor, BodyIndex(held)
-        # A pair of zero stiffness (a flat body: λ_i = λ_j + λ_l) stays off: Drake refuses k = 0.
+        # A point of zero stiffness (the centre, when the vertices take all) stays off: Drake refuses k = 0.
         on = layout.stiffness > 0.0
         for j, cid in enumerate(coupling.springs):
             if on[j]:
@@ -389,7 +397,7 @@ class SpringHook:
                     points_W[j],
                     body,
                     points_B[j],
-                    REST_M,
+                    LENGTH_M,
                     float(layout.stiffness[j]),
                     float(layout.damping[j]),
                 )
@@ -411,7 +419,7 @@ def implicit_terms(
     a device sample; :class:`SpringHook` hands it to the plant's next step). ``previous`` is the
     coupling row before the first (the last of the previous chunk of logs; None at t = 0: row 0).
 
-    ``F_Go_W`` is the seven springs' wrench on the held body at its centre of mass, in W: each
+    ``F_Go_W`` is the springs' wrench on the held body at its centre of mass, in W: each
     spring's ``(k (d − d0) + γ ḋ) u`` at the logged state, ``u`` from the body's point to the
     spring's world end (:meth:`ImplicitCoupling.world_points` of the logged target).
     ``pose_WG``/``V_WG`` are the held body's centre-of-mass frame; nothing held: T's.
@@ -450,7 +458,7 @@ def implicit_terms(
             arm_T = R_WT @ layout.offsets_B[j]
             P_W = (
                 S[rows][:, _XT][:, 4:] + arm_T + lead[j] * (V_WT[:, 3:] + np.cross(V_WT[:, :3], arm_T))
-                + coupling.raise_W + REST_M * layout.rest_dir[j]
+                + coupling.raise_W + LENGTH_M * layout.axis_W[j]
             )  # fmt: skip
             r_B = R_WB @ layout.offsets_B[j] + r_cm
             P_B = p_WBo + r_B
@@ -458,7 +466,7 @@ def implicit_terms(
             d = np.linalg.norm(d_vec, axis=1)
             u = d_vec / np.maximum(d, 1e-15)[:, None]
             d_dot = -np.sum(u * (v_Bo + np.cross(w_B, r_B)), axis=1)
-            f = (layout.stiffness[j] * (d - REST_M) + layout.damping[j] * d_dot)[:, None] * u
+            f = (layout.stiffness[j] * (d - LENGTH_M) + layout.damping[j] * d_dot)[:, None] * u
             F += f
             T += np.cross(P_B - p_WG, f)
         out[rows, TERMS_LAYOUT["pose_WG"]] = np.concatenate([q, p_WG], axis=1)

@@ -852,8 +852,8 @@ IMPLICIT_STEP_M = 0.03  # the implicit coupling's verification steps the target 
 def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
     """The implicit coupling's step response in Drake against its one-body model, twice: the held
     body is grasped at its start and its target jumps 3 cm away from the nearest obstacle
-    (``along``: for the brick, up, along the springs' vertical lines), or, lifted 3 cm away first,
-    3 cm across the springs' lines (``across``: horizontal), between two device samples. From
+    (``along``: for the brick, up, along the gravity raise), or, lifted 3 cm away first, 3 cm
+    across it (``across``: horizontal), between two device samples. From
     the first step after the target stops (one sample after the jump) the model (backward Euler
     on the spring, :func:`~godobject_drake.studies.stability.coupled_body_matrices`) is started
     from Drake's own state and both error curves are compared until the model's falls to 1 %.
@@ -911,9 +911,9 @@ def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
             "diverged": bool(result.metrics["diverged"]),
         }  # fmt: skip
 
-    # Along the springs' lines (their rest direction and the gravity raise are vertical), where a
-    # distance constraint's damping is the paper's; and across them, 3 cm clear of the obstacle,
-    # where it is not (docs/design.md, "a moving body sags and leads").
+    # Along the gravity raise (vertical), and across it 3 cm clear of the obstacle: a distance
+    # constraint damps only along its own line, so the springs lie along x, y and z of the world
+    # (godobject_drake/implicit.py) and both directions must be the model's.
     up = np.array([0.0, 0.0, 1.0])
     across = away - np.dot(away, up) * up
     across = across / np.linalg.norm(across) if np.linalg.norm(across) > 1e-6 else np.array([1.0, 0.0, 0.0])
@@ -923,10 +923,10 @@ def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
     worst = max(runs, key=lambda k: runs[k]["relative_error"])
     err, ok = runs[worst]["relative_error"], runs[worst]["relative_error"] <= 0.1
     return Check("verify", f"implicit step response: time to fall to 10 %, worst of along and across the "
-                 f"springs' lines ({worst})", body.name, "ok" if ok else "warn", err, 0.1, "relative error",
+                 f"gravity raise ({worst})", body.name, "ok" if ok else "warn", err, 0.1, "relative error",
                  "model and Drake agree" if ok else
-                 "trust Drake's response: a distance constraint damps only along its line, so across the "
-                 "springs' lines the implicit coupling is not the paper's damper (docs/design.md)",
+                 "trust Drake's response: the implicit coupling is not the paper's damper in this "
+                 "direction (docs/design.md, \"The implicit coupling\")",
                  predicted=runs[worst]["predicted_t10_s"],
                  simulated=runs[worst]["simulated_t10_s"])  # fmt: skip
 
