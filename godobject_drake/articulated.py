@@ -790,6 +790,7 @@ class ArticulatedFeedback(LeafSystem):
         self._targets = self.DeclareVectorInputPort("targets", _TARGET * nb)
         self._q_dev = self.DeclareVectorInputPort("q_device", tool.nq_device)
         self._zero = all(getattr(self.gains, f.name) == 0.0 for f in dataclasses.fields(self.gains))
+        self.has_gains = not self._zero
         # Eq. 8 once per evaluation, shared by the three outputs.
         self._F = self.DeclareCacheEntry(
             "feedback wrenches",

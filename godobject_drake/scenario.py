@@ -203,11 +203,12 @@ class Articulated:
 
     def check(self, scenario: "Scenario") -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"`` (fields from the scenario's top)."""
-        if scenario.haptic.mode != "none" or scenario.feedback != FeedbackGains():
+        if scenario.haptic.mode != "none":
             raise ValueError(
-                "haptic/feedback: the joint-space devices here are non-haptic: leave haptic.mode none and "
-                "the feedback gains zero (ArticulatedFeedback computes Eq. 8/9 wrenches for a device of "
-                "your own)"
+                f"haptic.mode: {scenario.haptic.mode!r}; the joint-space devices here have no simulated "
+                "haptic device: leave haptic.mode none. The feedback gains (feedback.kd, ...) still give "
+                "the Eq. 8/9 wrenches and the device joints' forces, logged and in the metrics, for a "
+                "haptic device of your own"
             )
         if self.coupling not in ARTICULATED_COUPLINGS:
             raise ValueError(f"god_object.coupling: {self.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")

@@ -108,9 +108,23 @@ def test_fem_organ_replaces_the_rigid_uterus_and_is_held_below():
 
 def test_fem_tissue_gives_under_the_grasper_and_pushes_it_back():
     """0.8 s of the hard case's path: the jaws reach the organ's top (75 mm under P) at
-    insertion 58 mm, about 0.38 s in; by 0.8 s the interface is 20 mm past it."""
-    result = simulate(build_station(fem_scenario(cells=4, duration=0.8, path=DEEP_PATH)), progress=False)
+    insertion 58 mm, about 0.38 s in; by 0.8 s the interface is 20 mm past it. With feedback
+    gains (for a haptic device of the user's own: nothing acts back on the run), Eq. 8 gives
+    each coupled body ``kd (x − x_T)``: the tube and its two jaws lag their targets by the same
+    gap along the tube, so the insertion joint's feedback force is ``−3 kd × gap``, by hand."""
+    kd = 50.0
+    s = sc.replace(fem_scenario(cells=4, duration=0.8, path=DEEP_PATH), **{"feedback.kd": kd})
+    station = build_station(s)
+    result = simulate(station, progress=False)
     m = result.metrics
+    tool = station.coupling.tool
+    ins = [j.name for j in tool.joints].index("insertion")
+    gap = result.data["q_device"][-1, ins] - result.data["state"][-1, tool.q_device[ins]]
+    assert gap > 0.02  # the tool is held back by the tissue
+    # (to 1e-4: the tube also lags its target by micro-radians in yaw and pitch, 5 mN·m there)
+    assert result.data["feedback_tau"][-1, ins] == pytest.approx(-3 * kd * gap, rel=1e-4)
+    assert m["max_feedback_force_N"] >= 3 * kd * gap * (1 - 1e-6)  # the largest over the run
+    assert m["max_feedback_tau_device"][ins] == pytest.approx(m["max_feedback_force_N"], rel=1e-3)
     assert not m["diverged"]
     assert m["tissue_max_displacement_m"] > 2e-3  # the surface moved by millimetres
     assert m["tool_force_at_max_N"][2] > 0.5  # the tissue pushes the tool up

@@ -10,6 +10,7 @@ resting bodies awake (its bodies are not free bodies the sleep manager could wat
 import dataclasses
 from typing import ClassVar
 
+import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
@@ -55,6 +56,7 @@ class ArticulatedGodObject(GodObject):
         god = add_articulated(
             builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
+            feedback_gains=scenario.feedback,
         )  # fmt: skip
         return scene, god
 
@@ -62,6 +64,9 @@ class ArticulatedGodObject(GodObject):
         ports = {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}
         if self.tissue_observer is not None:
             ports["tissue"] = self.tissue_observer.GetOutputPort("summary")
+        if self.feedback.has_gains:  # Eq. 8/9 for a device of the user's own (zero gains: nothing)
+            ports["feedback_subtree"] = self.feedback.GetOutputPort("F_subtree_W")
+            ports["feedback_tau"] = self.feedback.GetOutputPort("tau_device")
         return ports
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
@@ -134,11 +139,28 @@ class _ToolFold:
             from godobject_drake.metrics import TissueMetrics
 
             self._tissue = TissueMetrics()
+        self._feedback = None
+        if god.feedback.has_gains:
+            self._root = next(i for i, b in enumerate(god.tool.bodies) if b.parent < 0)
+            self._feedback = {"max_feedback_force_N": 0.0, "feedback_force_at_max_N": [0.0, 0.0, 0.0],
+                              "max_feedback_tau_device": np.zeros(len(god.tool.v_device))}  # fmt: skip
 
     def fold(self, rows: dict, data: dict, finite):
         self._acc.update(rows["state"], rows["q_device"])
         if self._tissue is not None:
             self._tissue.update(rows["tissue"])
+        if self._feedback is not None and len(rows["feedback_tau"]):
+            # The root's Eq. 9 wrenches: every body's feedback moved to the root, what a device
+            # holding the whole tool would feel; and the forces on the device's joints.
+            f = np.asarray(rows["feedback_subtree"], float)[:, 6 * self._root + 3 : 6 * self._root + 6]
+            norm = np.linalg.norm(f, axis=1)
+            k = int(np.argmax(norm))
+            if norm[k] > self._feedback["max_feedback_force_N"]:
+                self._feedback["max_feedback_force_N"] = float(norm[k])
+                self._feedback["feedback_force_at_max_N"] = [float(v) for v in f[k]]
+            tau = np.max(np.abs(np.asarray(rows["feedback_tau"], float)), axis=0)
+            top = self._feedback["max_feedback_tau_device"]
+            self._feedback["max_feedback_tau_device"] = np.maximum(top, tau)
         return self._acc.take_tips(len(data["state"]), finite)
 
     def result(self) -> dict:
@@ -146,12 +168,17 @@ class _ToolFold:
         tissue = self._tissue.result() if self._tissue is not None else {}
         if tissue:  # the tool's penetration is into the deformed tissue (and the rigid organs')
             out["max_penetration_m"] = max(out["max_penetration_m"], tissue["tool_penetration_into_tissue_m"])
+        feedback = {}
+        if self._feedback is not None:
+            feedback = dict(self._feedback)
+            feedback["max_feedback_tau_device"] = [float(v) for v in feedback["max_feedback_tau_device"]]
         return {
             "max_penetration_m": out["max_penetration_m"],
             "rms_tracking_error_m": out["tip_tracking_rms_m"],
             "max_other_body_speed_mps": None,
             **out,
             **tissue,
+            **feedback,
         }
 
 
@@ -164,13 +191,16 @@ def add_articulated(
     duration_s: float,
     connect_forces: bool = True,
     check_gains: bool = True,
+    feedback_gains=None,
 ) -> ArticulatedGodObject:
     """An articulated god-object from its scenario config: the tool starts where the device is.
 
     Calls :func:`~godobject_drake.articulated.add_articulated_god_object` (checked at every
     ``config.check_every``-th device sample up to ``duration_s``), adds an
-    :class:`~godobject_drake.articulated.ArticulatedFeedback` named ``feedback`` (zero gains:
-    the joint-space devices here are non-haptic) and connects the device to both.
+    :class:`~godobject_drake.articulated.ArticulatedFeedback` named ``feedback`` with
+    ``feedback_gains`` (the scenario's ``feedback``; zero by default: the joint-space devices here
+    are non-haptic, and with gains its wrenches are logged for a device of the user's own) and
+    connects the device to both.
     """
     plant = scene.plant
     if not config.self_collisions:
@@ -186,7 +216,7 @@ def add_articulated(
     q = plant.GetDefaultPositions()
     q[tool.q_device] = q_home
     plant.SetDefaultPositions(q)  # the tool starts where the interface is
-    feedback = builder.AddNamedSystem("feedback", ArticulatedFeedback(tool))
+    feedback = builder.AddNamedSystem("feedback", ArticulatedFeedback(tool, feedback_gains))
     for name in ("q_device", "v_device"):
         builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
     builder.Connect(device.GetOutputPort("q_device"), feedback.GetInputPort("q_device"))
