@@ -348,8 +348,9 @@ class SpringHook:
     update it compares the coupling's sample count with the last it applied; when they differ,
     the springs go off (nothing held), or point at the held body (:func:`spring_layout`) with
     their world ends at the new target (:meth:`ImplicitCoupling.world_points`). The springs are
-    set at the same steps as when the hook compared at every step (reading the coupling's state
-    cost 4–7 % of the brick scene's step: analysis/step_floor.py, docs/design.md).
+    set at the same steps as when the hook compared at every step (which read the coupling's
+    context and state: 2.4–3.3 µs a step against 0.3 µs now, docs/design.md "What runs every
+    plant step").
     """
 
     def __init__(self, plant: MultibodyPlant, coupling: ImplicitCoupling):
