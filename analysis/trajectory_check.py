@@ -47,6 +47,8 @@ VARIANTS = {
     "lego_relative_cd": ("lego", f"device: !Relative {{log: {MODELS}/lego/push_and_return.csv, "
                          "start_xyz: [-0.10, 0.0, 0.0048], cd_ratio: 4.0}", None),
     "lego_h2ms": ("lego", "plant: {time_step: 0.002}", None),
+    "lego_implicit": ("lego", "god_object: {coupling: implicit}", None),
+    "lego_implicit_bricks_16": ("lego", "god_object: {coupling: implicit}\nbricks: 16", 3.0),
     "laparoscopy": ("laparoscopy", "", None),
     "laparoscopy_position": ("laparoscopy", "simulation: {mode: position}", None),
     "laparoscopy_joint_pd": ("laparoscopy", "god_object: !Articulated {model: grasper, device_joints: "

@@ -232,6 +232,7 @@ def with_carried_inertia(body: GraspableBody, M_BBo_B: SpatialInertia) -> Graspa
 _IDX, _XT, _VT, _XG, _VG, _F = 0, slice(1, 8), slice(8, 14), slice(14, 21), slice(21, 27), slice(27, 33)
 _CAPPED = 33
 _TERMS = 34
+_NO_WRENCH = (0.0,) * 13  # the wrench, capped, and the generalized forces with nothing held
 TERMS_LAYOUT = {
     "held_body": _IDX, "pose_WT": _XT, "V_WT": _VT, "pose_WG": _XG, "V_WG": _VG, "F_Go_W": _F,
     "capped": _CAPPED,
@@ -500,7 +501,8 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
 
         self._terms = self.DeclareCacheEntry(
             "coupling terms",
-            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(_TERMS)), calc=self._calc_terms),
+            # the terms, then the held body's six generalized forces (_calc_generalized_forces)
+            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(_TERMS + 6)), calc=self._calc_terms),
             {self.all_input_ports_ticket(), self.xd_ticket()},
         )
         self.DeclareAbstractOutputPort(
@@ -564,7 +566,7 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
         held = int(s[0])
         if held < 0:
             pose = [*qD, *pD]
-            out[:] = [held, *pose, *V, *pose, *V, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            out[:] = [held, *pose, *V, *pose, *V, *_NO_WRENCH]
             return
         b = self._fast[held]
         x = self._state_port.Eval(context)
@@ -627,8 +629,13 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
             if n > b.torque_cap:
                 capped, k = 1.0, b.torque_cap / n
                 t0, t1, t2 = t0 * k, t1 * k, t2 * k
+        # The wrench as generalized forces of the floating joint, whose v = [w_WB; v_WBo]: the
+        # torque about Bo, τ + p_BoBcm_W × f, and f (p_BoBcm_W = p_WG − p_WBo, as logged).
+        r0, r1, r2 = pG[0] - qG[4], pG[1] - qG[5], pG[2] - qG[6]
         out[:] = [held, *qT, *pT, W0, W1, W2, *vT, *qG[:4], *pG, w0, w1, w2, *vg,
-                  t0, t1, t2, f0, f1, f2, capped]  # fmt: skip
+                  t0, t1, t2, f0, f1, f2, capped,
+                  t0 + r1 * f2 - r2 * f1, t1 + r2 * f0 - r0 * f2, t2 + r0 * f1 - r1 * f0,
+                  f0, f1, f2]  # fmt: skip
 
     def _calc_generalized_forces(self, context, output):
         """The coupling wrench as generalized forces of the held body's floating joint.
@@ -637,6 +644,8 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
         the torque about Bo and the force, both in W: ``τ_Bo = τ + p_BoBcm_W × f``. One numpy
         vector is cheaper per step than the abstract ``spatial_forces`` list and gives the
         plant the same forces (tests/test_coupling.py checks against ``CalcGeneralizedForces``).
+        Computed with the terms (their cache's last six entries), so that this port, read by the
+        plant at every step, costs no second look at the plant's state.
         """
         t = self._terms.Eval(context)
         out = output.get_mutable_value()
@@ -644,17 +653,8 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
         held = int(t[_IDX])
         if held < 0:
             return
-        b = self._fast[held]
-        tau, f = t[27:30].tolist(), t[30:33].tolist()
-        p_WBo = self._state_port.Eval(context)[b.q_start + 4 : b.q_start + 7]
-        r = (t[18:21] - p_WBo).tolist()  # p_BoBcm_W = p_WG − p_WBo, no second rotation
-        vs = b.v_start - self._nq
-        out[vs : vs + 6] = [
-            tau[0] + r[1] * f[2] - r[2] * f[1],
-            tau[1] + r[2] * f[0] - r[0] * f[2],
-            tau[2] + r[0] * f[1] - r[1] * f[0],
-            f[0], f[1], f[2],
-        ]  # fmt: skip
+        vs = self._fast[held].v_start - self._nq
+        out[vs : vs + 6] = t[_TERMS:]
 
     def _calc_spatial_forces(self, context, output):
         t = self._terms.Eval(context)

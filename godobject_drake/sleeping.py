@@ -23,7 +23,10 @@ boundary and never per step:
   transient declarations) was measured and left out: Drake's collision filter holds an entry for
   every geometry pair (some 700 000 with 64 bricks of 13 geometries each) and rebuilds it on
   every transient change, 20–40 ms a change (one sleep or wake), where the filter saves 3 % of
-  a step (64 bricks asleep: 403 → 392 µs; 8 bricks: 77 → 73 µs).
+  a step (64 bricks asleep: 403 → 392 µs; 8 bricks: 77 → 73 µs). On the scene's own plant
+  replayed at 64 bricks it saves about a quarter of a step, and a change costs 270–370 ms
+  (docs/design.md, "Collision filters in a context"): still a loss over the path's first 3 s,
+  and a stall at every wake.
 
 It runs as part of the safeguards' monitor (:func:`~godobject_drake.safeguards.install_safeguards`),
 the one place that may change the plant's context between steps. Locking sets the body's
