@@ -309,9 +309,29 @@ def set_overrides(items: list[str]) -> str | None:
     return "\n".join(emit(tree, 0)) + "\n" if tree else None
 
 
+# ``--set`` fields that name an input file: a relative one is the user's, from where they run the
+# command, not from the scenario file's folder (a shipped scene's is inside the installed package).
+_PATH_KEYS = ("device.path", "device.log")
+
+
+def _sets_from_here(items: list[str]) -> list[str]:
+    """``items`` with a relative file of :data:`_PATH_KEYS` made absolute against the working folder."""
+    out = []
+    for item in items:
+        key, eq, value = item.partition("=")
+        v = value.strip()
+        if eq and key.strip() in _PATH_KEYS and v and "://" not in v and not Path(v).is_absolute():
+            item = f"{key.strip()}={Path(v).resolve()}"
+        out.append(item)
+    return out
+
+
 def load_with_sets(path: str | Path, items: list[str]) -> sc.Scenario:
     """The scenario file with the ``--set`` items applied (before its checks); an error names the
-    item that caused it."""
+    item that caused it. A relative file path set on the device is taken from the working folder;
+    a field of the device or the god-object set alone keeps the kind the file gives
+    (:func:`~godobject_drake.scenario.load_scenario`)."""
+    items = _sets_from_here(items)
     text = set_overrides(items)
     try:
         return sc.load_scenario(path, text)

@@ -24,6 +24,7 @@ import copy
 import dataclasses
 import importlib.resources
 import math
+import typing
 from pathlib import Path
 from typing import ClassVar
 
@@ -573,6 +574,7 @@ def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenari
         scenario = yaml_load_typed(schema=Scenario, filename=str(path))
         if overrides:
             where = "the overrides"
+            overrides = _keep_kinds(scenario, overrides)
             scenario = yaml_load_typed(schema=Scenario, data=overrides, defaults=scenario)
     except LOAD_ERRORS as e:
         text = path.read_text(errors="replace") if where == str(path) else overrides
@@ -580,6 +582,33 @@ def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenari
     resolve_paths(scenario, path.resolve().parent)
     check_scenario(scenario, where=str(path))
     return scenario
+
+
+def _keep_kinds(scenario: Scenario, overrides: str) -> str:
+    """``overrides`` with the file's kind tag on each untagged mapping given to a field that holds
+    one of several kinds (``device``, ``god_object``): Drake's loader reads an untagged mapping
+    there as the first kind (``!Scripted``, ``!Rigid``), so ``device: {path: p}`` over a
+    ``!ScriptedJoints`` device would replace it by a ``!Scripted`` one instead of setting its path.
+    A tag the user gives is kept (a change of kind)."""
+    try:
+        root = yaml.compose(overrides)
+    except yaml.YAMLError:
+        return overrides  # the loader names the error
+    if not isinstance(root, yaml.MappingNode):
+        return overrides
+    hints = typing.get_type_hints(Scenario)
+    changed = False
+    for key, value in root.value:
+        field = key.value if isinstance(key, yaml.ScalarNode) else None
+        kinds = typing.get_args(hints.get(field)) if field in hints else ()
+        untagged = (
+            isinstance(value, yaml.MappingNode)
+            and value.tag == yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG
+        )
+        if len(kinds) > 1 and untagged:
+            value.tag = "!" + type(getattr(scenario, field)).__name__
+            changed = True
+    return yaml.serialize(root) if changed else overrides
 
 
 def scenario_from_yaml(text: str, base_dir: str | Path = ".") -> Scenario:

@@ -5,6 +5,7 @@ import json
 import pydoc
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import REPO, load_script
@@ -72,6 +73,24 @@ def test_set_overrides_any_field_before_the_checks():
     ):
         with pytest.raises(sc.ScenarioError, match=named):
             cli.load_with_sets(sc.shipped_scenario_file("lego"), items)
+
+
+def test_set_one_device_field_keeps_the_device_kind_and_reads_the_path_from_here(tmp_path, monkeypatch):
+    """``--set device.path=my_path.yaml`` on the laparoscopy scene (a ``!ScriptedJoints`` device):
+    Drake's loader would read the untagged mapping as the first kind, ``!Scripted``, and the
+    articulated scene then refused "a joint-space device ... got !Scripted"; and the relative path
+    was taken from the scenario's folder (inside the installed package). Now the device keeps its
+    kind and its other fields, and the path is the user's, from the working folder."""
+    path = sc.shipped_scenario("laparoscopy").device.path
+    (tmp_path / "mine.yaml").write_text(Path(path).read_text())
+    monkeypatch.chdir(tmp_path)
+    s = cli.load_with_sets(sc.shipped_scenario_file("laparoscopy"), ["device.path=mine.yaml"])
+    shipped = sc.shipped_scenario("laparoscopy").device
+    assert type(s.device) is type(shipped) and s.device.path == str(tmp_path / "mine.yaml")
+    assert s.device.channels == shipped.channels and s.device.mix == shipped.mix  # the rest kept
+    # A tag the user gives is kept as given (their choice of kind), not replaced by the file's.
+    s = cli.load_with_sets(sc.shipped_scenario_file("lego"), ["device=!Scripted {rate_hz: 30}"])
+    assert type(s.device).__name__ == "Scripted" and s.device.rate_hz == 30
 
 
 @pytest.mark.slow
