@@ -744,6 +744,15 @@ def main(argv=None) -> int:
     )
     overhead = bm.coupling_overhead_us()
     profile = brick_profile() if "lego" in scenes else None
+    fair_floor = None
+    if profile is not None:
+        # The fair floor: the scene's own plant replayed with what the scene did to it, no Python
+        # per step (analysis/step_floor.py), round-robin against the scene, both couplings.
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import step_floor
+
+        fair_floor = step_floor.measure(3.0 if args.quick else None, 3)
+        profile["fair_floor"] = fair_floor
 
     summary = {
         "quick": args.quick,
@@ -849,6 +858,9 @@ def main(argv=None) -> int:
             "includes SAP's seven coupling constraints, which this plant-alone step does not solve). "
             "Issue 31's goal: ≤ 1.15×.",
             "",
+            "",
+            *_fair_floor_lines(profile.get("fair_floor")),
+            "",
             "Python with the implicit coupling (cProfile, the same 2 s), µs per plant step by module: "
             + ", ".join(f"{k} {v:.1f}" for k, v in profile["python_us_by_module_implicit"].items())
             + ". As above these are the whole run's Python divided by its steps: the work at device "
@@ -863,6 +875,31 @@ def main(argv=None) -> int:
     (args.out / "results.json").write_text(json.dumps(summary, indent=1, default=_json_default))
     print(f"wrote {args.out / 'report.md'} and results.json in {elapsed:.0f} s")
     return 0
+
+
+def _fair_floor_lines(floor: dict | None) -> list[str]:
+    """The speed report's paragraph on analysis/step_floor.py's fair floor (its ``measure``)."""
+    if not floor:
+        return []
+    med, r = floor["cpu_us_per_step_median"], floor["ratio_rounds_median"]
+    path = "the whole path" if floor["seconds"] is None else f"the path's first {floor['seconds']:g} s"
+    rounds = len(floor["ratio_rounds"]["explicit_over_replay"])
+    same = floor["explicit_replay_bit_identical"] and floor["implicit_replay_bit_identical"]
+    return [
+        f"**Against a fair floor** (`analysis/step_floor.py`, {path}, {rounds} rounds round-robin, "
+        "CPU time): "
+        "the resting floor above has the held brick at rest, but in the scene it moves, slides and "
+        "climbs the wall; the fair floor is the scene's own plant replaying what the scene did to it "
+        "(the explicit coupling's forces from a C++ `TrajectorySource`, the implicit springs, locks "
+        "and projections between `AdvanceTo` calls), "
+        + ("its final state bit-identical to the scene's" if same else "**its final state NOT the scene's**")
+        + f". Scene over replay, median of the rounds' ratios: **{r['explicit_over_replay']:.2f}×** "
+        f"explicit ({med['scene_explicit']:.0f} against {med['floor_explicit']:.0f} µs per step), "
+        f"**{r['implicit_over_replay']:.2f}×** implicit ({med['scene_implicit']:.0f} against "
+        f"{med['floor_implicit']:.0f} µs; SAP's coupling springs make its plant "
+        f"{med['floor_implicit'] / med['floor_explicit']:.2f}× the explicit one's). "
+        "Issue 31's goal: ≤ 1.15×.",
+    ]
 
 
 def _json_default(o):

@@ -245,22 +245,19 @@ def resting_floor(scenario, seconds: float) -> float:
     return time.process_time() - c0
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--seconds", type=float, default=None, help="simulated s (default: the whole path)")
-    parser.add_argument("--rounds", type=int, default=3, help="round-robin rounds (≥ 3)")
-    parser.add_argument("--bricks", type=int, help="the scene with this many bricks (scenario 'bricks')")
-    parser.add_argument("--filter", action="store_true", help="also replay with the sleeping pairs filtered")
-    parser.add_argument("--json", type=Path, help="write the measurements here")
-    args = parser.parse_args(argv)
-    if args.rounds < 3:
-        parser.error("--rounds: at least 3")
-    out: dict = {"machine": machine(), "bricks": args.bricks or 8, "seconds": args.seconds}
+def measure(
+    seconds: float | None,
+    rounds: int,
+    bricks: int | None = None,
+    filter_sleeping: bool = False,
+    echo=lambda *a: None,
+) -> dict:
+    """Record both couplings' scenes, check each replay bit for bit, then time scene, replay and
+    resting floor round-robin (CPU time); the medians (µs per step) and their ratios."""
+    out: dict = {"machine": machine(), "bricks": bricks or 8, "seconds": seconds}
     floors, steps = {}, {}
     for coupling in ("explicit", "implicit"):
-        scenario = scenario_for(coupling, args.seconds, args.bricks)
+        scenario = scenario_for(coupling, seconds, bricks)
         result, forces, events = record(scenario)
         floor = Floor(scenario, result.station, forces, events)
         floor.run()
@@ -273,10 +270,10 @@ def main(argv=None) -> int:
         out[f"{coupling}_events"] = len(events)
         floors[coupling] = (scenario, result.station, forces, events)
         steps[coupling] = round(scenario.simulation.duration_s / scenario.plant.time_step)
-        print(f"{coupling}: replay bit-identical={same}, {len(events)} events between AdvanceTo calls")
+        echo(f"{coupling}: replay bit-identical={same}, {len(events)} events between AdvanceTo calls")
     cpu: dict[str, list] = {}
-    seconds = floors["explicit"][0].simulation.duration_s
-    for r in range(args.rounds):
+    path_s = floors["explicit"][0].simulation.duration_s
+    for r in range(rounds):
         for coupling in ("explicit", "implicit"):
             scenario, station, forces, events = floors[coupling]
             res = simulate(build_station(scenario), progress=False, keep_logs=True)
@@ -285,14 +282,14 @@ def main(argv=None) -> int:
             advance, between = floor.run()
             cpu.setdefault(f"floor_{coupling}", []).append(advance / steps[coupling])
             cpu.setdefault(f"floor_{coupling}_events", []).append(between / steps[coupling])
-            if args.filter:
+            if filter_sleeping:
                 advance, between = Floor(scenario, station, forces, events).run(filter_sleeping=True)
                 cpu.setdefault(f"floor_{coupling}_filtered", []).append(advance / steps[coupling])
                 cpu.setdefault(f"floor_{coupling}_filter_changes", []).append(between / steps[coupling])
         cpu.setdefault("floor_resting", []).append(
-            resting_floor(floors["explicit"][0], seconds) / steps["explicit"]
+            resting_floor(floors["explicit"][0], path_s) / steps["explicit"]
         )
-        print(f"round {r + 1}: " + ", ".join(f"{k} {v[-1] * 1e6:.0f}" for k, v in cpu.items()) + " µs/step")
+        echo(f"round {r + 1}: " + ", ".join(f"{k} {v[-1] * 1e6:.0f}" for k, v in cpu.items()) + " µs/step")
     med = {k: statistics.median(v) * 1e6 for k, v in cpu.items()}
     out["cpu_us_per_step_median"] = med
     out["cpu_us_per_step_rounds"] = {k: [x * 1e6 for x in v] for k, v in cpu.items()}
@@ -305,9 +302,33 @@ def main(argv=None) -> int:
         "replay_implicit_over_resting": med["floor_implicit"] / med["floor_resting"],
     }
     out["ratios"] = ratios
-    for k, v in ratios.items():
+    # Each round's scene over its own replay, then the median: a round's two runs share its load.
+    out["ratio_rounds"] = {
+        f"{c}_over_replay": [a / b for a, b in zip(cpu[f"scene_{c}"], cpu[f"floor_{c}"], strict=True)]
+        for c in ("explicit", "implicit")
+    }
+    out["ratio_rounds_median"] = {k: statistics.median(v) for k, v in out["ratio_rounds"].items()}
+    return out
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seconds", type=float, default=None, help="simulated s (default: the whole path)")
+    parser.add_argument("--rounds", type=int, default=3, help="round-robin rounds (≥ 3)")
+    parser.add_argument("--bricks", type=int, help="the scene with this many bricks (scenario 'bricks')")
+    parser.add_argument("--filter", action="store_true", help="also replay with the sleeping pairs filtered")
+    parser.add_argument("--json", type=Path, help="write the measurements here")
+    args = parser.parse_args(argv)
+    if args.rounds < 3:
+        parser.error("--rounds: at least 3")
+    out = measure(args.seconds, args.rounds, args.bricks, args.filter, echo=print)
+    for k, v in out["ratios"].items():
         print(f"{k:32s} {v:.3f}")
-    for k, v in med.items():
+    for k, v in out["ratio_rounds"].items():
+        print(f"{k:32s} per round {', '.join(f'{x:.3f}' for x in v)}; median {statistics.median(v):.3f}")
+    for k, v in out["cpu_us_per_step_median"].items():
         print(f"{k:32s} {v:8.1f} µs/step (median CPU)")
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))

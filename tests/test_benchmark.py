@@ -177,3 +177,14 @@ def test_free_tracking_samples_at_the_steps_taken_when_h_does_not_divide_10_ms()
     0.715 and 0.716 mm)."""
     four, five = (run_case(lego_case(h, 3.0)) for h in (4e-3, 5e-3))
     assert abs(four["free_tracking_rms_m"] - five["free_tracking_rms_m"]) < 0.1e-3
+
+
+def test_step_floor_replays_the_scene_bit_for_bit():
+    """analysis/step_floor.py's fair floor is the scene's own plant with no Python per step,
+    replaying what the scene did to it; it is fair only if it steps the very states the scene
+    stepped: after 0.3 s the plant's state equals the scene's to the bit, for both couplings
+    (the explicit coupling's forces from a TrajectorySource, the implicit springs between
+    AdvanceTo calls)."""
+    floor = load_script("analysis/step_floor.py").measure(0.3, 1)
+    assert floor["explicit_replay_bit_identical"] and floor["implicit_replay_bit_identical"]
+    assert floor["explicit_events"] > 0 and floor["implicit_events"] > floor["explicit_events"]
