@@ -314,7 +314,9 @@ def _tissue_pose(station, q_device: np.ndarray) -> dict | None:
         if joint.imposed:
             q[k] = 0.0
     ctx = tool.set_device_state(q)
-    tip = plant.GetBodyByName(station.scenario.god_object.tip_body, tool.model)
+    # the tip body as the tool's metrics take it: the scenario's, else the last coupled body
+    tip_name = station.scenario.god_object.tip_body or plant.get_body(BodyIndex(tool.bodies[-1].index)).name()
+    tip = plant.GetBodyByName(tip_name, tool.model)
     X = plant.EvalBodyPoseInWorld(ctx, tip)
     p, d = X.translation(), -X.rotation().matrix()[:, 2]
     reach, radius = -math.inf, math.inf
