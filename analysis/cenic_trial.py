@@ -73,8 +73,8 @@ def build(scenario, h: float):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
 
-    from godobject_drake import scenario as sc
     from godobject_drake.building import add_plant, make_device
+    from godobject_drake.config import scenario as sc
     from godobject_drake.god_objects.rigid import add_god_object, coupling_options
     from godobject_drake.scenes import apply_contact_model, make_parser
 
@@ -195,8 +195,8 @@ def run(config: dict, scenario, duration: float) -> dict:
 def run_simulate(config: dict, scenario, duration: float) -> dict:
     """The project's own run (``godobject run lego``: :func:`~godobject_drake.simulation.simulate`
     with its safeguards and sleeping bodies) at SAP step ``h``: the baseline the goal quotes."""
-    from godobject_drake import scenario as sc
     from godobject_drake.building import build_station
+    from godobject_drake.config import scenario as sc
     from godobject_drake.simulation import simulate
 
     station = build_station(sc.replace(scenario, **{"plant.time_step": config["h"]}))
@@ -261,7 +261,7 @@ def main(argv=None) -> int:
 
     from pydrake.systems.analysis import GetIntegrationSchemes
 
-    from godobject_drake.scenario import shipped_scenario
+    from godobject_drake.config.scenario import shipped_scenario
 
     scenario = shipped_scenario("lego")
     duration = scenario.simulation.duration_s if args.duration is None else args.duration

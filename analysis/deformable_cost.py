@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from godobject_drake.building import build_station
-from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.simulation import simulate
 
 INTERACTIVE = {

@@ -51,7 +51,7 @@ def free_port() -> int:
 
 
 def phase(work: Path, duration: float, load: int, rt_priority: int = 0) -> dict:
-    from godobject_drake import scenario as sc
+    from godobject_drake.config import scenario as sc
 
     url = f"udp://127.0.0.1:{free_port()}"
     s = sc.load_scenario(

@@ -22,8 +22,8 @@ import sys
 import warnings
 
 import godobject_drake.implicit as new_implicit
-from godobject_drake import scenario as sc
 from godobject_drake.building import build_station
+from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
 
 

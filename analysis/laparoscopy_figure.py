@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.patches import Circle, Ellipse
 
 from godobject_drake.building import build_station
-from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.simulation import simulate
 
 

@@ -21,9 +21,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from godobject_drake.building import build_station
+from godobject_drake.config.device_files import RelativeAids
+from godobject_drake.config.devices import Relative
+from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.coupling import TERMS_LAYOUT
-from godobject_drake.devices import RelativeAids
-from godobject_drake.scenario import Relative, replace, shipped_scenario
 from godobject_drake.simulation import simulate
 
 REPO = Path(__file__).resolve().parent.parent

@@ -12,7 +12,7 @@ import subprocess
 from pathlib import Path
 
 from godobject_drake.building import build_station
-from godobject_drake.scenario import shipped_scenario
+from godobject_drake.config.scenario import shipped_scenario
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -40,7 +40,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.studies import benchmark as bm
 from godobject_drake.studies.sweep import run_tasks
 

@@ -32,7 +32,7 @@ SCENES = {  # scene: (overrides, simulated seconds)
 RUN = """
 import json, sys, time, warnings
 from godobject_drake.building import build_station
-from godobject_drake.scenario import load_scenario, replace
+from godobject_drake.config.scenario import load_scenario, replace
 from godobject_drake.simulation import simulate
 scene, overrides, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
 s = load_scenario(f"{sys.argv[4]}/diagrams/{scene}.yaml", overrides or None)

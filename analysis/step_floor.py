@@ -39,8 +39,8 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from godobject_drake import safeguards as sg
 from godobject_drake.building import add_plant, build_station
+from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.coupling import GodObjectCoupling
-from godobject_drake.scenario import replace, shipped_scenario
 from godobject_drake.simulation import simulate
 
 

@@ -15,8 +15,8 @@ import os
 import platform
 import time
 
-from godobject_drake import scenario as sc
 from godobject_drake.building import build_station
+from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
 
 

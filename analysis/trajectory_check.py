@@ -79,7 +79,7 @@ WALL_CLOCK_KEYS = (
 
 def run_variant(name: str) -> dict[str, np.ndarray]:
     from godobject_drake.building import build_station
-    from godobject_drake.scenario import load_scenario, replace
+    from godobject_drake.config.scenario import load_scenario, replace
     from godobject_drake.simulation import simulate
 
     scene, overrides, duration = VARIANTS[name]

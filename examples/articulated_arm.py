@@ -9,7 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.articulated import add_articulated_god_object
-from godobject_drake.coupling import CouplingGains
+from godobject_drake.config.gains import CouplingGains
 from godobject_drake.devices import JointDevice
 from godobject_drake.scenes import add_scene_from_directives
 

@@ -7,10 +7,10 @@
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.building import add_god_object
-from godobject_drake.coupling import CouplingGains
-from godobject_drake.devices import ScriptedDevice, Waypoint
-from godobject_drake.feedback import FeedbackGains
+from godobject_drake.config.device_files import Waypoint
+from godobject_drake.config.gains import CouplingGains, FeedbackGains
+from godobject_drake.devices import ScriptedDevice
+from godobject_drake.god_objects.rigid import add_god_object
 from godobject_drake.safeguards import install_safeguards
 from godobject_drake.scenes import add_scene_from_directives
 

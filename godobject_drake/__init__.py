@@ -11,7 +11,7 @@ Describe a scene once in a scenario file, build it with one call, run it::
 or compose a diagram of one's own from the parts (docs/guide/own_scene.md, "Compose your own
 diagram"). The runtime, what runs in a scene, is one module per role:
 
-- :mod:`~godobject_drake.device_kinds`: the device kinds, each a scenario config registered once;
+- :mod:`~godobject_drake.config.devices`: the device kinds, each a scenario config registered once;
 - :mod:`~godobject_drake.devices`, :mod:`~godobject_drake.live`, :mod:`~godobject_drake.lcm_device`:
   device sources (scripted, replayed, relative, from the browser, over LCM) and their sample guard;
 - :mod:`~godobject_drake.god_objects`: the god-object kinds (rigid, articulated, deformable), one
@@ -21,7 +21,7 @@ diagram"). The runtime, what runs in a scene, is one module per role:
 - :mod:`~godobject_drake.haptic`: simulated haptic devices, the user's hand, the passivity controller;
 - :mod:`~godobject_drake.articulated`, :mod:`~godobject_drake.deformable`: the articulated
   coupling and tool, the deformable shell;
-- :mod:`~godobject_drake.scenario`: the typed scenario a YAML file loads into;
+- :mod:`~godobject_drake.config.scenario`: the typed scenario a YAML file loads into;
 - :mod:`~godobject_drake.scenes`: model loading and contact settings;
 - :mod:`~godobject_drake.building`: a scenario into a diagram, and the one-call helpers;
 - :mod:`~godobject_drake.safeguards`: divergence, quaternion drift, Stop, wiring checks;
@@ -42,9 +42,9 @@ The names above are imported lazily, so ``import godobject_drake`` stays cheap.
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "Scenario": "scenario",
-    "load_scenario": "scenario",
-    "shipped_scenario": "scenario",
+    "Scenario": "config.scenario",
+    "load_scenario": "config.scenario",
+    "shipped_scenario": "config.scenario",
     "build_station": "building",
     "add_god_object": "building",
     "simulate": "simulation",

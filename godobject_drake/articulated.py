@@ -62,8 +62,7 @@ from pydrake.multibody.tree import (
 )
 from pydrake.systems.framework import DiagramBuilder, LeafSystem, ValueProducer
 
-from godobject_drake.coupling import CouplingGainError, CouplingGains
-from godobject_drake.feedback import FeedbackGains
+from godobject_drake.config.gains import CouplingGainError, CouplingGains, FeedbackGains
 from godobject_drake.limits import symplectic_euler_radius
 from godobject_drake.spatial import (
     cross3,

@@ -27,11 +27,12 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import VectorLogSink
 
-from godobject_drake import scenario as sc
-from godobject_drake.device_kinds import kind_of
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.devices import kind_of
 from godobject_drake.devices import DeviceSource, JointDevice
-from godobject_drake.god_objects import GodObject, kind_for
+from godobject_drake.god_objects import kind_for
 from godobject_drake.god_objects.articulated import add_articulated  # noqa: F401  (public here)
+from godobject_drake.god_objects.base import GodObject
 from godobject_drake.god_objects.deformable import add_deformable  # noqa: F401
 from godobject_drake.god_objects.rigid import (  # noqa: F401  the one-call helpers, public here too
     ContactPair,
@@ -154,7 +155,7 @@ def make_device(
     duration_s: float = math.inf,
 ) -> DeviceSource | JointDevice:
     """The device a scenario's ``device`` field describes (not yet added to a builder): its
-    registered kind's factory (:mod:`~godobject_drake.device_kinds`).
+    registered kind's factory (:mod:`~godobject_drake.config.devices`).
 
     ``seed`` seeds the pose devices' noise; a live device (``MeshcatSliders``,
     ``MeshcatJointSliders``) needs the ``meshcat`` whose page drives it, and a pose one the

@@ -18,12 +18,13 @@ import threading
 import warnings
 from pathlib import Path
 
-from godobject_drake import scenario as sc
-from godobject_drake.building import PenetrationBudgetWarning, build_station, make_meshcat
-from godobject_drake.coupling import CouplingGainError
-from godobject_drake.deformable import SHELL_MODELS, ShellSpecError
-from godobject_drake.device_kinds import DEVICE_KINDS, kind_of, kinds_in
-from godobject_drake.devices import INTERPOLATIONS
+from godobject_drake.building import build_station, make_meshcat
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.device_files import INTERPOLATIONS
+from godobject_drake.config.devices import DEVICE_KINDS, kind_of, kinds_in
+from godobject_drake.config.gains import CouplingGainError
+from godobject_drake.config.tools import SHELL_MODELS, ShellSpecError
+from godobject_drake.god_objects.rigid import PenetrationBudgetWarning
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError
 from godobject_drake.safeguards import WiringError
@@ -330,7 +331,7 @@ def load_with_sets(path: str | Path, items: list[str]) -> sc.Scenario:
     """The scenario file with the ``--set`` items applied (before its checks); an error names the
     item that caused it. A relative file path set on the device is taken from the working folder;
     a field of the device or the god-object set alone keeps the kind the file gives
-    (:func:`~godobject_drake.scenario.load_scenario`)."""
+    (:func:`~godobject_drake.config.scenario.load_scenario`)."""
     items = _sets_from_here(items)
     text = set_overrides(items)
     try:

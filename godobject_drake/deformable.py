@@ -37,7 +37,6 @@ grows as the cube of its node count (the nodes are one kinematic tree with
 the core, and SAP factors each tree densely).
 """
 
-import dataclasses
 import math
 
 import numpy as np
@@ -67,100 +66,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
 from scipy.spatial import ConvexHull
 
-SHELL_MODELS = ("fem", "mass_spring")
-
-
-class ShellSpecError(ValueError):
-    """A shell specification that cannot be built or simulated."""
-
-
-@dataclasses.dataclass
-class ShellSpec:
-    """Geometry and material of a spherical deformable god-object (SI units).
-
-    Attributes
-    ----------
-    radius_m : float
-        Outer radius R of the shell.
-    core_radius_m : float
-        Radius rc of the rigid core; the shell is R − rc thick.
-    core_mass_kg : float
-        Mass of the core (a solid sphere).
-    density_kg_m3 : float
-        Shell density ρ.
-    youngs_modulus_pa : float
-        Young's modulus E of the shell.
-    poissons_ratio : float
-        Poisson's ratio ν (FEM only), in [0, 0.5).
-    damping_ratio : float
-        Damping ratio ζ of the shell's through-thickness mode.
-    friction : float
-        Coulomb friction of the shell (static = dynamic).
-    nodes : int
-        Mass–spring nodes on the surface (a Fibonacci lattice).
-    fem_resolution_m : float
-        Drake's meshing hint for the FEM ball (0.02 m gives 129 vertices at R = 0.03).
-    node_contact_stiffness : float
-        Point-contact stiffness of a mass–spring node's sphere (N/m),
-        combined harmonically with the obstacle's.
-    fem_contact_relaxation_s : float
-        SAP relaxation time of the FEM shell's contact (s), added to the
-        obstacle's. At h = 10 ms, 0.01 s lets the pressed shell chatter
-        against the obstacle (a 40 ms limit cycle, 1.5–5 mm deep); 0.1 s
-        damps it.
-    """
-
-    radius_m: float = 0.03
-    core_radius_m: float = 0.018
-    core_mass_kg: float = 0.1
-    density_kg_m3: float = 1000.0
-    youngs_modulus_pa: float = 5.0e4
-    poissons_ratio: float = 0.4
-    damping_ratio: float = 1.0
-    friction: float = 0.3
-    nodes: int = 42
-    fem_resolution_m: float = 0.02
-    node_contact_stiffness: float = 1.0e5
-    fem_contact_relaxation_s: float = 0.1
-
-    @property
-    def thickness_m(self) -> float:
-        return self.radius_m - self.core_radius_m
-
-    @property
-    def shell_omega(self) -> float:
-        """ω_s = √(E/ρ)/t (rad/s): the shell's through-thickness mode."""
-        return math.sqrt(self.youngs_modulus_pa / self.density_kg_m3) / self.thickness_m
-
-    def check(self) -> None:
-        """Raise :class:`ShellSpecError` naming the bad value, its limit and the fix."""
-        positive = (
-            ("radius_m", self.radius_m), ("core_radius_m", self.core_radius_m),
-            ("core_mass_kg", self.core_mass_kg), ("density_kg_m3", self.density_kg_m3),
-            ("youngs_modulus_pa", self.youngs_modulus_pa), ("fem_resolution_m", self.fem_resolution_m),
-            ("node_contact_stiffness", self.node_contact_stiffness),
-            ("fem_contact_relaxation_s", self.fem_contact_relaxation_s),
-        )  # fmt: skip
-        for name, value in positive:
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ShellSpecError(f"{name}={value!r} must be a finite number > 0")
-        if not self.core_radius_m < self.radius_m:
-            raise ShellSpecError(
-                f"core_radius_m={self.core_radius_m} must be < radius_m={self.radius_m}: "
-                "the shell lies between them; shrink the core or grow the shell"
-            )
-        if not 0.0 <= self.poissons_ratio < 0.5:
-            raise ShellSpecError(f"poissons_ratio={self.poissons_ratio} must be in [0, 0.5)")
-        if not (math.isfinite(self.damping_ratio) and self.damping_ratio >= 0):
-            raise ShellSpecError(f"damping_ratio={self.damping_ratio} must be ≥ 0")
-        if not (math.isfinite(self.friction) and self.friction >= 0):
-            raise ShellSpecError(f"friction={self.friction} must be ≥ 0")
-        if not (isinstance(self.nodes, int) and 12 <= self.nodes <= 400):
-            raise ShellSpecError(
-                f"nodes={self.nodes!r} must be an integer in [12, 400]: fewer cannot cover "
-                "the sphere; more make one dense kinematic tree too slow to step "
-                "(use the fem shell for fine meshes)"
-            )
+from godobject_drake.config.tools import SHELL_MODELS, ShellSpec, ShellSpecError
 
 
 def fibonacci_sphere(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -498,7 +498,7 @@ def world_box(lower, upper, X_WDev, scale: float) -> tuple[list[float], list[flo
 
 
 def _calibrate(args) -> int:
-    from godobject_drake import scenario as sc
+    from godobject_drake.config import scenario as sc
 
     if not args.seconds > 0:
         raise BadInput(

@@ -13,47 +13,13 @@ an obstacle stops G short of T, the user feels the obstacle. All gains zero
 (the default) is a non-haptic device: zero wrench, same god-object loop.
 """
 
-import dataclasses
-import math
-
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
+from godobject_drake.config.gains import FeedbackGains
 from godobject_drake.spatial import cross3, pose_arrays, rotation_error
-
-
-@dataclasses.dataclass
-class FeedbackGains:
-    """Feedback (virtual coupling) gains, absolute: they suit the device, not the body.
-
-    Attributes
-    ----------
-    kd : float
-        Translational stiffness (N/m).
-    gamma_d : float
-        Translational damping (N·s/m).
-    kd_rot : float
-        Rotational stiffness (N·m/rad).
-    gamma_d_rot : float
-        Rotational damping (N·m·s/rad).
-    """
-
-    kd: float = 0.0
-    gamma_d: float = 0.0
-    kd_rot: float = 0.0
-    gamma_d_rot: float = 0.0
-
-    def __post_init__(self):
-        self.check()
-
-    def check(self) -> None:
-        """Raise ``ValueError`` naming a gain that is negative or not finite."""
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise ValueError(f"feedback gain {f.name}={v!r} must be a finite number ≥ 0")
 
 
 class FeedbackPort(LeafSystem):

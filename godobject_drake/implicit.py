@@ -57,7 +57,8 @@ from pydrake.multibody.plant import DistanceConstraintParams, MultibodyPlant
 from pydrake.multibody.tree import BodyIndex, JointIndex, SpatialInertia
 from pydrake.systems.framework import LeafSystem
 
-from godobject_drake.coupling import CouplingGains, GraspableBody, GraspingCoupling
+from godobject_drake.config.gains import CouplingGains
+from godobject_drake.coupling import GraspableBody, GraspingCoupling
 from godobject_drake.spatial import (
     pose_arrays,
     quat_conjugate,

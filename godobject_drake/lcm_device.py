@@ -59,8 +59,9 @@ from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from godobject_drake.coupling import GRASP_NEAREST
-from godobject_drake.devices import DEFAULT_DEVICE_RATE_HZ, DeviceSource, JointDevice, SampleGuard
+from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGuard
+from godobject_drake.config.gains import GRASP_NEAREST
+from godobject_drake.devices import DeviceSource, JointDevice
 
 POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
 JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"

@@ -16,7 +16,7 @@ import sys
 import time
 from collections.abc import Callable
 
-from godobject_drake.devices import DeviceLog, read_device_log
+from godobject_drake.config.device_files import DeviceLog, read_device_log
 from godobject_drake.lcm_device import POSE_CHANNEL, make_lcm, pose_message
 
 

@@ -27,14 +27,9 @@ from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform
 from pydrake.visualization import MeshcatPoseSliders
 
-from godobject_drake.coupling import GRASP_NEAREST
-from godobject_drake.devices import (
-    DEFAULT_DEVICE_RATE_HZ,
-    DeviceSource,
-    JointDevice,
-    RelativeAids,
-    SampleGuard,
-)
+from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, RelativeAids, SampleGuard
+from godobject_drake.config.gains import GRASP_NEAREST
+from godobject_drake.devices import DeviceSource, JointDevice
 from godobject_drake.spatial import pose_arrays
 
 STOP_BUTTON = "Stop"

@@ -25,12 +25,12 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake.building import Station
+from godobject_drake.config.devices import kind_of
+from godobject_drake.config.scenario import Scenario
 from godobject_drake.coupling import TERMS_LAYOUT
-from godobject_drake.device_kinds import kind_of
 from godobject_drake.metrics import SceneMetrics
 from godobject_drake.recording import save_recording
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
-from godobject_drake.scenario import Scenario
 
 
 @dataclasses.dataclass

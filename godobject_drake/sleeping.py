@@ -49,47 +49,9 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import JointIndex
 
+from godobject_drake.config.scene import Sleep
+
 SLEEP_RGBA = (0.25, 0.45, 0.95, 0.9)
-
-
-@dataclasses.dataclass
-class Sleep:
-    """When free bodies sleep (module docstring); ``enabled: false`` keeps every body awake.
-
-    Attributes
-    ----------
-    enabled : bool
-        Lock resting bodies (``--sleep on|off``).
-    check_period_s : float
-        Simulated time between checks (s), rounded to whole plant steps.
-    speed_m_s, spin_rad_s : float
-        A body slower than both, for ``hold_s``, is calm.
-    hold_s : float
-        How long a body must stay calm before it may sleep (s). Three checks: a body in free
-        flight changes speed by g × 10 ms = 98 mm/s between two checks, so it is never calm at
-        two in a row; a body that stays under 2 mm/s for three is resting, or creeping.
-    margin_m : float
-        Added to every reach (m).
-    """
-
-    enabled: bool = True
-    check_period_s: float = 0.01
-    speed_m_s: float = 0.002
-    spin_rad_s: float = 0.05
-    hold_s: float = 0.03
-    margin_m: float = 0.005
-
-    def check(self) -> None:
-        """Raise ``ValueError`` naming a setting out of range."""
-        for name, unit in (("check_period_s", "s"), ("speed_m_s", "m/s"), ("spin_rad_s", "rad/s")):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                default = getattr(Sleep, name)
-                raise ValueError(f"sleep.{name}={value!r} {unit} must be > 0 (default {default!r})")
-        for name in ("hold_s", "margin_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"sleep.{name}={value!r} must be ≥ 0 (default {getattr(Sleep, name)!r})")
 
 
 def shape_radius(shape) -> float | None:

@@ -28,7 +28,6 @@ the first step: "Adding constraint to a clique with zero number of velocities
 is not allowed"; to the world body it segfaults.)
 """
 
-import dataclasses
 import math
 import shutil
 import tempfile
@@ -51,7 +50,7 @@ from pydrake.multibody.fem import DeformableBodyConfig
 from pydrake.multibody.plant import ContactResults, CoulombFriction, MultibodyPlant
 from pydrake.systems.framework import LeafSystem
 
-TISSUE_MODELS = ("rigid", "fem")
+from godobject_drake.config.scene import Organs
 
 # Kuhn's split of a cell into 6 tetrahedra; corners numbered by bits (x = 1, y = 2, z = 4).
 # All six share the diagonal 0–7, so the split of a shared face is the same from both cells.
@@ -134,85 +133,6 @@ def surface_triangles(T: np.ndarray) -> np.ndarray:
     return faces[first[counts == 1]]
 
 
-@dataclasses.dataclass
-class Organs:
-    """The organs of the laparoscopy scene: rigid (the default) or FEM tissue.
-
-    Attributes
-    ----------
-    model : str
-        ``rigid``: the organs are rigid shapes with a soft point-contact stiffness (the
-        directives' model files as they are). ``fem``: the organ named ``organ`` becomes a
-        Drake FEM deformable body of the same ellipsoid.
-    organ : str
-        The pelvis's geometry replaced (an ellipsoid collision geometry, ``model::name``).
-    youngs_modulus_pa, poissons_ratio, density_kg_m3 :
-        The tissue's material (Pa, –, kg/m³); ν in [0, 0.5).
-    mass_damping_per_s, stiffness_damping_s :
-        Rayleigh damping: α (1/s) and β (s), damping matrix α M + β K.
-    cells : int
-        Cells across the organ's mesh per axis (even): 8 gives 729 vertices, 3072 tetrahedra.
-    attached_below_m : float
-        Vertices lower than this below the organ's top (m) are fixed to the pelvis.
-    friction : float
-        Coulomb friction of the tissue (static = dynamic).
-    relaxation_time_s : float
-        SAP's relaxation time of the tissue's contact (s): its contact is a near-rigid
-        constraint damped over this time; the tissue's own elasticity gives the force.
-    """
-
-    model: str = "rigid"
-    organ: str = "pelvis::uterus"
-    youngs_modulus_pa: float = 5.0e4
-    poissons_ratio: float = 0.45
-    density_kg_m3: float = 1000.0
-    mass_damping_per_s: float = 0.0
-    stiffness_damping_s: float = 0.01
-    cells: int = 8
-    attached_below_m: float = 0.035
-    friction: float = 0.2
-    relaxation_time_s: float = 0.01
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if self.model not in TISSUE_MODELS:
-            raise ValueError(
-                f"model: {self.model!r}; choose one of {TISSUE_MODELS} (rigid: the rigid organs with a soft "
-                "point contact; fem: FEM tissue), e.g. --set organs.model=fem"
-            )
-        positive = (
-            ("youngs_modulus_pa", self.youngs_modulus_pa),
-            ("density_kg_m3", self.density_kg_m3),
-            ("attached_below_m", self.attached_below_m),
-            ("relaxation_time_s", self.relaxation_time_s),
-        )
-        for name, value in positive:
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: {value!r} must be a finite number > 0")
-        if not (isinstance(self.poissons_ratio, int | float) and 0.0 <= self.poissons_ratio < 0.5):
-            raise ValueError(
-                f"poissons_ratio: {self.poissons_ratio!r} must be in [0, 0.5) (soft tissue: about 0.45)"
-            )
-        for name in ("mass_damping_per_s", "stiffness_damping_s", "friction"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: {value!r} must be a finite number ≥ 0")
-        if not (isinstance(self.cells, int) and 2 <= self.cells <= 24 and self.cells % 2 == 0):
-            raise ValueError(
-                f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
-                "and steps far below real time)"
-            )
-
-    def body_config(self) -> DeformableBodyConfig:
-        config = DeformableBodyConfig()
-        config.set_youngs_modulus(self.youngs_modulus_pa)
-        config.set_poissons_ratio(self.poissons_ratio)
-        config.set_mass_density(self.density_kg_m3)
-        config.set_mass_damping_coefficient(self.mass_damping_per_s)
-        config.set_stiffness_damping_coefficient(self.stiffness_damping_s)
-        return config
-
-
 class FemOrgan:
     """An organ made a FEM deformable body (built by :func:`add_fem_organ` before ``Finalize()``).
 
@@ -271,7 +191,7 @@ class FemOrgan:
         instance.set_proximity_properties(props)
         model = plant.mutable_deformable_model()
         self.instance = plant.AddModelInstance(f"{name}_fem")
-        self.body_id = model.RegisterDeformableBody(instance, self.instance, spec.body_config(), 1.0)
+        self.body_id = model.RegisterDeformableBody(instance, self.instance, body_config(spec), 1.0)
         self.geometry_id = model.GetGeometryId(self.body_id)
         self.rest_W = np.asarray(model.GetReferencePositions(self.body_id)).reshape(-1, 3)
         # The attachment: a box under the organ, from its bottom to attached_below_m under its top.
@@ -307,6 +227,17 @@ class FemOrgan:
         builder.Connect(plant.get_body_poses_output_port(), observer.GetInputPort("body_poses"))
         builder.Connect(plant.get_contact_results_output_port(), observer.GetInputPort("contact_results"))
         return observer
+
+
+def body_config(organs: Organs) -> DeformableBodyConfig:
+    """Drake's FEM material and Rayleigh damping of the organs' tissue."""
+    config = DeformableBodyConfig()
+    config.set_youngs_modulus(organs.youngs_modulus_pa)
+    config.set_poissons_ratio(organs.poissons_ratio)
+    config.set_mass_density(organs.density_kg_m3)
+    config.set_mass_damping_coefficient(organs.mass_damping_per_s)
+    config.set_stiffness_damping_coefficient(organs.stiffness_damping_s)
+    return config
 
 
 def _find_geometry(plant, inspector, scoped: str):

@@ -25,8 +25,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake import cli
 from godobject_drake.building import build_station, make_meshcat
+from godobject_drake.config.scenario import Scenario, load_scenario, scenario_to_yaml
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
-from godobject_drake.scenario import Scenario, load_scenario, scenario_to_yaml
 from godobject_drake.simulation import RunResult, simulate
 
 REPO = Path(__file__).resolve().parent.parent

@@ -17,9 +17,10 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.building import add_god_object
-from godobject_drake.coupling import CouplingGains
-from godobject_drake.devices import DeviceSource, IncrementLog, RelativeAids, RelativeDevice, SampleGuard
+from godobject_drake.config.device_files import IncrementLog, RelativeAids, SampleGuard
+from godobject_drake.config.gains import CouplingGains
+from godobject_drake.devices import DeviceSource, RelativeDevice
+from godobject_drake.god_objects.rigid import add_god_object
 from godobject_drake.spatial import rotation_error
 
 T = 0.01  # device period (s)

@@ -13,7 +13,7 @@ import sys
 import pytest
 from conftest import REPO, own_scene_files
 
-from godobject_drake import scenario as sc
+from godobject_drake.config import scenario as sc
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.studies.analyze import WARN_FRACTION, analysis_scenario, analyze, write_report
 

@@ -19,9 +19,8 @@ from godobject_drake.articulated import (
     joint_space_loop,
     propagate_to_parents,
 )
-from godobject_drake.coupling import CouplingGainError, CouplingGains
+from godobject_drake.config.gains import CouplingGainError, CouplingGains, FeedbackGains
 from godobject_drake.devices import JointDevice
-from godobject_drake.feedback import FeedbackGains
 from godobject_drake.scenes import add_scene_from_directives, exclude_self_collisions
 from godobject_drake.spatial import rotation_error
 from godobject_drake.studies.stability import bisect

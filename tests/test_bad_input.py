@@ -13,15 +13,10 @@ from pydrake.math import RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.coupling import CouplingGains, GodObjectCoupling
-from godobject_drake.devices import (
-    DEVICE_STATUS_KEYS,
-    DeviceSource,
-    SampleGuard,
-    ScriptedDevice,
-    Waypoint,
-    read_increment_log,
-)
+from godobject_drake.config.device_files import DEVICE_STATUS_KEYS, SampleGuard, Waypoint, read_increment_log
+from godobject_drake.config.gains import CouplingGains
+from godobject_drake.coupling import GodObjectCoupling
+from godobject_drake.devices import DeviceSource, ScriptedDevice
 
 T = 0.01  # device period (s)
 Q = np.array([1.0, 0.0, 0.0, 0.0])

@@ -9,7 +9,7 @@ from conftest import add_free_boxes, load_script
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.studies.benchmark import compare, make_case, rigid_energy, run_case, summarize_cost
 
 

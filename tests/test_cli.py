@@ -12,7 +12,7 @@ from conftest import REPO, load_script
 
 import godobject_drake
 from godobject_drake import cli
-from godobject_drake import scenario as sc
+from godobject_drake.config import scenario as sc
 
 MARKUP = ("``", ":func:", ":mod:", ":class:")
 

@@ -22,18 +22,17 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
+from godobject_drake.config.device_files import SampleGuard, Waypoint
+from godobject_drake.config.gains import CouplingGainError, CouplingGains, CouplingGainWarning
 from godobject_drake.coupling import (
-    CouplingGainError,
-    CouplingGains,
-    CouplingGainWarning,
     GodObjectCoupling,
     GraspableBody,
-    explicit_limit_omega_h,
     fixed_bodies,
     graspable_bodies,
     with_carried_inertia,
 )
-from godobject_drake.devices import SampleGuard, ScriptedDevice, Waypoint
+from godobject_drake.devices import ScriptedDevice
+from godobject_drake.limits import explicit_limit_omega_h
 
 NO_JUMP_CHECK = SampleGuard(max_speed_m_s=float("inf"))
 

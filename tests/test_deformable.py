@@ -11,15 +11,10 @@ from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
+from godobject_drake.config.device_files import write_device_log
+from godobject_drake.config.tools import SHELL_MODELS, ShellSpec, ShellSpecError
 from godobject_drake.coupling import GraspableBody, with_carried_inertia
-from godobject_drake.deformable import (
-    SHELL_MODELS,
-    ShellSpec,
-    ShellSpecError,
-    add_deformable_god_object,
-    fibonacci_sphere,
-)
-from godobject_drake.devices import write_device_log
+from godobject_drake.deformable import add_deformable_god_object, fibonacci_sphere
 from godobject_drake.simulation import simulate
 
 G = 9.81

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from conftest import REPO, build_scene, lego_run, scenario, shared_run
 
+from godobject_drake.config.device_files import IncrementLog, load_device_path, write_increment_log
+from godobject_drake.config.scenario import ScenarioError
 from godobject_drake.coupling import graspable_bodies
-from godobject_drake.devices import IncrementLog, ScriptedDevice, load_device_path, write_increment_log
-from godobject_drake.scenario import ScenarioError
+from godobject_drake.devices import ScriptedDevice
 from godobject_drake.spatial import rotation_error
 from godobject_drake.studies import stability as st
 from godobject_drake.studies import validation as va

@@ -4,17 +4,14 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform
 
-from godobject_drake.devices import (
-    DeviceSource,
+from godobject_drake.config.device_files import (
     IncrementLog,
-    RelativeDevice,
-    ReplayDevice,
-    ScriptedDevice,
     Waypoint,
     read_device_log,
     write_device_log,
     write_increment_log,
 )
+from godobject_drake.devices import DeviceSource, RelativeDevice, ReplayDevice, ScriptedDevice
 
 PATH = [
     Waypoint(t=0.0, xyz=[0.0, 0.0, 0.0], grasp=""),

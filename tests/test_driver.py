@@ -28,8 +28,8 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake import driver as drv
-from godobject_drake import scenario as sc
 from godobject_drake.building import build_station
+from godobject_drake.config import scenario as sc
 from godobject_drake.haptic_families import RATED, HandPath
 from godobject_drake.lcm_device import (
     DRIVER_STATUS_CHANNEL,

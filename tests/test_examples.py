@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, REPO, own_scene_files
 
-from godobject_drake.building import PenetrationBudgetWarning, build_station
-from godobject_drake.scenario import load_scenario
+from godobject_drake.building import build_station
+from godobject_drake.config.scenario import load_scenario
+from godobject_drake.god_objects.rigid import PenetrationBudgetWarning
 
 GODOBJECT = Path(sys.executable).parent / "godobject"  # the console script of this environment
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform
 
-from godobject_drake.feedback import FeedbackGains, FeedbackPort
+from godobject_drake.config.gains import FeedbackGains
+from godobject_drake.feedback import FeedbackPort
 
 IDENTITY_Q = [1.0, 0, 0, 0]
 

@@ -22,15 +22,15 @@ from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.devices import (
+from godobject_drake.config.device_files import (
     CSV_HEADER,
     RELATIVE_CSV_HEADER,
-    DeviceSource,
     SampleGuard,
     read_device_log,
     read_increment_log,
     read_joint_log,
 )
+from godobject_drake.devices import DeviceSource
 from godobject_drake.lcm_device import POSE_CHANNEL, POSE_NAMES, LcmDevice
 
 pytestmark = pytest.mark.slow  # hypothesis: seconds per property

@@ -23,8 +23,10 @@ from pydrake.multibody.tree import SpatialInertia
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from godobject_drake.coupling import TERMS_LAYOUT, CouplingGainError, CouplingGains, GodObjectCoupling
-from godobject_drake.devices import SampleGuard, ScriptedDevice, Waypoint
+from godobject_drake.config.device_files import SampleGuard, Waypoint
+from godobject_drake.config.gains import CouplingGainError, CouplingGains
+from godobject_drake.coupling import TERMS_LAYOUT, GodObjectCoupling
+from godobject_drake.devices import ScriptedDevice
 from godobject_drake.scenes import apply_contact_model, make_parser, set_relaxation_time
 
 H = 1e-3

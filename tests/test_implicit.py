@@ -21,15 +21,11 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 
 from godobject_drake import cli
-from godobject_drake import scenario as sc
-from godobject_drake.coupling import (
-    CouplingGainError,
-    CouplingGains,
-    GodObjectCoupling,
-    GraspableBody,
-    graspable_bodies,
-)
-from godobject_drake.devices import SampleGuard, ScriptedDevice, Waypoint
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.device_files import SampleGuard, Waypoint
+from godobject_drake.config.gains import CouplingGainError, CouplingGains
+from godobject_drake.coupling import GodObjectCoupling, GraspableBody, graspable_bodies
+from godobject_drake.devices import ScriptedDevice
 from godobject_drake.implicit import (
     N_SPRINGS,
     ImplicitCoupling,

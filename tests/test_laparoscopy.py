@@ -16,8 +16,8 @@ from conftest import (
 )
 
 from godobject_drake.articulated import device_targets, joint_space_loop, linear_response
-from godobject_drake.coupling import CouplingGainError
-from godobject_drake.devices import write_joint_log
+from godobject_drake.config.device_files import write_joint_log
+from godobject_drake.config.gains import CouplingGainError
 
 
 def run(*flags):

@@ -11,8 +11,10 @@ from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.coupling import GRASP_NEAREST
-from godobject_drake.devices import DeviceSource, write_device_log
+from godobject_drake.config.device_files import write_device_log
+from godobject_drake.config.gains import GRASP_NEAREST
+from godobject_drake.config.scenario import ScenarioError
+from godobject_drake.devices import DeviceSource
 from godobject_drake.lcm_device import (
     FEEDBACK_CHANNEL,
     JOINT_CHANNEL,
@@ -22,7 +24,6 @@ from godobject_drake.lcm_device import (
     pose_message,
 )
 from godobject_drake.lcm_replay import replay
-from godobject_drake.scenario import ScenarioError
 from godobject_drake.simulation import RealtimeLag, simulate
 
 T = 0.01  # the device's expected period (s)
@@ -224,7 +225,7 @@ def test_replay_publishes_each_row_at_its_time(tmp_path):
     rows = [(0.0, ([0.1, 0, 0.05], [1, 0, 0, 0], "")), (0.5, ([0.1, 0, 0.06], [1, 0, 0, 0], "*")),
             (1.25, ([0.1, 0, 0.07], [1, 0, 0, 0], "*"))]  # fmt: skip
     write_device_log(log, [(t, (np.array(p), np.array(q), g)) for t, (p, q, g) in rows])
-    from godobject_drake.devices import read_device_log
+    from godobject_drake.config.device_files import read_device_log
 
     lcm = DrakeLcm("memq://")
     got = []

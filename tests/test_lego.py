@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import REPO, build_scene, lego_run, meshcat_commands, shared_run
 
-from godobject_drake.devices import write_device_log
+from godobject_drake.config.device_files import write_device_log
 from godobject_drake.metrics import METRIC_KEYS
 
 

@@ -11,7 +11,8 @@ from conftest import build_scene
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.coupling import GRASP_NEAREST, graspable_bodies
+from godobject_drake.config.gains import GRASP_NEAREST
+from godobject_drake.coupling import graspable_bodies
 from godobject_drake.live import GRASP_BUTTON, STOP_BUTTON, MeshcatDevice, MeshcatJointDevice
 from godobject_drake.recording import start_meshcat
 from godobject_drake.simulation import simulate

@@ -62,7 +62,7 @@ def peak_rss_mb(tmp_path, duration_s: float) -> float:
     code = textwrap.dedent(f"""
         import resource
         from godobject_drake.building import build_station
-        from godobject_drake.scenario import load_scenario
+        from godobject_drake.config.scenario import load_scenario
         from godobject_drake.simulation import simulate
         station = build_station(load_scenario("{tmp_path / "one_brick.yaml"}"))
         result = simulate(station, duration_s={duration_s}, keep_logs=False, progress=False)

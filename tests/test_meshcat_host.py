@@ -61,7 +61,7 @@ def test_the_default_is_quiet(capsys):
 
 @pytest.mark.parametrize("host", ["", "   "])
 def test_an_empty_host_is_refused(host):
-    from godobject_drake.scenario import ScenarioError
+    from godobject_drake.config.scenario import ScenarioError
 
     with pytest.raises(ScenarioError, match=r"visualization\.host: .* give localhost"):
         scenario("lego", "--meshcat-host", host)

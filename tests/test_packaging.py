@@ -15,9 +15,9 @@ from conftest import REPO
 
 import godobject_drake
 from godobject_drake import cli, scenes
-from godobject_drake import scenario as sc
 from godobject_drake.building import build_station
-from godobject_drake.scenario import load_scenario
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.scenario import load_scenario
 
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
 SETUPTOOLS = PYPROJECT["tool"]["setuptools"]

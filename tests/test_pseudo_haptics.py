@@ -20,20 +20,18 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.coupling import TERMS_LAYOUT, graspable_bodies
-from godobject_drake.devices import (
-    DeviceSource,
+from godobject_drake.config.device_files import (
     IncrementLog,
     RelativeAids,
-    RelativeDevice,
-    ScriptedDevice,
     increments_along,
     load_device_path,
     read_increment_log,
 )
+from godobject_drake.config.scenario import ScenarioError, scenario_from_yaml
+from godobject_drake.coupling import TERMS_LAYOUT, graspable_bodies
+from godobject_drake.devices import DeviceSource, RelativeDevice, ScriptedDevice
 from godobject_drake.live import GRASP_BUTTON
 from godobject_drake.metrics import SeparationMetrics, device_reversals
-from godobject_drake.scenario import ScenarioError, scenario_from_yaml
 from godobject_drake.spatial import rotation_error
 
 LOG = str(REPO / "models/lego/push_and_return.csv")

@@ -16,11 +16,11 @@ from drake import lcmt_force_torque
 
 from godobject_drake import cli
 from godobject_drake.building import build_station
+from godobject_drake.config.scenario import ScenarioError, load_scenario
 from godobject_drake.devices import ScriptedDevice
 from godobject_drake.lcm_device import FEEDBACK_CHANNEL
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
-from godobject_drake.scenario import ScenarioError, load_scenario
 from godobject_drake.simulation import UnsupportedBodyWarning, simulate
 
 
@@ -209,8 +209,9 @@ def test_a_path_whose_times_run_far_costs_what_the_run_uses():
     samples the path 13 times, not more than a run without the stretch."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_god_object, add_plant, finish
-    from godobject_drake.devices import load_device_path
+    from godobject_drake.building import add_plant, finish
+    from godobject_drake.config.device_files import load_device_path
+    from godobject_drake.god_objects.rigid import add_god_object
 
     s = load_scenario(LEGO, "simulation: {duration_s: 0.2}")
     waypoints = load_device_path(REPO / "models" / "lego" / "default_path.yaml").waypoints
@@ -343,9 +344,9 @@ def test_the_device_limit_at_build_is_python_controls_closed_loop_limit():
     §2's closed form 2(b + γd)/T (4400 N/m for 0.1 kg, 2 N·s/m, 1 kHz, γd = 0.2)."""
     import control as ct
 
+    from godobject_drake.config.scene import Haptic
     from godobject_drake.god_objects.rigid import hand_on_handle
     from godobject_drake.limits import device_wall_limit
-    from godobject_drake.scenario import Haptic
     from godobject_drake.studies.analyze import _device_with_hand
     from godobject_drake.studies.stability import DeviceParams, bisect, wall_impedance
 

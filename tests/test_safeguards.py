@@ -15,11 +15,14 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.building import add_god_object, add_plant
-from godobject_drake.coupling import CouplingGains, GodObjectCoupling
-from godobject_drake.devices import ScriptedDevice, Waypoint
+from godobject_drake.building import add_plant
+from godobject_drake.config.device_files import Waypoint
+from godobject_drake.config.gains import CouplingGains
+from godobject_drake.config.scenario import shipped_scenario
+from godobject_drake.coupling import GodObjectCoupling
+from godobject_drake.devices import ScriptedDevice
+from godobject_drake.god_objects.rigid import add_god_object
 from godobject_drake.safeguards import DivergenceError, WiringError, install_safeguards
-from godobject_drake.scenario import shipped_scenario
 
 LIFT = [Waypoint(t=0.0, xyz=[-0.10, 0.0, 0.0048], grasp="brick_0"),
         Waypoint(t=1.0, xyz=[-0.10, 0.0, 0.04], grasp="brick_0")]  # fmt: skip

@@ -16,14 +16,14 @@ import pytest
 from conftest import REPO, SCENES, load_script, scenario
 
 from godobject_drake.building import build_station, make_meshcat
-from godobject_drake.metrics import METRIC_KEYS
-from godobject_drake.scenario import (
+from godobject_drake.config.scenario import (
     ScenarioError,
     load_scenario,
     scenario_from_yaml,
     scenario_to_yaml,
     shipped_scenario,
 )
+from godobject_drake.metrics import METRIC_KEYS
 from godobject_drake.simulation import simulate
 
 # Keys every run's metrics have, whatever the scene (README "Metrics JSON").

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from godobject_drake.coupling import explicit_limit_omega_h
-from godobject_drake.scenario import replace, shipped_scenario
+from godobject_drake.config.scenario import replace, shipped_scenario
+from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.studies.benchmark import make_case, run_case
 from godobject_drake.studies.sweep import run_tasks
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from godobject_drake import scenario as sc
 from godobject_drake.building import build_station
+from godobject_drake.config import scenario as sc
 from godobject_drake.limits import semi_implicit_matrix, symplectic_euler_matrix
 from godobject_drake.simulation import simulate
 from godobject_drake.studies.indentation import IndentationSetup, hertz_force, indent, layer_correction

@@ -12,7 +12,7 @@ scenario config    kind class                             builder
 asks the built :class:`~.base.GodObject` (docs/design.md "Adding a god-object kind").
 """
 
-from godobject_drake import scenario as sc
+from godobject_drake.config import scenario as sc
 from godobject_drake.god_objects.articulated import ArticulatedGodObject
 from godobject_drake.god_objects.base import GodObject
 from godobject_drake.god_objects.deformable import DeformableGodObject

@@ -15,8 +15,8 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake import scenario as sc
 from godobject_drake.articulated import ArticulatedFeedback, add_articulated_god_object
+from godobject_drake.config import scenario as sc
 from godobject_drake.devices import JointDevice
 from godobject_drake.god_objects.base import GodObject
 from godobject_drake.scenes import SceneParts, exclude_self_collisions

@@ -12,11 +12,10 @@ from typing import TYPE_CHECKING, ClassVar
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake import scenario as sc
-from godobject_drake.coupling import CouplingGains
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.deformable import add_deformable_god_object
 from godobject_drake.devices import DeviceSource
-from godobject_drake.feedback import FeedbackGains
 from godobject_drake.god_objects.rigid import RigidGodObject, add_god_object, impose_target
 
 if TYPE_CHECKING:

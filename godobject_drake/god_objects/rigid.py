@@ -22,10 +22,11 @@ from pydrake.multibody.plant import ContactModel, MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake import scenario as sc
-from godobject_drake.coupling import CouplingGains, GodObjectCoupling
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.gains import CouplingGains, FeedbackGains
+from godobject_drake.coupling import GodObjectCoupling
 from godobject_drake.devices import DeviceSource
-from godobject_drake.feedback import FeedbackGains, FeedbackPort
+from godobject_drake.feedback import FeedbackPort
 from godobject_drake.god_objects.base import GodObject
 from godobject_drake.haptic import (
     AdmittanceDevice,
@@ -261,7 +262,7 @@ def add_god_object(
     :class:`~godobject_drake.feedback.FeedbackPort` named ``feedback`` with
     ``feedback_gains`` (zero: a non-haptic device; any gains work, its ``F_Do_W`` output is
     there to read or to send to a device). ``device`` must already be in ``builder``; every
-    grasp name it can report is checked here. ``haptic`` (a :class:`~godobject_drake.scenario.Haptic`)
+    grasp name it can report is checked here. ``haptic`` (a :class:`~godobject_drake.config.scenario.Haptic`)
     puts a simulated haptic device between ``device`` and the coupling:
 
     - ``impedance``: a simulated hand pushes a 3-axis :class:`~godobject_drake.haptic.HapticDevice`
@@ -374,7 +375,7 @@ def add_god_object(
 
 
 def coupling_options(config: "sc.Rigid") -> dict:
-    """A :class:`~godobject_drake.scenario.Rigid` config's options for :func:`add_god_object`."""
+    """A :class:`~godobject_drake.config.scenario.Rigid` config's options for :func:`add_god_object`."""
     return dict(
         graspable=config.graspable or None,
         gravity_compensation=config.gravity_compensation,

@@ -31,16 +31,13 @@ from pydrake.geometry import Role
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
 
-from godobject_drake import scenario as sc
 from godobject_drake.articulated import joint_space_loop
-from godobject_drake.building import (
-    PenetrationBudgetWarning,
-    build_station,
-    hand_on_handle,
-    penetration_pairs,
-)
-from godobject_drake.coupling import CouplingGains, CouplingGainWarning, graspable_bodies
-from godobject_drake.devices import JointWaypoint, Waypoint
+from godobject_drake.building import build_station
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.device_files import JointWaypoint, Waypoint
+from godobject_drake.config.gains import CouplingGains, CouplingGainWarning
+from godobject_drake.coupling import graspable_bodies
+from godobject_drake.god_objects.rigid import PenetrationBudgetWarning, hand_on_handle, penetration_pairs
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.simulation import simulate
 from godobject_drake.studies.stability import (

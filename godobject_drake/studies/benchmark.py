@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from godobject_drake import scenario as sc
-from godobject_drake.coupling import CouplingGainError
-from godobject_drake.scenario import Scenario, scenario_from_yaml, scenario_to_yaml
+from godobject_drake.config import scenario as sc
+from godobject_drake.config.gains import CouplingGainError
+from godobject_drake.config.scenario import Scenario, scenario_from_yaml, scenario_to_yaml
 
 SAMPLE_DT_S = 0.01  # trajectories are compared on this grid (s)
 ENGINES = ("drake", "mujoco")
@@ -36,7 +36,7 @@ class Case:
     label : str
         Short name for tables and figures.
     scenario_yaml : str
-        The scenario (:func:`~godobject_drake.scenario.scenario_to_yaml`): YAML text pickles,
+        The scenario (:func:`~godobject_drake.config.scenario.scenario_to_yaml`): YAML text pickles,
         Drake's config objects do not.
     repeats : int
         Runs; the cost is their median.
@@ -452,8 +452,8 @@ def coupling_overhead_us(samples: int = 2000, rounds: int = 5) -> dict:
     from pydrake.systems.framework import DiagramBuilder
 
     from godobject_drake.building import add_plant
+    from godobject_drake.config.scenario import shipped_scenario
     from godobject_drake.coupling import GodObjectCoupling
-    from godobject_drake.scenario import shipped_scenario
 
     lego = shipped_scenario("lego")
     plant = add_plant(DiagramBuilder(), lego).plant

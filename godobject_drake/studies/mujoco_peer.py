@@ -124,7 +124,8 @@ except ImportError as e:  # an optional extra, never a runtime dependency of god
         "Install the benchmark extra: pip install -e .[bench]  (mujoco, mujoco-core and mujoco-studio 4.0.0)"
     ) from e
 
-from godobject_drake.devices import ScriptedDevice, load_device_path
+from godobject_drake.config.device_files import load_device_path
+from godobject_drake.devices import ScriptedDevice
 from godobject_drake.scenes import MODELS_DIR
 from godobject_drake.spatial import quat_conjugate, quat_multiply, quat_to_rotation
 

@@ -26,9 +26,11 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, Sine
 
-from godobject_drake.coupling import CouplingGains, GodObjectCoupling
-from godobject_drake.devices import ScriptedDevice, Waypoint
-from godobject_drake.feedback import FeedbackGains, FeedbackPort
+from godobject_drake.config.device_files import Waypoint
+from godobject_drake.config.gains import CouplingGains, FeedbackGains
+from godobject_drake.coupling import GodObjectCoupling
+from godobject_drake.devices import ScriptedDevice
+from godobject_drake.feedback import FeedbackPort
 from godobject_drake.haptic import HapticDevice, PassivityController
 from godobject_drake.scenes import SceneParts, add_scene_from_directives, set_contact_material
 from godobject_drake.studies.stability import (

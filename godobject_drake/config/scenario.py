@@ -26,448 +26,70 @@ import importlib.resources
 import math
 import typing
 from pathlib import Path
-from typing import ClassVar
 
 import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
 from pydrake.multibody.plant import MultibodyPlantConfig
 
-from godobject_drake.coupling import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
-from godobject_drake.deformable import SHELL_MODELS, ShellSpec
-from godobject_drake.device_kinds import (  # noqa: F401  the scenario's names for the device kinds
+from godobject_drake.config.device_files import JointWaypoint, SampleGuard, Waypoint  # noqa: F401
+
+# The scenario's parts, re-exported: ``from godobject_drake.config import scenario as sc`` gives
+# every type a scenario file names (``sc.Rigid``, ``sc.Haptic``, ``sc.Lcm``, ...).
+from godobject_drake.config.devices import (  # noqa: F401
     DEVICE_KINDS,
+    DeviceToWorld,
     Lcm,
     LcmJoints,
     MeshcatJointSliders,
     MeshcatSliders,
     Relative,
     Replay,
+    ReplayJoints,
     Scripted,
     ScriptedJoints,
     device_union,
     kind_of,
 )
-from godobject_drake.feedback import FeedbackGains
-from godobject_drake.sleeping import Sleep
-from godobject_drake.tissue import Organs
+from godobject_drake.config.gains import CouplingGains, FeedbackGains  # noqa: F401
+from godobject_drake.config.scene import (  # noqa: F401
+    CONTACT_GEOMETRIES,
+    HAPTIC_MODES,
+    MAX_BRICKS,
+    MIN_TIME_STEP_S,
+    SIMULATION_MODES,
+    Camera,
+    Contact,
+    Haptic,
+    Metrics,
+    Organs,
+    Recording,
+    Simulation,
+    Sleep,
+    Visualization,
+    Workspace,
+    default_plant_config,
+)
+from godobject_drake.config.tools import (  # noqa: F401
+    ARTICULATED_COUPLINGS,
+    RIGID_COUPLINGS,
+    SHELL_MODELS,
+    Articulated,
+    Deformable,
+    Rigid,
+    ShellSpec,
+)
 
 
 class ScenarioError(ValueError):
     """A scenario that cannot be loaded or built: names the file or field, the value and the fix."""
 
 
-def default_plant_config() -> MultibodyPlantConfig:
-    """SAP, point contact, h = 1 ms: what the shipped scenes use."""
-    return MultibodyPlantConfig(time_step=1e-3, discrete_contact_approximation="sap", contact_model="point")
-
-
-CONTACT_GEOMETRIES = ("proxies", "hydroelastic")
-
-
-@dataclasses.dataclass
-class Contact:
-    """Which geometry touches, and SAP's contact compliance.
-
-    Attributes
-    ----------
-    geometry : str
-        ``proxies``: a geometry named ``proxy_*`` (the paper's small spheres) touches other
-        bodies' true shapes, never another proxy; a body's true shape touches only bodies
-        without proxies; a ``flat_*`` welded geometry only ``proxy_corner_*`` proxies. With no
-        proxies in the scene every true shape touches every other. ``hydroelastic``: proxies
-        are ignored and true shapes touch (needs a hydroelastic ``plant.contact_model``).
-    relaxation_time_s : float | None
-        SAP's relaxation time on every rigid contact geometry (s); None: the plant's time
-        step, which keeps point contact at its nominal stiffness (Drake's default, 0.1 s,
-        makes it far softer).
-    """
-
-    geometry: str = "proxies"
-    relaxation_time_s: float | None = None
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if self.geometry not in CONTACT_GEOMETRIES:
-            raise ValueError(f"geometry: {self.geometry!r}; choose one of {CONTACT_GEOMETRIES}")
-        tau = self.relaxation_time_s
-        if tau is not None and not (math.isfinite(tau) and tau >= 0):
-            raise ValueError(f"relaxation_time_s: {tau!r} s must be ≥ 0 (None: the time step)")
-
-
-@dataclasses.dataclass
-class Rigid:
-    """Free rigid bodies a device grasps by name (paper Eq. 2).
-
-    Attributes
-    ----------
-    gains : CouplingGains
-        Bandwidth ``omega_n`` (rad/s), damping ratio ``zeta``, and the rotation's
-        ``omega_n_rot``/``zeta_rot`` (None: as the translation's).
-    graspable : list[str]
-        The bodies the device may hold (``model``, ``model::body`` or a unique body name);
-        empty: every free body.
-    gravity_compensation : bool
-        Add ``−m g`` so a held body hangs at its target.
-    max_stretch_m, max_twist_rad : float
-        Force and torque caps, as the stretch (m) and twist (rad) whose spring force they
-        equal (``.inf``: no cap).
-    grasp_reach_m : float
-        A live grasp (``"*"``) takes the free body nearest the device within this (m).
-    coupling : str
-        ``explicit`` (the PD wrench computed in Python each plant step and applied to the body:
-        stable only below ``ωn h < 2(√(1+ζ²) − ζ)``) or ``implicit`` (the same spring made of
-        compliant constraints SAP integrates implicitly, no Python per plant step:
-        :mod:`godobject_drake.implicit`).
-    """
-
-    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
-    graspable: list[str] = dataclasses.field(default_factory=list)
-    gravity_compensation: bool = True
-    max_stretch_m: float = DEFAULT_MAX_STRETCH_M
-    max_twist_rad: float = DEFAULT_MAX_TWIST_RAD
-    grasp_reach_m: float = 0.05
-    coupling: str = "explicit"
-
-    DEVICE_SPACE: ClassVar[str] = "pose"
-
-    def check(self, scenario: "Scenario") -> None:
-        """Its coupling kind against the scene (the builder checks the gains against the step)."""
-        if self.coupling not in RIGID_COUPLINGS:
-            raise ValueError(
-                f"god_object.coupling: {self.coupling!r}; choose one of {RIGID_COUPLINGS} for a rigid "
-                "god-object"
-            )
-        if self.coupling != "implicit":
-            return
-        why = None
-        if scenario.haptic.mode == "admittance":
-            why = (
-                "haptic.mode admittance drives the held body with the device's sensed wrench, not a spring; "
-                "use haptic.mode impedance or none"
-            )
-        elif scenario.simulation.mode == "position":
-            why = "simulation.mode position imposes the held body's pose: there is no spring to integrate"
-        if why:
-            raise ValueError(
-                f"god_object.coupling: implicit with {why}. Or set god_object.coupling: explicit"
-            )
-
-
-RIGID_COUPLINGS = ("explicit", "implicit")
-
-
-ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
-
-
-@dataclasses.dataclass
-class Articulated:
-    """A tree model whose joints a joint-space device drives (paper Eq. 4–9).
-
-    Attributes
-    ----------
-    model : str
-        The tool's model instance.
-    device_joints : list[str]
-        The joints the device gives values for, in the device's order.
-    coupling : str
-        ``cartesian`` (paper Eq. 6, explicit), ``joint_pd`` (explicit) or ``joint_pd_sap``
-        (SAP's implicit PD actuators).
-    imposed_joints : list[str]
-        Device joints set to the device's values instead of coupled (the paper's jaws).
-    gains : CouplingGains
-        As for :class:`Rigid` (joint modes use ``omega_n``, ``zeta``).
-    self_collisions : bool
-        Let the tool's own parts touch each other (usually they overlap at their joints).
-    check_every : int
-        The explicit modes' stability is checked at every ``check_every``-th device sample
-        of the path (≥ 1).
-    tip_body : str
-        Metrics: the body whose origin is the tip tracked against the device's (empty: the
-        last of the coupled bodies).
-    pivot_body : str
-        Metrics: a body welded at a pivot (a trocar); ``max_trocar_offset_m`` is its distance
-        from the tip body's z axis. Empty: not measured.
-    """
-
-    model: str = ""
-    device_joints: list[str] = dataclasses.field(default_factory=list)
-    coupling: str = "cartesian"
-    imposed_joints: list[str] = dataclasses.field(default_factory=list)
-    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
-    self_collisions: bool = False
-    check_every: int = 6
-    tip_body: str = ""
-    pivot_body: str = ""
-
-    DEVICE_SPACE: ClassVar[str] = "joint"
-
-    def check(self, scenario: "Scenario") -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"`` (fields from the scenario's top)."""
-        if scenario.haptic.mode != "none":
-            raise ValueError(
-                f"haptic.mode: {scenario.haptic.mode!r}; the joint-space devices here have no simulated "
-                "haptic device: leave haptic.mode none. The feedback gains (feedback.kd, ...) still give "
-                "the Eq. 8/9 wrenches and the device joints' forces, logged and in the metrics, for a "
-                "haptic device of your own"
-            )
-        if self.coupling not in ARTICULATED_COUPLINGS:
-            raise ValueError(f"god_object.coupling: {self.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")
-        if not self.model or not self.device_joints:
-            raise ValueError("god_object: an articulated god-object needs model and device_joints")
-        if not (isinstance(self.check_every, int) and self.check_every >= 1):
-            raise ValueError(f"god_object.check_every: {self.check_every!r} must be an integer ≥ 1")
-
-
-@dataclasses.dataclass
-class Deformable:
-    """A rigid core (a god-object) carrying a deformable shell (paper Fig. 4).
-
-    Attributes
-    ----------
-    name : str
-        The core's name (its model instance; the device holds it).
-    shell : str
-        ``fem`` (Drake's FEM) or ``mass_spring`` (the paper's net).
-    spec : ShellSpec
-        Geometry and material (radius_m, core_radius_m, youngs_modulus_pa, nodes, ...).
-    gains : CouplingGains
-        As for :class:`Rigid`, scaled by core + shell.
-
-    A light shell node at a large step presses a contact far softer than its nominal
-    stiffness unless ``plant.sap_near_rigid_threshold`` is lowered (the shipped probe: 0.1).
-    """
-
-    name: str = "probe"
-    shell: str = "fem"
-    spec: ShellSpec = dataclasses.field(default_factory=ShellSpec)
-    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
-
-    DEVICE_SPACE: ClassVar[str] = "pose"
-
-    def check(self, scenario: "Scenario") -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if self.shell not in SHELL_MODELS:
-            raise ValueError(f"god_object.shell: {self.shell!r}; choose one of {SHELL_MODELS}")
-
-
-# The device kinds live in godobject_drake.device_kinds, each registered once; their names here
+# The device kinds live in godobject_drake.config.devices, each registered once; their names here
 # are the scenario's (``sc.Scripted``, ``sc.Lcm``, ...).
 POSE_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "pose")
 JOINT_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "joint")
 SPACE_NAMES = {"pose": "pose", "joint": "joint-space"}
-# Limits on values that would make a run's output useless or the run never end.
-MIN_TIME_STEP_S = 1e-5
-MAX_DURATION_S = 1e6
-MAX_FRAMES_PER_SECOND = 1000.0
-MAX_BRICKS = 512
-HAPTIC_MODES = ("none", "impedance", "admittance")
-
-
-@dataclasses.dataclass
-class Haptic:
-    """The haptic device the loop closes with (pose devices only).
-
-    Attributes
-    ----------
-    mode : str
-        ``none`` (the device's pose is the target), ``impedance`` (a simulated 3-axis haptic
-        device held by a simulated hand; the feedback force acts on its handle) or
-        ``admittance`` (the hand's sensed wrench drives the god-object).
-    rate_hz : float
-        Servo rate (Hz).
-    device_mass_kg, device_damping : float
-        The handle's moving mass (kg) and physical damping (N·s/m).
-    hand_frequency_hz : float
-        The simulated hand: critically damped at this frequency on the handle (Hz).
-    passivity_damping : float
-        A passivity observer/controller on the feedback path, its damping capped at this
-        (N·s/m); 0: off.
-    """
-
-    mode: str = "none"
-    rate_hz: float = 1000.0
-    device_mass_kg: float = 0.1
-    device_damping: float = 2.0
-    hand_frequency_hz: float = 10.0
-    passivity_damping: float = 0.0
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if self.mode not in HAPTIC_MODES:
-            raise ValueError(f"mode: {self.mode!r}; choose one of {HAPTIC_MODES}")
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError(f"rate_hz: {self.rate_hz!r} Hz must be > 0")
-        if self.passivity_damping and self.mode != "impedance":
-            raise ValueError(
-                f"passivity_damping: {self.passivity_damping} N·s/m acts on an impedance device's handle; "
-                f"with haptic.mode {self.mode!r} there is none: set haptic.mode: impedance, or 0"
-            )
-
-
-SIMULATION_MODES = ("god_object", "position")
-
-
-@dataclasses.dataclass
-class Simulation:
-    """How long and how to run.
-
-    Attributes
-    ----------
-    duration_s : float
-        Simulated time (s).
-    mode : str
-        ``god_object`` (the coupling drives the tool) or ``position`` (the device's pose is
-        imposed on it every step: the baseline the paper argues against).
-    realtime_rate : float
-        Target real-time rate; 0 runs as fast as it can. A live device runs at 1.
-    check_period_s : float
-        Simulated time between the safeguards' checks (s).
-    max_speed : float
-        A generalized velocity past this is a divergence (m/s or rad/s).
-    """
-
-    duration_s: float = 10.0
-    mode: str = "god_object"
-    realtime_rate: float = 0.0
-    check_period_s: float = 0.05
-    max_speed: float = 1000.0
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if not (math.isfinite(self.duration_s) and 0 < self.duration_s <= MAX_DURATION_S):
-            raise ValueError(
-                f"duration_s: {self.duration_s!r} s must be > 0 and at most {MAX_DURATION_S:g} s "
-                "(11.6 days); a longer session is several runs"
-            )
-        if self.mode not in SIMULATION_MODES:
-            raise ValueError(f"mode: {self.mode!r}; choose one of {SIMULATION_MODES}")
-        if not (math.isfinite(self.realtime_rate) and self.realtime_rate >= 0):
-            raise ValueError(f"realtime_rate: {self.realtime_rate!r} must be ≥ 0 (0: as fast as it can)")
-
-
-@dataclasses.dataclass
-class Workspace:
-    """Where the device may go (m, world frame): the live sliders' range and the camera's frame."""
-
-    lower_m: list[float] = dataclasses.field(default_factory=lambda: [-0.1, -0.1, 0.0])
-    upper_m: list[float] = dataclasses.field(default_factory=lambda: [0.1, 0.1, 0.1])
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        for attribute in ("lower_m", "upper_m"):
-            if len(getattr(self, attribute)) != 3:
-                raise ValueError(f"{attribute}: needs 3 values (x, y, z in m)")
-
-
-@dataclasses.dataclass
-class Camera:
-    """Where Meshcat's camera stands and what it looks at (m, world frame, z up)."""
-
-    position_m: list[float] = dataclasses.field(default_factory=lambda: [0.3, -0.4, 0.3])
-    target_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
-
-
-@dataclasses.dataclass
-class Visualization:
-    """Drawing in Meshcat.
-
-    Attributes
-    ----------
-    serve : bool
-        Serve the run live (real-time rate) at a Meshcat URL.
-    host : str
-        The interface Meshcat listens on: ``localhost`` (this machine only; the default), or
-        an address or ``*`` (every interface) to let other machines open the page, which
-        drives a live device: it is announced loudly. An SSH tunnel is the safe way to watch
-        from elsewhere (README "Driving a scene live").
-    port : int | None
-        The live page's port; None: Drake's default (7000, or the next free one).
-    publish_period_s : float
-        Drawing period (s), live and in recordings.
-    camera : Camera | None
-        The view to open on; None: Meshcat's default.
-    force_cue : bool
-        Rigid god-objects: the target ghost and the spring turn from faint to solid red as the
-        coupling's stretch reaches its force cap (pseudo-haptics for a non-haptic device).
-    """
-
-    serve: bool = False
-    host: str = "localhost"
-    port: int | None = None
-    publish_period_s: float = 1.0 / 64.0
-    camera: Camera | None = None
-    force_cue: bool = True
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        period = self.publish_period_s
-        if not (math.isfinite(period) and period > 0):
-            raise ValueError(
-                f"publish_period_s: {period!r} s must be > 0 (e.g. {1 / 64:g}: 64 frames a second)"
-            )
-        if not self.host.strip():
-            raise ValueError(f"host: {self.host!r}: give localhost (this machine only) or an address")
-        if self.port is not None and not (isinstance(self.port, int) and 0 <= self.port <= 65535):
-            raise ValueError(f"port: {self.port!r} must be a TCP port, 0 to 65535 (None: Drake's)")
-
-
-@dataclasses.dataclass
-class Recording:
-    """A self-contained Meshcat HTML recording of the run (``file`` empty: none).
-
-    ``max_duration_s``: the recording covers the run's first this many seconds (the rest runs
-    unrecorded), so its size is known in advance: about 2.2 MB of viewer plus the frames, some
-    0.1 MB per second for the brick scene at 64 frames per second (README "Recordings").
-    """
-
-    file: str = ""
-    frames_per_second: float = 64.0
-    max_duration_s: float = 300.0
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        fps = self.frames_per_second
-        if not (math.isfinite(fps) and 0 < fps <= MAX_FRAMES_PER_SECOND):
-            raise ValueError(
-                f"frames_per_second: {fps!r} must be in (0, {MAX_FRAMES_PER_SECOND:g}] (a browser shows 60; "
-                "the default 64 gives a frame every 1/64 s)"
-            )
-        if not (self.max_duration_s > 0):
-            raise ValueError(
-                f"max_duration_s: {self.max_duration_s!r} s must be > 0 (it caps the recording's size)"
-            )
-
-
-@dataclasses.dataclass
-class Metrics:
-    """Where the metrics JSON goes (``file`` empty: printed only) and what the run may cost.
-
-    ``penetration_budget_m``: how deep a god-object may go into an obstacle (m). At build,
-    a god-object whose capped pull could push it deeper (capped force / contact stiffness)
-    gets a :class:`~godobject_drake.building.PenetrationBudgetWarning`.
-    ``checkpoint_period_s``: while a run goes, the command line rewrites ``file`` with the
-    metrics so far (marked ``partial``) every this many seconds of wall time, so even a killed
-    run leaves them.
-    ``impossible_pose_distance_m``: a target farther than this from the god-object (m) is in a
-    pose the god-object cannot take (it is blocked); ``impossible_pose_time_s`` is the time
-    spent so. The default, 5 mm, is four times the shipped scenes' free-space tracking lag.
-    """
-
-    file: str = ""
-    penetration_budget_m: float = 1e-3
-    checkpoint_period_s: float = 10.0
-    impossible_pose_distance_m: float = 0.005
-
-    def check(self) -> None:
-        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
-        if not (self.checkpoint_period_s > 0):
-            raise ValueError(f"checkpoint_period_s: {self.checkpoint_period_s!r} s must be > 0")
-        if not (self.penetration_budget_m > 0):
-            raise ValueError(f"penetration_budget_m: {self.penetration_budget_m!r} m must be > 0")
-        far = self.impossible_pose_distance_m
-        if not (math.isfinite(far) and far > 0):
-            raise ValueError(f"impossible_pose_distance_m: {far!r} m must be > 0 (e.g. 0.005)")
 
 
 @dataclasses.dataclass
@@ -490,7 +112,7 @@ class Scenario:
         Which geometry touches, and SAP's relaxation time.
     god_object : Rigid | Articulated | Deformable
         The tool (YAML tag ``!Rigid``, ``!Articulated`` or ``!Deformable``).
-    device : a registered device kind (:mod:`~godobject_drake.device_kinds`)
+    device : a registered device kind (:mod:`~godobject_drake.config.devices`)
         The device, by YAML tag: ``!Scripted``, ``!Replay``, ``!Relative``, ``!MeshcatSliders``,
         ``!Lcm`` (pose devices, for rigid and deformable tools) or ``!ScriptedJoints``,
         ``!ReplayJoints``, ``!MeshcatJointSliders``, ``!LcmJoints`` (joint devices, for

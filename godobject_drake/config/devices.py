@@ -39,20 +39,22 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform, RollPitchYaw
 
-from godobject_drake.devices import (
+from godobject_drake.config.device_files import (
     INTERPOLATIONS,
     JointPath,
     JointWaypoint,
     RelativeAids,
-    RelativeDevice,
-    ReplayDevice,
-    ReplayJointDevice,
     SampleGuard,
-    ScriptedDevice,
-    ScriptedJointDevice,
     Waypoint,
     load_device_path,
     load_joint_path,
+)
+from godobject_drake.devices import (
+    RelativeDevice,
+    ReplayDevice,
+    ReplayJointDevice,
+    ScriptedDevice,
+    ScriptedJointDevice,
 )
 
 SPACES = ("pose", "joint")
@@ -127,7 +129,7 @@ def kind_of(config) -> DeviceKind:
         known = ", ".join(k.tag for k in DEVICE_KINDS.values())
         raise ValueError(
             f"device: {type(config).__name__} is not a registered device kind; the known kinds are {known} "
-            "(register one with godobject_drake.device_kinds.device_kind)"
+            "(register one with godobject_drake.config.devices.device_kind)"
         )
     return kind
 
@@ -144,7 +146,7 @@ def device_union():
 
 def _retype_scenario() -> None:
     """A kind registered after the scenario module was imported: its ``device`` field learns the tag."""
-    scenario = sys.modules.get("godobject_drake.scenario")
+    scenario = sys.modules.get("godobject_drake.config.scenario")
     if scenario is not None and hasattr(scenario, "Scenario"):
         scenario.Scenario.__dataclass_fields__["device"].type = device_union()
 

@@ -1,0 +1,387 @@
+"""The scene's config types: contact, haptic chain, run, drawing, outputs, organs, sleeping.
+
+Plain dataclasses a scenario file fills field by field; each ``check()`` raises ``ValueError`` as
+``"field: value, limit and fix"`` and the scenario prefixes the part's name. Every length is in m,
+time in s, mass in kg, frequency in Hz, bandwidth in rad/s.
+
+This module must not use ``from __future__ import annotations``: ``yaml_load_typed`` reads the
+field types at run time.
+"""
+
+import dataclasses
+import math
+
+from pydrake.multibody.plant import MultibodyPlantConfig
+
+
+def default_plant_config() -> MultibodyPlantConfig:
+    """SAP, point contact, h = 1 ms: what the shipped scenes use."""
+    return MultibodyPlantConfig(time_step=1e-3, discrete_contact_approximation="sap", contact_model="point")
+
+
+CONTACT_GEOMETRIES = ("proxies", "hydroelastic")
+
+
+@dataclasses.dataclass
+class Contact:
+    """Which geometry touches, and SAP's contact compliance.
+
+    Attributes
+    ----------
+    geometry : str
+        ``proxies``: a geometry named ``proxy_*`` (the paper's small spheres) touches other
+        bodies' true shapes, never another proxy; a body's true shape touches only bodies
+        without proxies; a ``flat_*`` welded geometry only ``proxy_corner_*`` proxies. With no
+        proxies in the scene every true shape touches every other. ``hydroelastic``: proxies
+        are ignored and true shapes touch (needs a hydroelastic ``plant.contact_model``).
+    relaxation_time_s : float | None
+        SAP's relaxation time on every rigid contact geometry (s); None: the plant's time
+        step, which keeps point contact at its nominal stiffness (Drake's default, 0.1 s,
+        makes it far softer).
+    """
+
+    geometry: str = "proxies"
+    relaxation_time_s: float | None = None
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.geometry not in CONTACT_GEOMETRIES:
+            raise ValueError(f"geometry: {self.geometry!r}; choose one of {CONTACT_GEOMETRIES}")
+        tau = self.relaxation_time_s
+        if tau is not None and not (math.isfinite(tau) and tau >= 0):
+            raise ValueError(f"relaxation_time_s: {tau!r} s must be ≥ 0 (None: the time step)")
+
+
+# Limits on values that would make a run's output useless or the run never end.
+MIN_TIME_STEP_S = 1e-5
+
+
+MAX_DURATION_S = 1e6
+
+
+MAX_FRAMES_PER_SECOND = 1000.0
+
+
+MAX_BRICKS = 512
+
+
+HAPTIC_MODES = ("none", "impedance", "admittance")
+
+
+@dataclasses.dataclass
+class Haptic:
+    """The haptic device the loop closes with (pose devices only).
+
+    Attributes
+    ----------
+    mode : str
+        ``none`` (the device's pose is the target), ``impedance`` (a simulated 3-axis haptic
+        device held by a simulated hand; the feedback force acts on its handle) or
+        ``admittance`` (the hand's sensed wrench drives the god-object).
+    rate_hz : float
+        Servo rate (Hz).
+    device_mass_kg, device_damping : float
+        The handle's moving mass (kg) and physical damping (N·s/m).
+    hand_frequency_hz : float
+        The simulated hand: critically damped at this frequency on the handle (Hz).
+    passivity_damping : float
+        A passivity observer/controller on the feedback path, its damping capped at this
+        (N·s/m); 0: off.
+    """
+
+    mode: str = "none"
+    rate_hz: float = 1000.0
+    device_mass_kg: float = 0.1
+    device_damping: float = 2.0
+    hand_frequency_hz: float = 10.0
+    passivity_damping: float = 0.0
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.mode not in HAPTIC_MODES:
+            raise ValueError(f"mode: {self.mode!r}; choose one of {HAPTIC_MODES}")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"rate_hz: {self.rate_hz!r} Hz must be > 0")
+        if self.passivity_damping and self.mode != "impedance":
+            raise ValueError(
+                f"passivity_damping: {self.passivity_damping} N·s/m acts on an impedance device's handle; "
+                f"with haptic.mode {self.mode!r} there is none: set haptic.mode: impedance, or 0"
+            )
+
+
+SIMULATION_MODES = ("god_object", "position")
+
+
+@dataclasses.dataclass
+class Simulation:
+    """How long and how to run.
+
+    Attributes
+    ----------
+    duration_s : float
+        Simulated time (s).
+    mode : str
+        ``god_object`` (the coupling drives the tool) or ``position`` (the device's pose is
+        imposed on it every step: the baseline the paper argues against).
+    realtime_rate : float
+        Target real-time rate; 0 runs as fast as it can. A live device runs at 1.
+    check_period_s : float
+        Simulated time between the safeguards' checks (s).
+    max_speed : float
+        A generalized velocity past this is a divergence (m/s or rad/s).
+    """
+
+    duration_s: float = 10.0
+    mode: str = "god_object"
+    realtime_rate: float = 0.0
+    check_period_s: float = 0.05
+    max_speed: float = 1000.0
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if not (math.isfinite(self.duration_s) and 0 < self.duration_s <= MAX_DURATION_S):
+            raise ValueError(
+                f"duration_s: {self.duration_s!r} s must be > 0 and at most {MAX_DURATION_S:g} s "
+                "(11.6 days); a longer session is several runs"
+            )
+        if self.mode not in SIMULATION_MODES:
+            raise ValueError(f"mode: {self.mode!r}; choose one of {SIMULATION_MODES}")
+        if not (math.isfinite(self.realtime_rate) and self.realtime_rate >= 0):
+            raise ValueError(f"realtime_rate: {self.realtime_rate!r} must be ≥ 0 (0: as fast as it can)")
+
+
+@dataclasses.dataclass
+class Workspace:
+    """Where the device may go (m, world frame): the live sliders' range and the camera's frame."""
+
+    lower_m: list[float] = dataclasses.field(default_factory=lambda: [-0.1, -0.1, 0.0])
+    upper_m: list[float] = dataclasses.field(default_factory=lambda: [0.1, 0.1, 0.1])
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        for attribute in ("lower_m", "upper_m"):
+            if len(getattr(self, attribute)) != 3:
+                raise ValueError(f"{attribute}: needs 3 values (x, y, z in m)")
+
+
+@dataclasses.dataclass
+class Camera:
+    """Where Meshcat's camera stands and what it looks at (m, world frame, z up)."""
+
+    position_m: list[float] = dataclasses.field(default_factory=lambda: [0.3, -0.4, 0.3])
+    target_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclasses.dataclass
+class Visualization:
+    """Drawing in Meshcat.
+
+    Attributes
+    ----------
+    serve : bool
+        Serve the run live (real-time rate) at a Meshcat URL.
+    host : str
+        The interface Meshcat listens on: ``localhost`` (this machine only; the default), or
+        an address or ``*`` (every interface) to let other machines open the page, which
+        drives a live device: it is announced loudly. An SSH tunnel is the safe way to watch
+        from elsewhere (README "Driving a scene live").
+    port : int | None
+        The live page's port; None: Drake's default (7000, or the next free one).
+    publish_period_s : float
+        Drawing period (s), live and in recordings.
+    camera : Camera | None
+        The view to open on; None: Meshcat's default.
+    force_cue : bool
+        Rigid god-objects: the target ghost and the spring turn from faint to solid red as the
+        coupling's stretch reaches its force cap (pseudo-haptics for a non-haptic device).
+    """
+
+    serve: bool = False
+    host: str = "localhost"
+    port: int | None = None
+    publish_period_s: float = 1.0 / 64.0
+    camera: Camera | None = None
+    force_cue: bool = True
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        period = self.publish_period_s
+        if not (math.isfinite(period) and period > 0):
+            raise ValueError(
+                f"publish_period_s: {period!r} s must be > 0 (e.g. {1 / 64:g}: 64 frames a second)"
+            )
+        if not self.host.strip():
+            raise ValueError(f"host: {self.host!r}: give localhost (this machine only) or an address")
+        if self.port is not None and not (isinstance(self.port, int) and 0 <= self.port <= 65535):
+            raise ValueError(f"port: {self.port!r} must be a TCP port, 0 to 65535 (None: Drake's)")
+
+
+@dataclasses.dataclass
+class Recording:
+    """A self-contained Meshcat HTML recording of the run (``file`` empty: none).
+
+    ``max_duration_s``: the recording covers the run's first this many seconds (the rest runs
+    unrecorded), so its size is known in advance: about 2.2 MB of viewer plus the frames, some
+    0.1 MB per second for the brick scene at 64 frames per second (README "Recordings").
+    """
+
+    file: str = ""
+    frames_per_second: float = 64.0
+    max_duration_s: float = 300.0
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        fps = self.frames_per_second
+        if not (math.isfinite(fps) and 0 < fps <= MAX_FRAMES_PER_SECOND):
+            raise ValueError(
+                f"frames_per_second: {fps!r} must be in (0, {MAX_FRAMES_PER_SECOND:g}] (a browser shows 60; "
+                "the default 64 gives a frame every 1/64 s)"
+            )
+        if not (self.max_duration_s > 0):
+            raise ValueError(
+                f"max_duration_s: {self.max_duration_s!r} s must be > 0 (it caps the recording's size)"
+            )
+
+
+@dataclasses.dataclass
+class Metrics:
+    """Where the metrics JSON goes (``file`` empty: printed only) and what the run may cost.
+
+    ``penetration_budget_m``: how deep a god-object may go into an obstacle (m). At build,
+    a god-object whose capped pull could push it deeper (capped force / contact stiffness)
+    gets a :class:`~godobject_drake.building.PenetrationBudgetWarning`.
+    ``checkpoint_period_s``: while a run goes, the command line rewrites ``file`` with the
+    metrics so far (marked ``partial``) every this many seconds of wall time, so even a killed
+    run leaves them.
+    ``impossible_pose_distance_m``: a target farther than this from the god-object (m) is in a
+    pose the god-object cannot take (it is blocked); ``impossible_pose_time_s`` is the time
+    spent so. The default, 5 mm, is four times the shipped scenes' free-space tracking lag.
+    """
+
+    file: str = ""
+    penetration_budget_m: float = 1e-3
+    checkpoint_period_s: float = 10.0
+    impossible_pose_distance_m: float = 0.005
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if not (self.checkpoint_period_s > 0):
+            raise ValueError(f"checkpoint_period_s: {self.checkpoint_period_s!r} s must be > 0")
+        if not (self.penetration_budget_m > 0):
+            raise ValueError(f"penetration_budget_m: {self.penetration_budget_m!r} m must be > 0")
+        far = self.impossible_pose_distance_m
+        if not (math.isfinite(far) and far > 0):
+            raise ValueError(f"impossible_pose_distance_m: {far!r} m must be > 0 (e.g. 0.005)")
+
+
+TISSUE_MODELS = ("rigid", "fem")
+
+
+@dataclasses.dataclass
+class Organs:
+    """The organs of the laparoscopy scene: rigid (the default) or FEM tissue.
+
+    Attributes
+    ----------
+    model : str
+        ``rigid``: the organs are rigid shapes with a soft point-contact stiffness (the
+        directives' model files as they are). ``fem``: the organ named ``organ`` becomes a
+        Drake FEM deformable body of the same ellipsoid.
+    organ : str
+        The pelvis's geometry replaced (an ellipsoid collision geometry, ``model::name``).
+    youngs_modulus_pa, poissons_ratio, density_kg_m3 :
+        The tissue's material (Pa, –, kg/m³); ν in [0, 0.5).
+    mass_damping_per_s, stiffness_damping_s :
+        Rayleigh damping: α (1/s) and β (s), damping matrix α M + β K.
+    cells : int
+        Cells across the organ's mesh per axis (even): 8 gives 729 vertices, 3072 tetrahedra.
+    attached_below_m : float
+        Vertices lower than this below the organ's top (m) are fixed to the pelvis.
+    friction : float
+        Coulomb friction of the tissue (static = dynamic).
+    relaxation_time_s : float
+        SAP's relaxation time of the tissue's contact (s): its contact is a near-rigid
+        constraint damped over this time; the tissue's own elasticity gives the force.
+    """
+
+    model: str = "rigid"
+    organ: str = "pelvis::uterus"
+    youngs_modulus_pa: float = 5.0e4
+    poissons_ratio: float = 0.45
+    density_kg_m3: float = 1000.0
+    mass_damping_per_s: float = 0.0
+    stiffness_damping_s: float = 0.01
+    cells: int = 8
+    attached_below_m: float = 0.035
+    friction: float = 0.2
+    relaxation_time_s: float = 0.01
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.model not in TISSUE_MODELS:
+            raise ValueError(
+                f"model: {self.model!r}; choose one of {TISSUE_MODELS} (rigid: the rigid organs with a soft "
+                "point contact; fem: FEM tissue), e.g. --set organs.model=fem"
+            )
+        positive = (
+            ("youngs_modulus_pa", self.youngs_modulus_pa),
+            ("density_kg_m3", self.density_kg_m3),
+            ("attached_below_m", self.attached_below_m),
+            ("relaxation_time_s", self.relaxation_time_s),
+        )
+        for name, value in positive:
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: {value!r} must be a finite number > 0")
+        if not (isinstance(self.poissons_ratio, int | float) and 0.0 <= self.poissons_ratio < 0.5):
+            raise ValueError(
+                f"poissons_ratio: {self.poissons_ratio!r} must be in [0, 0.5) (soft tissue: about 0.45)"
+            )
+        for name in ("mass_damping_per_s", "stiffness_damping_s", "friction"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: {value!r} must be a finite number ≥ 0")
+        if not (isinstance(self.cells, int) and 2 <= self.cells <= 24 and self.cells % 2 == 0):
+            raise ValueError(
+                f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
+                "and steps far below real time)"
+            )
+
+
+@dataclasses.dataclass
+class Sleep:
+    """When free bodies sleep (module docstring); ``enabled: false`` keeps every body awake.
+
+    Attributes
+    ----------
+    enabled : bool
+        Lock resting bodies (``--sleep on|off``).
+    check_period_s : float
+        Simulated time between checks (s), rounded to whole plant steps.
+    speed_m_s, spin_rad_s : float
+        A body slower than both, for ``hold_s``, is calm.
+    hold_s : float
+        How long a body must stay calm before it may sleep (s). Three checks: a body in free
+        flight changes speed by g × 10 ms = 98 mm/s between two checks, so it is never calm at
+        two in a row; a body that stays under 2 mm/s for three is resting, or creeping.
+    margin_m : float
+        Added to every reach (m).
+    """
+
+    enabled: bool = True
+    check_period_s: float = 0.01
+    speed_m_s: float = 0.002
+    spin_rad_s: float = 0.05
+    hold_s: float = 0.03
+    margin_m: float = 0.005
+
+    def check(self) -> None:
+        """Raise ``ValueError`` naming a setting out of range."""
+        for name, unit in (("check_period_s", "s"), ("speed_m_s", "m/s"), ("spin_rad_s", "rad/s")):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                default = getattr(Sleep, name)
+                raise ValueError(f"sleep.{name}={value!r} {unit} must be > 0 (default {default!r})")
+        for name in ("hold_s", "margin_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"sleep.{name}={value!r} must be ≥ 0 (default {getattr(Sleep, name)!r})")

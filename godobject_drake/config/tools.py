@@ -1,0 +1,268 @@
+"""The tool (god-object) kinds' config types: rigid, articulated, deformable.
+
+Each is the YAML mapping under ``god_object: !Tag`` (or a tool's ``god_object`` in ``tools:``);
+the builders that turn them into Drake systems are in :mod:`godobject_drake.station`.
+
+This module must not use ``from __future__ import annotations``: ``yaml_load_typed`` reads the
+field types at run time.
+"""
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, ClassVar
+
+from godobject_drake.config.gains import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
+
+if TYPE_CHECKING:
+    from godobject_drake.config.scenario import Scenario
+
+SHELL_MODELS = ("fem", "mass_spring")
+
+
+class ShellSpecError(ValueError):
+    """A shell specification that cannot be built or simulated."""
+
+
+@dataclasses.dataclass
+class ShellSpec:
+    """Geometry and material of a spherical deformable god-object (SI units).
+
+    Attributes
+    ----------
+    radius_m : float
+        Outer radius R of the shell.
+    core_radius_m : float
+        Radius rc of the rigid core; the shell is R − rc thick.
+    core_mass_kg : float
+        Mass of the core (a solid sphere).
+    density_kg_m3 : float
+        Shell density ρ.
+    youngs_modulus_pa : float
+        Young's modulus E of the shell.
+    poissons_ratio : float
+        Poisson's ratio ν (FEM only), in [0, 0.5).
+    damping_ratio : float
+        Damping ratio ζ of the shell's through-thickness mode.
+    friction : float
+        Coulomb friction of the shell (static = dynamic).
+    nodes : int
+        Mass–spring nodes on the surface (a Fibonacci lattice).
+    fem_resolution_m : float
+        Drake's meshing hint for the FEM ball (0.02 m gives 129 vertices at R = 0.03).
+    node_contact_stiffness : float
+        Point-contact stiffness of a mass–spring node's sphere (N/m),
+        combined harmonically with the obstacle's.
+    fem_contact_relaxation_s : float
+        SAP relaxation time of the FEM shell's contact (s), added to the
+        obstacle's. At h = 10 ms, 0.01 s lets the pressed shell chatter
+        against the obstacle (a 40 ms limit cycle, 1.5–5 mm deep); 0.1 s
+        damps it.
+    """
+
+    radius_m: float = 0.03
+    core_radius_m: float = 0.018
+    core_mass_kg: float = 0.1
+    density_kg_m3: float = 1000.0
+    youngs_modulus_pa: float = 5.0e4
+    poissons_ratio: float = 0.4
+    damping_ratio: float = 1.0
+    friction: float = 0.3
+    nodes: int = 42
+    fem_resolution_m: float = 0.02
+    node_contact_stiffness: float = 1.0e5
+    fem_contact_relaxation_s: float = 0.1
+
+    @property
+    def thickness_m(self) -> float:
+        return self.radius_m - self.core_radius_m
+
+    @property
+    def shell_omega(self) -> float:
+        """ω_s = √(E/ρ)/t (rad/s): the shell's through-thickness mode."""
+        return math.sqrt(self.youngs_modulus_pa / self.density_kg_m3) / self.thickness_m
+
+    def check(self) -> None:
+        """Raise :class:`ShellSpecError` naming the bad value, its limit and the fix."""
+        positive = (
+            ("radius_m", self.radius_m), ("core_radius_m", self.core_radius_m),
+            ("core_mass_kg", self.core_mass_kg), ("density_kg_m3", self.density_kg_m3),
+            ("youngs_modulus_pa", self.youngs_modulus_pa), ("fem_resolution_m", self.fem_resolution_m),
+            ("node_contact_stiffness", self.node_contact_stiffness),
+            ("fem_contact_relaxation_s", self.fem_contact_relaxation_s),
+        )  # fmt: skip
+        for name, value in positive:
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ShellSpecError(f"{name}={value!r} must be a finite number > 0")
+        if not self.core_radius_m < self.radius_m:
+            raise ShellSpecError(
+                f"core_radius_m={self.core_radius_m} must be < radius_m={self.radius_m}: "
+                "the shell lies between them; shrink the core or grow the shell"
+            )
+        if not 0.0 <= self.poissons_ratio < 0.5:
+            raise ShellSpecError(f"poissons_ratio={self.poissons_ratio} must be in [0, 0.5)")
+        if not (math.isfinite(self.damping_ratio) and self.damping_ratio >= 0):
+            raise ShellSpecError(f"damping_ratio={self.damping_ratio} must be ≥ 0")
+        if not (math.isfinite(self.friction) and self.friction >= 0):
+            raise ShellSpecError(f"friction={self.friction} must be ≥ 0")
+        if not (isinstance(self.nodes, int) and 12 <= self.nodes <= 400):
+            raise ShellSpecError(
+                f"nodes={self.nodes!r} must be an integer in [12, 400]: fewer cannot cover "
+                "the sphere; more make one dense kinematic tree too slow to step "
+                "(use the fem shell for fine meshes)"
+            )
+
+
+@dataclasses.dataclass
+class Rigid:
+    """Free rigid bodies a device grasps by name (paper Eq. 2).
+
+    Attributes
+    ----------
+    gains : CouplingGains
+        Bandwidth ``omega_n`` (rad/s), damping ratio ``zeta``, and the rotation's
+        ``omega_n_rot``/``zeta_rot`` (None: as the translation's).
+    graspable : list[str]
+        The bodies the device may hold (``model``, ``model::body`` or a unique body name);
+        empty: every free body.
+    gravity_compensation : bool
+        Add ``−m g`` so a held body hangs at its target.
+    max_stretch_m, max_twist_rad : float
+        Force and torque caps, as the stretch (m) and twist (rad) whose spring force they
+        equal (``.inf``: no cap).
+    grasp_reach_m : float
+        A live grasp (``"*"``) takes the free body nearest the device within this (m).
+    coupling : str
+        ``explicit`` (the PD wrench computed in Python each plant step and applied to the body:
+        stable only below ``ωn h < 2(√(1+ζ²) − ζ)``) or ``implicit`` (the same spring made of
+        compliant constraints SAP integrates implicitly, no Python per plant step:
+        :mod:`godobject_drake.implicit`).
+    """
+
+    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
+    graspable: list[str] = dataclasses.field(default_factory=list)
+    gravity_compensation: bool = True
+    max_stretch_m: float = DEFAULT_MAX_STRETCH_M
+    max_twist_rad: float = DEFAULT_MAX_TWIST_RAD
+    grasp_reach_m: float = 0.05
+    coupling: str = "explicit"
+
+    DEVICE_SPACE: ClassVar[str] = "pose"
+
+    def check(self, scenario: "Scenario") -> None:
+        """Its coupling kind against the scene (the builder checks the gains against the step)."""
+        if self.coupling not in RIGID_COUPLINGS:
+            raise ValueError(
+                f"god_object.coupling: {self.coupling!r}; choose one of {RIGID_COUPLINGS} for a rigid "
+                "god-object"
+            )
+        if self.coupling != "implicit":
+            return
+        why = None
+        if scenario.haptic.mode == "admittance":
+            why = (
+                "haptic.mode admittance drives the held body with the device's sensed wrench, not a spring; "
+                "use haptic.mode impedance or none"
+            )
+        elif scenario.simulation.mode == "position":
+            why = "simulation.mode position imposes the held body's pose: there is no spring to integrate"
+        if why:
+            raise ValueError(
+                f"god_object.coupling: implicit with {why}. Or set god_object.coupling: explicit"
+            )
+
+
+RIGID_COUPLINGS = ("explicit", "implicit")
+
+
+ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
+
+
+@dataclasses.dataclass
+class Articulated:
+    """A tree model whose joints a joint-space device drives (paper Eq. 4–9).
+
+    Attributes
+    ----------
+    model : str
+        The tool's model instance.
+    device_joints : list[str]
+        The joints the device gives values for, in the device's order.
+    coupling : str
+        ``cartesian`` (paper Eq. 6, explicit), ``joint_pd`` (explicit) or ``joint_pd_sap``
+        (SAP's implicit PD actuators).
+    imposed_joints : list[str]
+        Device joints set to the device's values instead of coupled (the paper's jaws).
+    gains : CouplingGains
+        As for :class:`Rigid` (joint modes use ``omega_n``, ``zeta``).
+    self_collisions : bool
+        Let the tool's own parts touch each other (usually they overlap at their joints).
+    check_every : int
+        The explicit modes' stability is checked at every ``check_every``-th device sample
+        of the path (≥ 1).
+    tip_body : str
+        Metrics: the body whose origin is the tip tracked against the device's (empty: the
+        last of the coupled bodies).
+    pivot_body : str
+        Metrics: a body welded at a pivot (a trocar); ``max_trocar_offset_m`` is its distance
+        from the tip body's z axis. Empty: not measured.
+    """
+
+    model: str = ""
+    device_joints: list[str] = dataclasses.field(default_factory=list)
+    coupling: str = "cartesian"
+    imposed_joints: list[str] = dataclasses.field(default_factory=list)
+    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
+    self_collisions: bool = False
+    check_every: int = 6
+    tip_body: str = ""
+    pivot_body: str = ""
+
+    DEVICE_SPACE: ClassVar[str] = "joint"
+
+    def check(self, scenario: "Scenario") -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"`` (fields from the scenario's top)."""
+        if scenario.haptic.mode != "none":
+            raise ValueError(
+                f"haptic.mode: {scenario.haptic.mode!r}; the joint-space devices here have no simulated "
+                "haptic device: leave haptic.mode none. The feedback gains (feedback.kd, ...) still give "
+                "the Eq. 8/9 wrenches and the device joints' forces, logged and in the metrics, for a "
+                "haptic device of your own"
+            )
+        if self.coupling not in ARTICULATED_COUPLINGS:
+            raise ValueError(f"god_object.coupling: {self.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")
+        if not self.model or not self.device_joints:
+            raise ValueError("god_object: an articulated god-object needs model and device_joints")
+        if not (isinstance(self.check_every, int) and self.check_every >= 1):
+            raise ValueError(f"god_object.check_every: {self.check_every!r} must be an integer ≥ 1")
+
+
+@dataclasses.dataclass
+class Deformable:
+    """A rigid core (a god-object) carrying a deformable shell (paper Fig. 4).
+
+    Attributes
+    ----------
+    name : str
+        The core's name (its model instance; the device holds it).
+    shell : str
+        ``fem`` (Drake's FEM) or ``mass_spring`` (the paper's net).
+    spec : ShellSpec
+        Geometry and material (radius_m, core_radius_m, youngs_modulus_pa, nodes, ...).
+    gains : CouplingGains
+        As for :class:`Rigid`, scaled by core + shell.
+
+    A light shell node at a large step presses a contact far softer than its nominal
+    stiffness unless ``plant.sap_near_rigid_threshold`` is lowered (the shipped probe: 0.1).
+    """
+
+    name: str = "probe"
+    shell: str = "fem"
+    spec: ShellSpec = dataclasses.field(default_factory=ShellSpec)
+    gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
+
+    DEVICE_SPACE: ClassVar[str] = "pose"
+
+    def check(self, scenario: "Scenario") -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.shell not in SHELL_MODELS:
+            raise ValueError(f"god_object.shell: {self.shell!r}; choose one of {SHELL_MODELS}")
