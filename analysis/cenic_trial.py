@@ -61,7 +61,7 @@ def build(scenario, h: float):
 
     The same parts either way: the scenario's device, plant (directives, proxies' collision
     filters), rigid god-object and its coupling. ``h > 0`` is the project's own
-    :func:`~godobject_drake.building.add_plant` (SAP, relaxation time h). ``h = 0`` is
+    :func:`~godobject_drake.station.build.add_plant` (SAP, relaxation time h). ``h = 0`` is
     ``AddMultibodyPlant`` at ``time_step = 0`` with the same models and filters (contact: the
     models' point stiffness; relaxation time is SAP's, not used). Loggers: ``state``/``terms``
     at every plant step (h > 0) or every integrator step (h = 0: a per-step publish forces no
@@ -73,10 +73,10 @@ def build(scenario, h: float):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
 
-    from godobject_drake.building import add_plant, make_device
     from godobject_drake.config import scenario as sc
-    from godobject_drake.god_objects.rigid import add_god_object, coupling_options
-    from godobject_drake.scenes import apply_contact_model, make_parser
+    from godobject_drake.station.build import make_device
+    from godobject_drake.station.plant import add_plant, apply_contact_model, make_parser
+    from godobject_drake.station.rigid_tool import add_god_object, coupling_options
 
     builder = DiagramBuilder()
     device = builder.AddNamedSystem(
@@ -108,8 +108,8 @@ def build(scenario, h: float):
 
 def fold(plant, scene_graph, diagram, states, terms) -> dict:
     """The scene's rigid metrics (:class:`~godobject_drake.metrics.RigidMetrics`) of logged rows."""
-    from godobject_drake.coupling import TERMS_LAYOUT
     from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
+    from godobject_drake.systems.coupling import TERMS_LAYOUT
 
     n = min(len(states), len(terms))
     states, terms = states[:n], terms[:n]
@@ -195,9 +195,9 @@ def run(config: dict, scenario, duration: float) -> dict:
 def run_simulate(config: dict, scenario, duration: float) -> dict:
     """The project's own run (``godobject run lego``: :func:`~godobject_drake.simulation.simulate`
     with its safeguards and sleeping bodies) at SAP step ``h``: the baseline the goal quotes."""
-    from godobject_drake.building import build_station
     from godobject_drake.config import scenario as sc
     from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
 
     station = build_station(sc.replace(scenario, **{"plant.time_step": config["h"]}))
     t0 = time.process_time()

@@ -15,9 +15,9 @@ import statistics
 import sys
 from pathlib import Path
 
-from godobject_drake.building import build_station
 from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
 
 INTERACTIVE = {
     "fem": {"god_object.spec.fem_resolution_m": 0.02},

@@ -74,7 +74,7 @@ simulation: {{duration_s: {duration}}}
             [
                 sys.executable,
                 "-m",
-                "godobject_drake.driver",
+                "godobject_drake.driver.process",
                 "run",
                 "emulated",
                 "--scene",

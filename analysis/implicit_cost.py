@@ -7,7 +7,7 @@ against another implicit.py (the former seven vertical springs), interleaved in 
 
 OLD_IMPLICIT_PY is another version of godobject_drake/implicit.py, e.g. from
 ``git show 3a320c7:godobject_drake/implicit.py > /tmp/implicit_old.py``. The rest of the package
-is this tree's: only ``godobject_drake.implicit`` is swapped in ``sys.modules`` (the god-object
+is this tree's: only ``godobject_drake.systems.implicit`` is swapped in ``sys.modules`` (the god-object
 imports it when it builds and runs). Each round runs the shipped brick scene with
 ``god_object.coupling: implicit`` once with each version, the order alternating, and takes the
 simulation loop's process CPU time (``metrics["cpu_time_s"]``, which a loaded machine inflates
@@ -21,21 +21,21 @@ import statistics
 import sys
 import warnings
 
-import godobject_drake.implicit as new_implicit
-from godobject_drake.building import build_station
+import godobject_drake.systems.implicit as new_implicit
 from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
 
 
 def load(path: str):
-    spec = importlib.util.spec_from_file_location("godobject_drake.implicit", path)
+    spec = importlib.util.spec_from_file_location("godobject_drake.systems.implicit", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 def cost(module, duration: float, h: float, coupling: str = "implicit") -> tuple[float, dict]:
-    sys.modules["godobject_drake.implicit"] = module
+    sys.modules["godobject_drake.systems.implicit"] = module
     try:
         s = sc.replace(sc.shipped_scenario("lego"), **{"god_object.coupling": coupling,
                        "simulation.duration_s": duration, "plant.time_step": h})  # fmt: skip
@@ -44,7 +44,7 @@ def cost(module, duration: float, h: float, coupling: str = "implicit") -> tuple
             station = build_station(s)
         m = simulate(station, progress=False).metrics
     finally:
-        sys.modules["godobject_drake.implicit"] = new_implicit
+        sys.modules["godobject_drake.systems.implicit"] = new_implicit
     steps = round(m["sim_time_s"] / m["time_step_s"])
     return 1e6 * m["cpu_time_s"] / steps, m
 

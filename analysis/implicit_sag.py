@@ -18,9 +18,9 @@ import warnings
 
 import numpy as np
 
-from godobject_drake.building import build_station
 from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
 
 TIMES = (0.55, 0.6, 0.7, 0.8, 1.0, 1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4)
 

@@ -19,9 +19,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, Ellipse
 
-from godobject_drake.building import build_station
 from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
 
 
 def tips(station, states, q_device):

@@ -34,24 +34,24 @@ ROOT = Path(__file__).resolve().parents[1]
 UNITS = {
     # GraspingCoupling: what the explicit and implicit couplings share (moved out of
     # GodObjectCoupling with no change of behaviour: its setup and caps, its grasp choice)
-    "coupling: force law": ("coupling", ("GodObjectCoupling", "GraspingCoupling"), {
+    "coupling: force law": ("systems.coupling", ("GodObjectCoupling", "GraspingCoupling"), {
         "__init__", "_setup_bodies", "_hot_body", "force_caps", "_calc_terms", "_calc_generalized_forces",
         "_calc_spatial_forces", "_slice_calc"}),
-    "coupling: gains check": ("coupling", "CouplingGains", None),
-    "coupling: grasping": ("coupling", ("GodObjectCoupling", "GraspingCoupling"), {
+    "coupling: gains check": ("config.gains", "CouplingGains", None),
+    "coupling: grasping": ("systems.coupling", ("GodObjectCoupling", "GraspingCoupling"), {
         "body_for_grasp", "validate_grasp_names", "nearest_body", "_update_grasp", "_grasp_change",
         "_body_state"}),
-    "coupling: body lookup": ("coupling", None, {"graspable_bodies", "fixed_bodies"}),
-    "coupling: carried inertia": ("coupling", None, {"with_carried_inertia"}),
-    "feedback port": ("feedback", "*", None),
+    "coupling: body lookup": ("systems.coupling", None, {"graspable_bodies", "fixed_bodies"}),
+    "coupling: carried inertia": ("systems.coupling", None, {"with_carried_inertia"}),
+    "feedback port": ("systems.feedback", "*", None),
     "spatial math": ("spatial", "*", None),
-    "device sample guard": ("devices", "SampleGuard", None),
-    "device source (guard, timing)": ("devices", "DeviceSource", None),
-    "device aids (tether, ratio)": ("devices", "RelativeAids", None),
-    "device timing check": ("devices", None, {"_check_timing"}),
+    "device sample guard": ("config.device_files", "SampleGuard", None),
+    "device source (guard, timing)": ("devices.sources", "DeviceSource", None),
+    "device aids (tether, ratio)": ("config.device_files", "RelativeAids", None),
+    "device timing check": ("devices.sources", None, {"_check_timing"}),
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
-NAME = re.compile(r"godobject_drake\.(\w+)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")
+NAME = re.compile(r"godobject_drake\.([\w.]+?)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")
 # mutmut of this Python, by module: no activated venv needed, and never another install's mutmut
 MUTMUT = [sys.executable, "-m", "mutmut"]
 
@@ -118,7 +118,7 @@ def main(argv=None) -> int:
         print(f"{unit:<52} {counts} {100 * share:>8.1f}%{mark}")
     modules = collections.defaultdict(collections.Counter)
     for name, _, status in rows:
-        modules[name.split(".")[1]][status in KILLED] += 1
+        modules[NAME.fullmatch(name).group(1)][status in KILLED] += 1
     shares = (f"{m} {c[True]}/{c[True] + c[False]}" for m, c in sorted(modules.items()))
     print("killed by module: " + ", ".join(shares))
     if args.survivors:

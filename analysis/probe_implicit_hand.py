@@ -34,8 +34,8 @@ from pydrake.all import (
     SpatialInertia,
 )
 
-from godobject_drake.building import add_plant
 from godobject_drake.config import scenario as sc
+from godobject_drake.station.plant import add_plant
 
 HAND_MASS = float(sys.argv[2]) if len(sys.argv) > 2 else 1e-5
 BETA = float(sys.argv[3]) if len(sys.argv) > 3 else 1.0

@@ -46,8 +46,8 @@ from pydrake.all import (
     SpatialInertia,
 )
 
-from godobject_drake.building import add_plant
 from godobject_drake.config import scenario as sc
+from godobject_drake.station.plant import add_plant
 
 REST = float(sys.argv[3]) if len(sys.argv) > 3 else 1e-4  # the springs' rest length (m)
 CARRIER_W = 500.0  # the carrier's PD bandwidth (rad/s), implicit

@@ -20,12 +20,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from godobject_drake.building import build_station
 from godobject_drake.config.device_files import RelativeAids
 from godobject_drake.config.devices import Relative
 from godobject_drake.config.scenario import replace, shipped_scenario
-from godobject_drake.coupling import TERMS_LAYOUT
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
+from godobject_drake.systems.coupling import TERMS_LAYOUT
 
 REPO = Path(__file__).resolve().parent.parent
 LOG = REPO / "models/lego/push_and_return.csv"

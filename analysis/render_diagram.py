@@ -11,8 +11,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from godobject_drake.building import build_station
 from godobject_drake.config.scenario import shipped_scenario
+from godobject_drake.station.build import build_station
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -611,8 +611,9 @@ def brick_profile(seconds: float = 2.0) -> dict:
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_plant, build_station
     from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
+    from godobject_drake.station.plant import add_plant
 
     lego = replace(shipped_scenario("lego"), **{"simulation.duration_s": seconds})
     steps = round(seconds / 1e-3)

@@ -28,11 +28,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.coupling import graspable_bodies
-from godobject_drake.scenes import add_scene_from_directives
+from godobject_drake.station.plant import add_scene_from_directives
 from godobject_drake.studies import stability as st
 from godobject_drake.studies import validation as va
 from godobject_drake.studies.sweep import run_tasks
+from godobject_drake.systems.coupling import graspable_bodies
 
 # The reference haptic setup of the report (SI). A desktop impedance device;
 # the 1 kg probe held at the brick scene's default bandwidth; soft tissue and

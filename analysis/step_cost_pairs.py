@@ -31,7 +31,7 @@ SCENES = {  # scene: (overrides, simulated seconds)
 
 RUN = """
 import json, sys, time, warnings
-from godobject_drake.building import build_station
+from godobject_drake.station.build import build_station
 from godobject_drake.config.scenario import load_scenario, replace
 from godobject_drake.simulation import simulate
 scene, overrides, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])

@@ -38,10 +38,11 @@ from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
 from godobject_drake import safeguards as sg
-from godobject_drake.building import add_plant, build_station
 from godobject_drake.config.scenario import replace, shipped_scenario
-from godobject_drake.coupling import GodObjectCoupling
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
+from godobject_drake.station.plant import add_plant
+from godobject_drake.systems.coupling import GodObjectCoupling
 
 
 def scenario_for(coupling: str, seconds: float | None, bricks: int | None = None):
@@ -118,7 +119,7 @@ class Floor:
         builder = DiagramBuilder()
         implicit = getattr(station.god_object, "hook", None) is not None
         if implicit:
-            from godobject_drake.implicit import SpringHook, add_springs
+            from godobject_drake.systems.implicit import SpringHook, add_springs
 
             springs = []
             parts = add_plant(

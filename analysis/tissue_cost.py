@@ -15,9 +15,9 @@ import os
 import platform
 import time
 
-from godobject_drake.building import build_station
 from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
 
 
 def cpu_model() -> str:

@@ -78,9 +78,9 @@ WALL_CLOCK_KEYS = (
 
 
 def run_variant(name: str) -> dict[str, np.ndarray]:
-    from godobject_drake.building import build_station
     from godobject_drake.config.scenario import load_scenario, replace
     from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
 
     scene, overrides, duration = VARIANTS[name]
     scenario = load_scenario(DIAGRAMS / f"{scene}.yaml", overrides or None)

@@ -17,8 +17,11 @@ from pathlib import Path
 
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake import building, cli
-from godobject_drake.deformable import add_deformable_god_object
+from godobject_drake import cli
+from godobject_drake.devices.sources import first_pose
+from godobject_drake.station import build as building
+from godobject_drake.station.plant import add_plant
+from godobject_drake.systems.shell import add_deformable_god_object
 
 SCENARIO = Path(__file__).with_suffix(".yaml")
 
@@ -33,9 +36,9 @@ def build(scenario, meshcat=None):
     )  # fmt: skip
     probe = scenario.god_object
     probe.gains.check(scenario.time_step)  # before meshing anything
-    X_WC = building.first_pose(device)  # the probe starts at the device
+    X_WC = first_pose(device)  # the probe starts at the device
     shells = []
-    scene = building.add_plant(  # the block; the core and its shell go in before Finalize
+    scene = add_plant(  # the block; the core and its shell go in before Finalize
         builder, scenario, before_finalize=lambda plant, scene_graph: shells.append(
             add_deformable_god_object(plant, scene_graph, probe.shell, probe.spec, X_WC, probe.name)),
     )  # fmt: skip

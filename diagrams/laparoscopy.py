@@ -17,7 +17,9 @@ from pathlib import Path
 
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake import building, cli
+from godobject_drake import cli
+from godobject_drake.station import build as building
+from godobject_drake.station.plant import add_plant
 
 SCENARIO = Path(__file__).with_suffix(".yaml")
 
@@ -29,7 +31,7 @@ def build(scenario, meshcat=None):
         "device",
         building.make_device(scenario.device, meshcat=meshcat, duration_s=scenario.simulation.duration_s),
     )
-    scene = building.add_plant(builder, scenario)  # organs, grasper through the trocar
+    scene = add_plant(builder, scenario)  # organs, grasper through the trocar
     god_object = building.add_articulated(
         builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,
         connect_forces=scenario.simulation.mode == "god_object",

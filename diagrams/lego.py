@@ -13,7 +13,9 @@ from pathlib import Path
 
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake import building, cli
+from godobject_drake import cli
+from godobject_drake.station import build as building
+from godobject_drake.station.plant import add_plant
 
 SCENARIO = Path(__file__).with_suffix(".yaml")
 
@@ -26,7 +28,7 @@ def build(scenario, meshcat=None):
                                        workspace=scenario.workspace,
                                        duration_s=scenario.simulation.duration_s),  # a log: what it reaches
     )  # fmt: skip
-    scene = building.add_plant(builder, scenario)  # baseplate, wall, 8 bricks; proxies touch true boxes
+    scene = add_plant(builder, scenario)  # baseplate, wall, 8 bricks; proxies touch true boxes
     god = scenario.god_object
     god_object = building.add_god_object(
         builder, scene.plant, device, god.gains, scenario.feedback, haptic=scenario.haptic,

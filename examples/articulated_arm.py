@@ -8,10 +8,10 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.articulated import add_articulated_god_object
 from godobject_drake.config.gains import CouplingGains
-from godobject_drake.devices import JointDevice
-from godobject_drake.scenes import add_scene_from_directives
+from godobject_drake.devices.sources import JointDevice
+from godobject_drake.station.plant import add_scene_from_directives
+from godobject_drake.systems.articulated import add_articulated_god_object
 
 builder = DiagramBuilder()
 plant = add_scene_from_directives(

@@ -9,10 +9,10 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config.device_files import Waypoint
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.god_objects.rigid import add_god_object
+from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.safeguards import install_safeguards
-from godobject_drake.scenes import add_scene_from_directives
+from godobject_drake.station.plant import add_scene_from_directives
+from godobject_drake.station.rigid_tool import add_god_object
 
 builder = DiagramBuilder()
 scene = add_scene_from_directives(builder, "package://godobject_models/lego/lego.dmd.yaml", time_step=1e-3)

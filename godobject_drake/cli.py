@@ -18,17 +18,17 @@ import threading
 import warnings
 from pathlib import Path
 
-from godobject_drake.building import build_station, make_meshcat
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import INTERPOLATIONS
 from godobject_drake.config.devices import DEVICE_KINDS, kind_of, kinds_in
 from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import SHELL_MODELS, ShellSpecError
-from godobject_drake.god_objects.rigid import PenetrationBudgetWarning
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted
+from godobject_drake.station.build import build_station, make_meshcat
+from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 
 logger = logging.getLogger("godobject_drake")
 

@@ -76,9 +76,9 @@ def device_wall_matrix(
     spring and damper on the sampled position and its backward difference), held for one
     period ``T`` with the hand's ``−k_h x − b_h v`` on the handle (a simulated hand, 0 for
     a hand that lets go). The handle is the exact zero-order-hold map of
-    ``m ẍ + b ẋ = f`` (:func:`godobject_drake.haptic.zoh_mass_damper`). State ``[x, v, x_prev]``.
+    ``m ẍ + b ẋ = f`` (:func:`godobject_drake.systems.haptic.zoh_mass_damper`). State ``[x, v, x_prev]``.
     """
-    from godobject_drake.haptic import zoh_mass_damper
+    from godobject_drake.systems.haptic import zoh_mass_damper
 
     A, B = zoh_mass_damper(mass, damping, period_s)
     # the held force u = −c·[x, v, x_prev]

@@ -19,9 +19,9 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
 from pydrake.multibody.plant import MultibodyPlant
 
-from godobject_drake.coupling import GraspableBody, graspable_bodies
-from godobject_drake.scenes import is_proxy
 from godobject_drake.spatial import quats_to_rotations
+from godobject_drake.station.plant import is_proxy
+from godobject_drake.systems.coupling import GraspableBody, graspable_bodies
 
 
 def _rotations(q: np.ndarray) -> np.ndarray:
@@ -321,7 +321,7 @@ def write_metrics(path: str | Path, metrics: dict | list) -> None:
 
 
 class TissueMetrics:
-    """FEM tissue under an articulated tool (:class:`~godobject_drake.tissue.TissueObserver`'s
+    """FEM tissue under an articulated tool (:class:`~godobject_drake.systems.tissue.TissueObserver`'s
     summary rows), folded chunk by chunk: the deepest, largest and longest over the run."""
 
     def __init__(self):
@@ -632,7 +632,8 @@ class SeparationMetrics:
 
 
 def device_reversals(device, min_travel_m: float = 2 * REVERSAL_MOVE_M) -> list[tuple[float, np.ndarray]]:
-    """Where an increment device turns back (:meth:`~godobject_drake.devices.RelativeDevice.reversals`)."""
+    """Where an increment device turns back
+    (:meth:`~godobject_drake.devices.sources.RelativeDevice.reversals`)."""
     return device.reversals(min_travel_m)
 
 

@@ -276,7 +276,7 @@ def install_safeguards(
         Checked every ``sleeper.every`` plant steps (:mod:`godobject_drake.sleeping`).
     wiring_checked : bool
         The diagram's wiring was checked already (a built station's was, when it was built:
-        :func:`~godobject_drake.building.finish`), so it is not checked twice.
+        :func:`~godobject_drake.station.build.finish`), so it is not checked twice.
     watch : callable | None
         ``watch(root_context, max_speed)`` → ``(part, what)`` when a part outside the plant (a
         simulated haptic device) diverged, else None; asked at every check, before the plant.
@@ -287,7 +287,7 @@ def install_safeguards(
         check_wiring(diagram, mode=mode)
     stop = None
     if meshcat is not None:
-        from godobject_drake.live import add_stop_button, stop_requested
+        from godobject_drake.devices.live import add_stop_button, stop_requested
 
         add_stop_button(meshcat)
 
@@ -314,7 +314,7 @@ _FORCE_PORTS = {"generalized_force": "applied_generalized_force", "spatial_force
 def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
     """Raise :class:`WiringError` where a god-object coupling is wired so that it cannot work.
 
-    For every :class:`~godobject_drake.coupling.GodObjectCoupling` in ``diagram`` (at any
+    For every :class:`~godobject_drake.systems.coupling.GodObjectCoupling` in ``diagram`` (at any
     depth, with its plant in the same diagram):
 
     - ``god_object`` mode: exactly one of its ``generalized_force`` and ``spatial_forces``
@@ -326,7 +326,7 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
     """
     if mode not in MODES:
         raise ValueError(f"mode={mode!r}; choose one of {MODES}")
-    from godobject_drake.coupling import GodObjectCoupling
+    from godobject_drake.systems.coupling import GodObjectCoupling
 
     for sub in [diagram, *(s for s in _all_systems(diagram) if isinstance(s, Diagram))]:
         children = set(sub.GetSystems())
@@ -352,7 +352,7 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
                 raise WiringError(
                     f"coupling {name!r} drives no force into the plant: the held body would never move "
                     f"while the feedback reads its weight. Connect it: {fix} (or build with "
-                    "godobject_drake.building.add_god_object, which wires it)"
+                    "godobject_drake.station.build.add_god_object, which wires it)"
                 )
             if mode == "god_object" and len(into_plant) > 1:
                 raise WiringError(

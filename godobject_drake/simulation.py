@@ -1,6 +1,6 @@
 """Running a built scenario and measuring it: one result type for every scene.
 
-:func:`simulate` runs a :class:`~godobject_drake.building.Station` under a
+:func:`simulate` runs a :class:`~godobject_drake.station.build.Station` under a
 plain Drake ``Simulator`` with the safeguards installed
 (:mod:`godobject_drake.safeguards`), saves the recording, and measures the run
 (:mod:`godobject_drake.metrics`). It returns a :class:`RunResult`: the
@@ -24,13 +24,13 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.building import Station
 from godobject_drake.config.devices import kind_of
 from godobject_drake.config.scenario import Scenario
-from godobject_drake.coupling import TERMS_LAYOUT
 from godobject_drake.metrics import SceneMetrics
-from godobject_drake.recording import save_recording
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
+from godobject_drake.station.build import Station
+from godobject_drake.systems.coupling import TERMS_LAYOUT
+from godobject_drake.systems.drawing import save_recording
 
 
 @dataclasses.dataclass

@@ -24,10 +24,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake import cli
-from godobject_drake.building import build_station, make_meshcat
 from godobject_drake.config.scenario import Scenario, load_scenario, scenario_to_yaml
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
 from godobject_drake.simulation import RunResult, simulate
+from godobject_drake.station.build import build_station, make_meshcat
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = REPO / "examples"

@@ -19,9 +19,9 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config.device_files import IncrementLog, RelativeAids, SampleGuard
 from godobject_drake.config.gains import CouplingGains
-from godobject_drake.devices import DeviceSource, RelativeDevice
-from godobject_drake.god_objects.rigid import add_god_object
+from godobject_drake.devices.sources import DeviceSource, RelativeDevice
 from godobject_drake.spatial import rotation_error
+from godobject_drake.station.rigid_tool import add_god_object
 
 T = 0.01  # device period (s)
 R, ONSET, CAP = 10.0, 0.005, 0.2  # the ratio, its onset and the force-cap stretch (m)
@@ -358,7 +358,8 @@ def test_aids_without_the_coupling_wired_say_what_to_connect():
         RuntimeError,
         value=r"^mouse: a tether or control/display ratio",
         limit=r"needs the coupling's pose_WT and pose_WG on the device's inputs of the same names",
-        fix=r"connect them \(godobject_drake\.building\.add_god_object does\), or build the device without",
+        fix=r"connect them \(godobject_drake\.station\.build\.add_god_object does\), or build the "
+        r"device without",
     )
 
 

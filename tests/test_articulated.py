@@ -12,18 +12,18 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from godobject_drake.articulated import (
+from godobject_drake.config.gains import CouplingGainError, CouplingGains, FeedbackGains
+from godobject_drake.devices.sources import JointDevice
+from godobject_drake.spatial import rotation_error
+from godobject_drake.station.plant import add_scene_from_directives, exclude_self_collisions
+from godobject_drake.studies.stability import bisect
+from godobject_drake.systems.articulated import (
     ArticulatedFeedback,
     ArticulatedTool,
     add_articulated_god_object,
     joint_space_loop,
     propagate_to_parents,
 )
-from godobject_drake.config.gains import CouplingGainError, CouplingGains, FeedbackGains
-from godobject_drake.devices import JointDevice
-from godobject_drake.scenes import add_scene_from_directives, exclude_self_collisions
-from godobject_drake.spatial import rotation_error
-from godobject_drake.studies.stability import bisect
 
 LAPAROSCOPY = "package://godobject_models/laparoscopy/laparoscopy.dmd.yaml"
 ARM = "package://godobject_models/arm/arm.dmd.yaml"

@@ -15,8 +15,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config.device_files import DEVICE_STATUS_KEYS, SampleGuard, Waypoint, read_increment_log
 from godobject_drake.config.gains import CouplingGains
-from godobject_drake.coupling import GodObjectCoupling
-from godobject_drake.devices import DeviceSource, ScriptedDevice
+from godobject_drake.devices.sources import DeviceSource, ScriptedDevice
+from godobject_drake.systems.coupling import GodObjectCoupling
 
 T = 0.01  # device period (s)
 Q = np.array([1.0, 0.0, 0.0, 0.0])

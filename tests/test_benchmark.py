@@ -154,9 +154,9 @@ def test_engine_neutral_errors_agree_with_each_engines_own():
 @pytest.mark.slow
 def test_the_peer_places_extra_bricks_where_drake_does():
     pytest.importorskip("mujoco")
-    from godobject_drake.building import add_plant
-    from godobject_drake.coupling import graspable_bodies
+    from godobject_drake.station.plant import add_plant
     from godobject_drake.studies.mujoco_peer import brick_names, brick_positions
+    from godobject_drake.systems.coupling import graspable_bodies
 
     s = replace(shipped_scenario("lego"), bricks=70)
     plant = add_plant(DiagramBuilder(), s).plant

@@ -231,9 +231,9 @@ def test_fem_tissue_recording_shows_the_surface_pressed_where_the_tool_is(browse
     and the last frame the ones that moved most on screen are the ones around the organ's top,
     where the tool presses (the screen point of (0, 0, 25 mm), projected by the page's own
     camera), and far from it they barely moved (the whole organ sags under gravity, ~0.5 mm)."""
-    from godobject_drake.building import build_station, make_meshcat
     from godobject_drake.config import scenario as sc
     from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station, make_meshcat
 
     html = tmp_path / "tissue.html"
     s = sc.shipped_scenario("laparoscopy", "organs: {model: fem, cells: 6}\nsimulation: {duration_s: 0.9}")

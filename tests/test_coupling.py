@@ -24,15 +24,15 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from godobject_drake.config.device_files import SampleGuard, Waypoint
 from godobject_drake.config.gains import CouplingGainError, CouplingGains, CouplingGainWarning
-from godobject_drake.coupling import (
+from godobject_drake.devices.sources import ScriptedDevice
+from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.systems.coupling import (
     GodObjectCoupling,
     GraspableBody,
     fixed_bodies,
     graspable_bodies,
     with_carried_inertia,
 )
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.limits import explicit_limit_omega_h
 
 NO_JUMP_CHECK = SampleGuard(max_speed_m_s=float("inf"))
 

@@ -13,9 +13,9 @@ from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
 from godobject_drake.config.device_files import write_device_log
 from godobject_drake.config.tools import SHELL_MODELS, ShellSpec, ShellSpecError
-from godobject_drake.coupling import GraspableBody, with_carried_inertia
-from godobject_drake.deformable import add_deformable_god_object, fibonacci_sphere
 from godobject_drake.simulation import simulate
+from godobject_drake.systems.coupling import GraspableBody, with_carried_inertia
+from godobject_drake.systems.shell import add_deformable_god_object, fibonacci_sphere
 
 G = 9.81
 START = np.array([-0.09, 0.0, 0.10])  # free space above the block's left half

@@ -10,11 +10,11 @@ import pytest
 from conftest import REPO
 
 from godobject_drake import cli
-from godobject_drake.building import build_station, make_device
 from godobject_drake.config.devices import DEVICE_KINDS, _PoseDevice, device_kind, kind_of, kinds_in
 from godobject_drake.config.scenario import ScenarioError, load_scenario, scenario_from_yaml
-from godobject_drake.devices import DeviceSource
+from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station, make_device
 
 LEGO = REPO / "diagrams" / "lego.yaml"
 

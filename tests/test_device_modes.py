@@ -14,11 +14,11 @@ from conftest import REPO, build_scene, lego_run, scenario, shared_run
 
 from godobject_drake.config.device_files import IncrementLog, load_device_path, write_increment_log
 from godobject_drake.config.scenario import ScenarioError
-from godobject_drake.coupling import graspable_bodies
-from godobject_drake.devices import ScriptedDevice
+from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.spatial import rotation_error
 from godobject_drake.studies import stability as st
 from godobject_drake.studies import validation as va
+from godobject_drake.systems.coupling import graspable_bodies
 
 DEVICE = st.DeviceParams(mass=0.1, damping=2.0, period_s=1e-3)
 SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
@@ -132,7 +132,7 @@ def test_passivity_controller_stabilizes_a_stiffness_past_the_limit(cap):
 
 
 def test_passivity_controller_refuses_bad_settings():
-    from godobject_drake.haptic import PassivityController
+    from godobject_drake.systems.haptic import PassivityController
 
     with pytest.raises(ValueError, match=r"period_s=0\.0 s must be > 0"):
         PassivityController(0.0, 10.0)

@@ -11,7 +11,7 @@ from godobject_drake.config.device_files import (
     write_device_log,
     write_increment_log,
 )
-from godobject_drake.devices import DeviceSource, RelativeDevice, ReplayDevice, ScriptedDevice
+from godobject_drake.devices.sources import DeviceSource, RelativeDevice, ReplayDevice, ScriptedDevice
 
 PATH = [
     Waypoint(t=0.0, xyz=[0.0, 0.0, 0.0], grasp=""),

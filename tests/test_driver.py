@@ -27,11 +27,8 @@ from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake import driver as drv
-from godobject_drake.building import build_station
 from godobject_drake.config import scenario as sc
-from godobject_drake.haptic_families import RATED, HandPath
-from godobject_drake.lcm_device import (
+from godobject_drake.devices.lcm import (
     DRIVER_STATUS_CHANNEL,
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
@@ -40,8 +37,11 @@ from godobject_drake.lcm_device import (
     pose_message,
     status_message,
 )
+from godobject_drake.driver import process as drv
+from godobject_drake.driver.families import RATED, HandPath
+from godobject_drake.protocol import UdpLcm, pack, parse_url, unpack
 from godobject_drake.simulation import simulate
-from godobject_drake.udp_lcm import UdpLcm, pack, parse_url, unpack
+from godobject_drake.station.build import build_station
 
 LEGO = REPO / "diagrams" / "lego.yaml"
 STAND_INS = REPO / "tests" / "stand_ins"
@@ -101,7 +101,7 @@ simulation: {{duration_s: {duration_s}}}
 def start_driver(tmp_path, url, *extra, family="emulated", hand=WALL_HAND):
     hand_file = tmp_path / "hand.json"
     hand_file.write_text(json.dumps(hand))
-    command = [sys.executable, "-m", "godobject_drake.driver", "run", family, "--scene", url,
+    command = [sys.executable, "-m", "godobject_drake.driver.process", "run", family, "--scene", url,
                "--hand", str(hand_file), "--log", str(tmp_path / "driver.csv"),
                "--summary", str(tmp_path / "driver.json"), *extra]  # fmt: skip
     return subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
@@ -279,7 +279,7 @@ def test_calibrate_writes_the_reachable_box_as_the_workspace(tmp_path):
     scenario = tmp_path / "lcm.yaml"
     scenario.write_text(sc.scenario_to_yaml(lcm_scenario("udp://127.0.0.1:7667", 1.0, scale=0.5)))
     out = tmp_path / "calibrated.yaml"
-    command = [sys.executable, "-m", "godobject_drake.driver", "calibrate", "emulated", "--hand",
+    command = [sys.executable, "-m", "godobject_drake.driver.process", "calibrate", "emulated", "--hand",
                str(tmp_path / "hand.json"), "--scenario", str(scenario), "--out", str(out),
                "--seconds", "2.2"]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True, timeout=120)

@@ -5,7 +5,7 @@ import pytest
 from pydrake.math import RigidTransform
 
 from godobject_drake.config.gains import FeedbackGains
-from godobject_drake.feedback import FeedbackPort
+from godobject_drake.systems.feedback import FeedbackPort
 
 IDENTITY_Q = [1.0, 0, 0, 0]
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import meshcat_commands, run_scene
 
-from godobject_drake.recording import CUE_CAP_RGBA, CUE_GHOST_RGBA, CUE_LEVELS, cue_level, cue_rgba
+from godobject_drake.systems.drawing import CUE_CAP_RGBA, CUE_GHOST_RGBA, CUE_LEVELS, cue_level, cue_rgba
 
 FPS = 64
 MAX_STRETCH = 0.2  # the brick scene's force cap, as a stretch (m)

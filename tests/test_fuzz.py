@@ -30,8 +30,8 @@ from godobject_drake.config.device_files import (
     read_increment_log,
     read_joint_log,
 )
-from godobject_drake.devices import DeviceSource
-from godobject_drake.lcm_device import POSE_CHANNEL, POSE_NAMES, LcmDevice
+from godobject_drake.devices.lcm import POSE_CHANNEL, POSE_NAMES, LcmDevice
+from godobject_drake.devices.sources import DeviceSource
 
 pytestmark = pytest.mark.slow  # hypothesis: seconds per property
 

@@ -25,9 +25,9 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from godobject_drake.config.device_files import SampleGuard, Waypoint
 from godobject_drake.config.gains import CouplingGainError, CouplingGains
-from godobject_drake.coupling import TERMS_LAYOUT, GodObjectCoupling
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.scenes import apply_contact_model, make_parser, set_relaxation_time
+from godobject_drake.devices.sources import ScriptedDevice
+from godobject_drake.station.plant import apply_contact_model, make_parser, set_relaxation_time
+from godobject_drake.systems.coupling import TERMS_LAYOUT, GodObjectCoupling
 
 H = 1e-3
 GAINS = CouplingGains(omega_n=40.0, zeta=1.0, omega_n_rot=120.0)

@@ -1,4 +1,4 @@
-"""The implicit coupling (godobject_drake.implicit): the paper's spring as SAP springs.
+"""The implicit coupling (godobject_drake.systems.implicit): the paper's spring as SAP springs.
 
 Each test checks a number against theory or a second method: the layout's sums against
 ``k = m ωn²`` and ``I ωr²``; the step response against paper Eq. 3; the logged coupling wrench
@@ -24,9 +24,9 @@ from godobject_drake import cli
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import SampleGuard, Waypoint
 from godobject_drake.config.gains import CouplingGainError, CouplingGains
-from godobject_drake.coupling import GodObjectCoupling, GraspableBody, graspable_bodies
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.implicit import (
+from godobject_drake.devices.sources import ScriptedDevice
+from godobject_drake.systems.coupling import GodObjectCoupling, GraspableBody, graspable_bodies
+from godobject_drake.systems.implicit import (
     N_SPRINGS,
     ImplicitCoupling,
     SpringHook,
@@ -255,8 +255,8 @@ def test_implicit_lego_run_grasps_and_releases():
     s = sc.shipped_scenario("lego")
     s.god_object.coupling = "implicit"
     s.plant.time_step = 0.005
-    from godobject_drake.building import build_station
     from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -15,9 +15,9 @@ from conftest import (
     shared_run,
 )
 
-from godobject_drake.articulated import device_targets, joint_space_loop, linear_response
 from godobject_drake.config.device_files import write_joint_log
 from godobject_drake.config.gains import CouplingGainError
+from godobject_drake.systems.articulated import device_targets, joint_space_loop, linear_response
 
 
 def run(*flags):

@@ -12,10 +12,10 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake.config.gains import GRASP_NEAREST
-from godobject_drake.coupling import graspable_bodies
-from godobject_drake.live import GRASP_BUTTON, STOP_BUTTON, MeshcatDevice, MeshcatJointDevice
-from godobject_drake.recording import start_meshcat
+from godobject_drake.devices.live import GRASP_BUTTON, STOP_BUTTON, MeshcatDevice, MeshcatJointDevice
 from godobject_drake.simulation import simulate
+from godobject_drake.systems.coupling import graspable_bodies
+from godobject_drake.systems.drawing import start_meshcat
 
 WORKSPACE = ([-0.2, -0.2, 0.0], [0.2, 0.2, 0.2])
 

@@ -61,7 +61,7 @@ def peak_rss_mb(tmp_path, duration_s: float) -> float:
     (tmp_path / "one_brick.yaml").write_text(ONE_BRICK)
     code = textwrap.dedent(f"""
         import resource
-        from godobject_drake.building import build_station
+        from godobject_drake.station.build import build_station
         from godobject_drake.config.scenario import load_scenario
         from godobject_drake.simulation import simulate
         station = build_station(load_scenario("{tmp_path / "one_brick.yaml"}"))

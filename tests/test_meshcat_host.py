@@ -10,8 +10,8 @@ import socket
 import pytest
 from conftest import scenario
 
-from godobject_drake.building import make_meshcat
-from godobject_drake.recording import start_meshcat
+from godobject_drake.station.build import make_meshcat
+from godobject_drake.systems.drawing import start_meshcat
 
 
 def listening_addresses(port: int) -> set[str]:

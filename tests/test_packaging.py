@@ -14,10 +14,11 @@ import pytest
 from conftest import REPO
 
 import godobject_drake
-from godobject_drake import cli, scenes
-from godobject_drake.building import build_station
+from godobject_drake import cli
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.scenario import load_scenario
+from godobject_drake.station import plant as scenes
+from godobject_drake.station.build import build_station
 
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
 SETUPTOOLS = PYPROJECT["tool"]["setuptools"]

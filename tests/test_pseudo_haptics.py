@@ -28,11 +28,11 @@ from godobject_drake.config.device_files import (
     read_increment_log,
 )
 from godobject_drake.config.scenario import ScenarioError, scenario_from_yaml
-from godobject_drake.coupling import TERMS_LAYOUT, graspable_bodies
-from godobject_drake.devices import DeviceSource, RelativeDevice, ScriptedDevice
-from godobject_drake.live import GRASP_BUTTON
+from godobject_drake.devices.live import GRASP_BUTTON
+from godobject_drake.devices.sources import DeviceSource, RelativeDevice, ScriptedDevice
 from godobject_drake.metrics import SeparationMetrics, device_reversals
 from godobject_drake.spatial import rotation_error
+from godobject_drake.systems.coupling import TERMS_LAYOUT, graspable_bodies
 
 LOG = str(REPO / "models/lego/push_and_return.csv")
 RELATIVE = ("--device", "relative", "--device-log", LOG, "--duration", "4")

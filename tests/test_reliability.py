@@ -15,13 +15,13 @@ from conftest import REPO, assert_refused, build_scene, own_scene_files
 from drake import lcmt_force_torque
 
 from godobject_drake import cli
-from godobject_drake.building import build_station
 from godobject_drake.config.scenario import ScenarioError, load_scenario
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.lcm_device import FEEDBACK_CHANNEL
+from godobject_drake.devices.lcm import FEEDBACK_CHANNEL
+from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
 from godobject_drake.simulation import UnsupportedBodyWarning, simulate
+from godobject_drake.station.build import build_station
 
 
 @pytest.mark.slow
@@ -209,9 +209,10 @@ def test_a_path_whose_times_run_far_costs_what_the_run_uses():
     samples the path 13 times, not more than a run without the stretch."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_plant, finish
     from godobject_drake.config.device_files import load_device_path
-    from godobject_drake.god_objects.rigid import add_god_object
+    from godobject_drake.station.build import finish
+    from godobject_drake.station.plant import add_plant
+    from godobject_drake.station.rigid_tool import add_god_object
 
     s = load_scenario(LEGO, "simulation: {duration_s: 0.2}")
     waypoints = load_device_path(REPO / "models" / "lego" / "default_path.yaml").waypoints
@@ -345,8 +346,8 @@ def test_the_device_limit_at_build_is_python_controls_closed_loop_limit():
     import control as ct
 
     from godobject_drake.config.scene import Haptic
-    from godobject_drake.god_objects.rigid import hand_on_handle
     from godobject_drake.limits import device_wall_limit
+    from godobject_drake.station.rigid_tool import hand_on_handle
     from godobject_drake.studies.analyze import _device_with_hand
     from godobject_drake.studies.stability import DeviceParams, bisect, wall_impedance
 
@@ -383,7 +384,7 @@ def test_an_unstable_haptic_gain_is_refused_at_build_naming_the_limit_and_the_fi
     assert re.search(r"feedback\.kd: 1e\+06 N/m is past the stability limit 2\.884e\+04 N/m", run.stderr)
     assert re.search(r"Use feedback\.kd < 2\.884e\+04 N/m \(--kd\), or raise haptic\.device_", run.stderr)
     # Within 20 % of the limit, or past the limit without a hand: built, with a warning.
-    from godobject_drake.god_objects.rigid import HapticGainWarning
+    from godobject_drake.station.rigid_tool import HapticGainWarning
 
     with pytest.warns(HapticGainWarning, match=r"past the limit 4013 N/m of the same device with no hand"):
         build_scene("lego", "--haptic", "impedance", "--kd", "5000")

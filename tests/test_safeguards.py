@@ -15,14 +15,14 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.building import add_plant
 from godobject_drake.config.device_files import Waypoint
 from godobject_drake.config.gains import CouplingGains
 from godobject_drake.config.scenario import shipped_scenario
-from godobject_drake.coupling import GodObjectCoupling
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.god_objects.rigid import add_god_object
+from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.safeguards import DivergenceError, WiringError, install_safeguards
+from godobject_drake.station.plant import add_plant
+from godobject_drake.station.rigid_tool import add_god_object
+from godobject_drake.systems.coupling import GodObjectCoupling
 
 LIFT = [Waypoint(t=0.0, xyz=[-0.10, 0.0, 0.0048], grasp="brick_0"),
         Waypoint(t=1.0, xyz=[-0.10, 0.0, 0.04], grasp="brick_0")]  # fmt: skip

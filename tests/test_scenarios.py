@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 from conftest import REPO, SCENES, load_script, scenario
 
-from godobject_drake.building import build_station, make_meshcat
 from godobject_drake.config.scenario import (
     ScenarioError,
     load_scenario,
@@ -25,6 +24,7 @@ from godobject_drake.config.scenario import (
 )
 from godobject_drake.metrics import METRIC_KEYS
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station, make_meshcat
 
 # Keys every run's metrics have, whatever the scene (README "Metrics JSON").
 COMMON_KEYS = (

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from conftest import REPO, assert_refused, build_scene, meshcat_commands, run_scene, scenario, shared_run
 
-from godobject_drake.building import build_station
 from godobject_drake.config.device_files import Waypoint
 from godobject_drake.config.scenario import ScenarioError, check_scenario, replace, scenario_from_yaml
-from godobject_drake.coupling import graspable_bodies
-from godobject_drake.scenes import BRICK_HEIGHT_M, brick_grid_positions
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
+from godobject_drake.station.plant import BRICK_HEIGHT_M, brick_grid_positions
+from godobject_drake.systems.coupling import graspable_bodies
 
 
 def positions(result, name: str) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""FEM tissue in the laparoscopy scene (godobject_drake.tissue) and its check against contact
+"""FEM tissue in the laparoscopy scene (godobject_drake.systems.tissue) and its check against contact
 mechanics (godobject_drake.studies.indentation): the meshes by geometry, the scenario's checks,
 the organ in a real plant under the grasper, the hard case's pop-through, Hertz."""
 
@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from godobject_drake.building import build_station
 from godobject_drake.config import scenario as sc
 from godobject_drake.limits import semi_implicit_matrix, symplectic_euler_matrix
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
 from godobject_drake.studies.indentation import IndentationSetup, hertz_force, indent, layer_correction
 from godobject_drake.studies.stability import BodyLoop, coupled_body_matrices
-from godobject_drake.tissue import (
+from godobject_drake.systems.tissue import (
     ellipsoid_tet_mesh,
     grid_tet_mesh,
     linear_stiffness_matrix,
@@ -172,7 +172,7 @@ def test_the_organs_mesh_folder_is_removed_when_the_process_ends():
     code = (
         "import sys; sys.path.insert(0, 'tests')\n"
         "from test_tissue import fem_scenario\n"
-        "from godobject_drake.building import build_station\n"
+        "from godobject_drake.station.build import build_station\n"
         "folder = build_station(fem_scenario(cells=2)).god_object.tissue.vtk_dir\n"
         "assert any(folder.glob('*.vtk'))\n"
         "print(folder)\n"

@@ -5,7 +5,7 @@ Plain types and file formats, no Drake systems: a scripted path (:class:`Waypoin
 log (CSV ``t,dx,dy,dz,drx,dry,drz,clutch,grasp``, the paper's mouse), a joint log (CSV
 ``t,<channels>``); the :class:`SampleGuard` every pose device applies and the pseudo-haptic
 :class:`RelativeAids` of the increment devices. The device systems that use them are in
-:mod:`godobject_drake.devices`; the driver process's log replay reads them too.
+:mod:`godobject_drake.devices.sources`; the driver process's log replay reads them too.
 
 This module must not use ``from __future__ import annotations``: ``yaml_load_typed`` reads the
 field types at run time.

@@ -1,7 +1,7 @@
 """The device kinds: each a scenario dataclass registered once, with all a kind decides.
 
-A device kind is two things: its runtime system (:mod:`~godobject_drake.devices`,
-:mod:`~godobject_drake.live`, :mod:`~godobject_drake.lcm_device`, or a module of one's own) and
+A device kind is two things: its runtime system (:mod:`~godobject_drake.devices.sources`,
+:mod:`~godobject_drake.devices.live`, :mod:`~godobject_drake.devices.lcm`, or a module of one's own) and
 its config here, a dataclass whose fields are the YAML keys under ``device: !Tag``. The
 :func:`device_kind` decorator registers the config in :data:`DEVICE_KINDS` with what the rest of
 the library asks of a kind:
@@ -49,7 +49,7 @@ from godobject_drake.config.device_files import (
     load_device_path,
     load_joint_path,
 )
-from godobject_drake.devices import (
+from godobject_drake.devices.sources import (
     RelativeDevice,
     ReplayDevice,
     ReplayJointDevice,
@@ -192,7 +192,7 @@ class DeviceConfig:
 class _PoseDevice(DeviceConfig):
     """What every pose device has: its rate, latency, interpolation, noise and sample guard;
     and, for the increment devices (``!Relative``, ``!MeshcatSliders``) only, the pseudo-haptic
-    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.RelativeAids`):
+    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.sources.RelativeAids`):
     ``tether_m`` (m) and ``tether_angle_rad`` (rad), ``.inf`` for none; ``cd_ratio`` (the
     control/display ratio at the force cap, 1 for none) and ``cd_onset_m`` (m, where it starts
     to grow)."""
@@ -364,7 +364,7 @@ class MeshcatSliders(_PoseDevice):
             raise ValueError("noise_m: a live device's samples are the user's own; leave it 0")
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.live import MeshcatDevice
+        from godobject_drake.devices.live import MeshcatDevice
 
         if meshcat is None or workspace is None:
             raise ValueError("device: !MeshcatSliders needs the scene's Meshcat and workspace")
@@ -450,7 +450,7 @@ class Lcm(_PoseDevice):
             raise ValueError("noise_m: a real device's samples are its own; leave it 0")
         self.device_to_world.check()
         if self.url.startswith("udp://"):
-            from godobject_drake.udp_lcm import parse_url
+            from godobject_drake.protocol import parse_url
 
             try:
                 parse_url(self.url)
@@ -458,7 +458,7 @@ class Lcm(_PoseDevice):
                 raise ValueError(f"url: {e}") from None
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.lcm_device import LcmDevice, make_lcm
+        from godobject_drake.devices.lcm import LcmDevice, make_lcm
 
         frame = {}
         if not self.device_to_world.is_identity():
@@ -574,7 +574,7 @@ class MeshcatJointSliders(_JointDevice):
             raise ValueError(f"limits: {self.limits}: give one [lower, upper] per channel {self.channels}")
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.live import MeshcatJointDevice
+        from godobject_drake.devices.live import MeshcatJointDevice
 
         if meshcat is None:
             raise ValueError("device: !MeshcatJointSliders needs the scene's Meshcat")
@@ -601,7 +601,7 @@ class LcmJoints(_JointDevice):
             raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.lcm_device import LcmJointDevice, make_lcm
+        from godobject_drake.devices.lcm import LcmJointDevice, make_lcm
 
         s = self.sampling()
         return LcmJointDevice(

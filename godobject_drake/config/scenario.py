@@ -7,7 +7,7 @@ long to run, what to draw and record, and the metrics' budget. It is loaded
 with Drake's ``yaml_load_typed``, like Drake's own ``hardware_sim`` scenarios:
 a union field takes a YAML tag naming its type (``device: !Replay {log:
 path.csv}``), and a key the schema does not know is an error naming the key
-and the file. :func:`godobject_drake.building.build_station` turns a scenario
+and the file. :func:`godobject_drake.station.build.build_station` turns a scenario
 into a diagram; ``python -m godobject_drake run SCENARIO.yaml`` runs one.
 
 Every length is in m, time in s, angle in rad unless a field says degrees,
@@ -131,7 +131,7 @@ class Scenario:
     organs : Organs
         Rigid organs (the default: the directives' shapes) or FEM tissue (``--set
         organs.model=fem``: the laparoscopy scene's uterus as a Drake FEM body,
-        :mod:`godobject_drake.tissue`).
+        :mod:`godobject_drake.systems.tissue`).
     haptic, simulation, visualization, recording, metrics :
         See their classes.
     """
@@ -311,7 +311,7 @@ PACKAGE_URL = "package://godobject_models/"
 def _resolve(value: str, base: Path) -> str:
     """A path relative to ``base`` made absolute; ``package://godobject_models/`` to the models."""
     if value.startswith(PACKAGE_URL):
-        from godobject_drake.scenes import MODELS_DIR
+        from godobject_drake.station.plant import MODELS_DIR
 
         return str(MODELS_DIR / value[len(PACKAGE_URL) :])
     if not value or "://" in value or Path(value).is_absolute():

@@ -249,7 +249,7 @@ class Metrics:
 
     ``penetration_budget_m``: how deep a god-object may go into an obstacle (m). At build,
     a god-object whose capped pull could push it deeper (capped force / contact stiffness)
-    gets a :class:`~godobject_drake.building.PenetrationBudgetWarning`.
+    gets a :class:`~godobject_drake.station.build.PenetrationBudgetWarning`.
     ``checkpoint_period_s``: while a run goes, the command line rewrites ``file`` with the
     metrics so far (marked ``partial``) every this many seconds of wall time, so even a killed
     run leaves them.

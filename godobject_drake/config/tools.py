@@ -135,7 +135,7 @@ class Rigid:
         ``explicit`` (the PD wrench computed in Python each plant step and applied to the body:
         stable only below ``ωn h < 2(√(1+ζ²) − ζ)``) or ``implicit`` (the same spring made of
         compliant constraints SAP integrates implicitly, no Python per plant step:
-        :mod:`godobject_drake.implicit`).
+        :mod:`godobject_drake.systems.implicit`).
     """
 
     gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)

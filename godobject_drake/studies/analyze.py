@@ -31,15 +31,13 @@ from pydrake.geometry import Role
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
 
-from godobject_drake.articulated import joint_space_loop
-from godobject_drake.building import build_station
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import JointWaypoint, Waypoint
 from godobject_drake.config.gains import CouplingGains, CouplingGainWarning
-from godobject_drake.coupling import graspable_bodies
-from godobject_drake.god_objects.rigid import PenetrationBudgetWarning, hand_on_handle, penetration_pairs
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
+from godobject_drake.station.rigid_tool import PenetrationBudgetWarning, hand_on_handle, penetration_pairs
 from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
@@ -59,6 +57,8 @@ from godobject_drake.studies.stability import (
     pipeline_impedance,
 )
 from godobject_drake.studies.validation import is_growing
+from godobject_drake.systems.articulated import joint_space_loop
+from godobject_drake.systems.coupling import graspable_bodies
 
 WARN_FRACTION = 0.8  # a number past 80 % of its limit (less than 25 % margin) warns
 PUSH_IN_M = 0.05  # the verification holds the target this far inside the nearest obstacle
@@ -302,7 +302,7 @@ def _tissue_pose(station, q_device: np.ndarray) -> dict | None:
     contact) against the FEM organ's rest surface: the tube's axis from the tip body's origin
     (``d``, toward the tip), how far the tool reaches past that origin along it, and where the
     axis meets the surface; None if the axis misses the organ."""
-    from godobject_drake.tissue import ray_surface_hit, tool_capsules
+    from godobject_drake.systems.tissue import ray_surface_hit, tool_capsules
 
     tool, plant = station.coupling.tool, station.plant
     organ = station.god_object.tissue
@@ -339,7 +339,7 @@ def _tissue_press(station, duration_s: float) -> dict | None:
     axis, the joint that slides the tip along it, and the joint-space loop."""
     from pydrake.multibody.tree import JacobianWrtVariable
 
-    from godobject_drake.tissue import contact_stiffness
+    from godobject_drake.systems.tissue import contact_stiffness
 
     tool, plant = station.coupling.tool, station.plant
     poses = [_tissue_pose(station, q) for q in station.device.samples(duration_s)]

@@ -160,7 +160,7 @@ def machine() -> str:
 def god_object_body(scenario: Scenario) -> str:
     """The body whose pose is "the god-object's pose": the first body a rigid scene's device
     grasps, an articulated tool's tip body, a deformable probe's core."""
-    from godobject_drake.building import make_device
+    from godobject_drake.station.build import make_device
 
     if isinstance(scenario.god_object, sc.Articulated):
         return scenario.god_object.tip_body
@@ -181,8 +181,8 @@ def run_case(case: Case) -> dict:
     explicit limit at this h), and the trajectory ``times``, ``p_WG`` (N×3), ``q_WG`` (N×4, wxyz),
     ``energy_j`` (N).
     """
-    from godobject_drake.building import build_station
     from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
 
     if case.repeats < 1:
         raise ValueError(f"repeats={case.repeats}; give at least 1 (the report uses ≥ 3)")
@@ -243,7 +243,7 @@ def trajectory(plant, states: np.ndarray, time_step: float, body_name: str):
     context = plant.CreateDefaultContext()
     from pydrake.multibody.tree import BodyIndex
 
-    from godobject_drake.coupling import graspable_bodies
+    from godobject_drake.systems.coupling import graspable_bodies
 
     free = graspable_bodies(plant)  # "brick_0" names the body of model instance brick_0
     body = (
@@ -279,9 +279,10 @@ def engine_neutral_errors(scenario: Scenario, states: np.ndarray, sample_dt_s: f
     """
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_plant, make_device
-    from godobject_drake.coupling import graspable_bodies
     from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
+    from godobject_drake.station.build import make_device
+    from godobject_drake.station.plant import add_plant
+    from godobject_drake.systems.coupling import graspable_bodies
 
     parts = add_plant(DiagramBuilder(), scenario)
     name = god_object_body(scenario)
@@ -415,8 +416,8 @@ def _drake_states(scenario: Scenario, r: dict) -> np.ndarray:
     """The MuJoCo samples as rows of the Drake plant's state (free bodies' poses, zero velocity)."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_plant
-    from godobject_drake.coupling import graspable_bodies
+    from godobject_drake.station.plant import add_plant
+    from godobject_drake.systems.coupling import graspable_bodies
 
     plant = add_plant(DiagramBuilder(), scenario).plant
     bodies = graspable_bodies(plant)
@@ -433,8 +434,8 @@ def _rigid_bodies(scenario: Scenario):
     """The free bodies of the scenario's plant (the plant alone, no diagram around it)."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_plant
-    from godobject_drake.coupling import graspable_bodies
+    from godobject_drake.station.plant import add_plant
+    from godobject_drake.systems.coupling import graspable_bodies
 
     return graspable_bodies(add_plant(DiagramBuilder(), scenario).plant)
 
@@ -451,9 +452,9 @@ def coupling_overhead_us(samples: int = 2000, rounds: int = 5) -> dict:
     from pydrake.math import RigidTransform
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.building import add_plant
     from godobject_drake.config.scenario import shipped_scenario
-    from godobject_drake.coupling import GodObjectCoupling
+    from godobject_drake.station.plant import add_plant
+    from godobject_drake.systems.coupling import GodObjectCoupling
 
     lego = shipped_scenario("lego")
     plant = add_plant(DiagramBuilder(), lego).plant

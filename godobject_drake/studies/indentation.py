@@ -56,7 +56,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from godobject_drake.tissue import grid_tet_mesh, write_vtk
+from godobject_drake.systems.tissue import grid_tet_mesh, write_vtk
 
 
 def hertz_force(E: float, nu: float, R: float, d) -> np.ndarray:

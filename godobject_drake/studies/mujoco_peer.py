@@ -125,9 +125,9 @@ except ImportError as e:  # an optional extra, never a runtime dependency of god
     ) from e
 
 from godobject_drake.config.device_files import load_device_path
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.scenes import MODELS_DIR
+from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.spatial import quat_conjugate, quat_multiply, quat_to_rotation
+from godobject_drake.station.plant import MODELS_DIR
 
 MODES = ("weld", "perturb")
 
@@ -162,7 +162,7 @@ def brick_names(bricks: int = 8) -> list[str]:
 
 def brick_positions(bricks: int = 8) -> list[tuple[float, float, float]]:
     """The scene's 8 bricks, and more where Drake's ``--bricks`` puts them (a grid, in layers)."""
-    from godobject_drake.scenes import brick_grid_positions
+    from godobject_drake.station.plant import brick_grid_positions
 
     if not (isinstance(bricks, int) and bricks >= 8):
         raise ValueError(f"bricks={bricks!r}: the brick scene has 8; give an integer ≥ 8")

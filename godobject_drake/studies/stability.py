@@ -172,7 +172,8 @@ class BodyLoop:
 
     @classmethod
     def by_bandwidth(cls, mass: float, omega_n: float, zeta: float, time_step: float, **kw) -> BodyLoop:
-        """The coupling of :class:`~godobject_drake.coupling.CouplingGains`: ``k = m ωn²``, ``γ = 2ζmωn``."""
+        """The coupling of
+        :class:`~godobject_drake.config.gains.CouplingGains`: ``k = m ωn²``, ``γ = 2ζmωn``."""
         return cls(mass, mass * omega_n**2, 2 * zeta * mass * omega_n, time_step, **kw)
 
     def split(self) -> tuple[float, float, float, float]:

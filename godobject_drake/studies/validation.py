@@ -28,11 +28,8 @@ from pydrake.systems.primitives import LogVectorOutput, Sine
 
 from godobject_drake.config.device_files import Waypoint
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
-from godobject_drake.coupling import GodObjectCoupling
-from godobject_drake.devices import ScriptedDevice
-from godobject_drake.feedback import FeedbackPort
-from godobject_drake.haptic import HapticDevice, PassivityController
-from godobject_drake.scenes import SceneParts, add_scene_from_directives, set_contact_material
+from godobject_drake.devices.sources import ScriptedDevice
+from godobject_drake.station.plant import SceneParts, add_scene_from_directives, set_contact_material
 from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
@@ -41,6 +38,9 @@ from godobject_drake.studies.stability import (
     device_stiffness_limit,
     pipeline_impedance,
 )
+from godobject_drake.systems.coupling import GodObjectCoupling
+from godobject_drake.systems.feedback import FeedbackPort
+from godobject_drake.systems.haptic import HapticDevice, PassivityController
 
 HAPTIC_SCENE = "package://godobject_models/haptic/probe_on_tissue.dmd.yaml"
 
@@ -148,7 +148,7 @@ class HapticScenario:
     force_amplitude, force_frequency : float
         User's force ``F sin(ω t)`` (N, rad/s), sampled by the device.
     passivity_max_damping : float
-        > 0 puts a :class:`~godobject_drake.haptic.PassivityController` with
+        > 0 puts a :class:`~godobject_drake.systems.haptic.PassivityController` with
         this damping cap (N·s/m) on the feedback path; 0 = none.
     """
 

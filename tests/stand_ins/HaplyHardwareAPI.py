@@ -2,7 +2,7 @@
 ``SerialStream(port)``, ``Inverse3(stream)`` with ``device_wakeup_dict()`` and
 ``end_effector_force(forces) -> (position, velocity)`` (Haply's published examples)."""
 
-from godobject_drake.haptic_families import EmulatedDevice
+from godobject_drake.driver.families import EmulatedDevice
 
 HAND = None
 forces: list[list[float]] = []

@@ -3,7 +3,7 @@
 ``getPosition(out, ID=-1)``, ``getButton(index, ID=-1)``, ``setForce(f, ID=-1)``, ``stop(ID=-1)``,
 ``close(ID=-1)``, ``errorGetLastStr()``; 0 on success, −1 on error."""
 
-from godobject_drake.haptic_families import EmulatedDevice
+from godobject_drake.driver.families import EmulatedDevice
 
 HAND = None
 forces: list[list[float]] = []

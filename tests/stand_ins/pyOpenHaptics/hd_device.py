@@ -6,7 +6,7 @@ loop, calling ``callback`` every millisecond in its own thread with the frame's 
 import threading
 import time
 
-from godobject_drake.haptic_families import EmulatedDevice
+from godobject_drake.driver.families import EmulatedDevice
 
 from . import hd
 

@@ -2,7 +2,7 @@
 small interface, with its rated limits (docs/haptic_devices.md).
 
 A family's device is opened, read and commanded from the driver's loop
-(:mod:`godobject_drake.driver`) through :class:`HapticIO`:
+(:mod:`godobject_drake.driver.process`) through :class:`HapticIO`:
 
 - ``read() -> (p, q, buttons)``: the handle's position (m) and orientation (a W-first unit
   quaternion) in the device's own frame, and the pressed buttons (a tuple of bools; button 0 is
@@ -141,7 +141,7 @@ class HandPath:
 class EmulatedDevice(HapticIO):
     """A handle of mass ``mass_kg`` held by a simulated hand: a spring ``hand_stiffness`` (N/m) and
     damper ``hand_damping`` (N·s/m) to the hand's path; the rendered force pushes the handle, and
-    mechanical stops bound it to ``reach_m`` (the box :mod:`godobject_drake.driver`'s ``calibrate``
+    mechanical stops bound it to ``reach_m`` (the box :mod:`godobject_drake.driver.process`'s ``calibrate``
     finds). Time is the wall clock (``clock``), starting when the scene is first heard, so the hand
     moves as a person's would, whatever the scene's speed."""
 

@@ -114,7 +114,7 @@ def ellipsoid_tet_mesh(radii, cells: int) -> tuple[np.ndarray, np.ndarray, np.nd
 def write_vtk(path: str | Path, V: np.ndarray, T: np.ndarray) -> Path:
     """Write a legacy-ASCII VTK unstructured grid of tetrahedra (cell type 10), as Drake reads."""
     path = Path(path)
-    lines = ["# vtk DataFile Version 3.0", "tetrahedral mesh (godobject_drake.tissue)", "ASCII",
+    lines = ["# vtk DataFile Version 3.0", "tetrahedral mesh (godobject_drake.systems.tissue)", "ASCII",
              "DATASET UNSTRUCTURED_GRID", f"POINTS {len(V)} double"]  # fmt: skip
     lines += [f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in V]
     lines.append(f"CELLS {len(T)} {5 * len(T)}")

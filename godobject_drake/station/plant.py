@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.resources
+import logging
+import math
 import re
 from pathlib import Path
 
@@ -32,6 +34,8 @@ from pydrake.multibody.parsing import (
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
+
+from godobject_drake.config import scenario as sc
 
 # The installed package godobject_models (the clone's models/ folder in an editable install).
 MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
@@ -71,7 +75,7 @@ def set_contact_material(plant: MultibodyPlant, scene_graph: SceneGraph, **value
     inspector = scene_graph.model_inspector()
     for gid in inspector.GetAllGeometryIds(Role.kProximity):
         if inspector.IsDeformableGeometry(gid):
-            continue  # a deformable body sets its own (godobject_drake.deformable)
+            continue  # a deformable body sets its own (godobject_drake.systems.shell)
         props = ProximityProperties(inspector.GetProximityProperties(gid))
         for name, value in values.items():
             if props.HasProperty("material", name):
@@ -135,10 +139,10 @@ class SceneParts:
     plant: MultibodyPlant
     scene_graph: SceneGraph
     contact: str
-    tissue: object = None  # a godobject_drake.tissue.FemOrgan with organs.model fem
+    tissue: object = None  # a godobject_drake.systems.tissue.FemOrgan with organs.model fem
 
 
-def add_plant(
+def add_scene_plant(
     builder: DiagramBuilder,
     config: MultibodyPlantConfig,
     directives,
@@ -259,7 +263,7 @@ def add_scene_from_directives(
     if "://" not in url:
         url = "file://" + str(Path(url).resolve())
     directive = ModelDirective(add_directives=AddDirectives(file=url))
-    return add_plant(builder, config, [directive], contact, relaxation_time, before_finalize)
+    return add_scene_plant(builder, config, [directive], contact, relaxation_time, before_finalize)
 
 
 def exclude_self_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, model: str) -> None:
@@ -269,3 +273,83 @@ def exclude_self_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, mode
     inspector = scene_graph.model_inspector()
     ids = [g for f in frames for g in inspector.GetGeometries(f, Role.kProximity)]
     scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
+
+
+def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=None) -> SceneParts:
+    """The scenario's plant: its config, directives, ``bricks`` and contact settings; finalized."""
+
+    tissue = []
+
+    def before(plant, scene_graph):
+        if scenario.organs.model == "fem":
+            from godobject_drake.systems.tissue import FemOrgan
+
+            try:
+                tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
+            except ValueError as e:
+                raise sc.ScenarioError(str(e)) from None
+        if scenario.bricks:
+            try:
+                add_bricks(plant, scenario.bricks)
+            except ValueError as e:
+                raise sc.ScenarioError(str(e)) from None
+        if before_finalize is not None:
+            before_finalize(plant, scene_graph)
+
+    with _DrakeWarnings() as drake_warnings:
+        try:
+            scene = add_scene_plant(
+                builder,
+                scenario.plant,
+                scenario.directives,
+                scenario.contact.geometry,
+                scenario.contact.relaxation_time_s,
+                before,
+            )
+        except RuntimeError as e:  # Drake's parser and plant: a model file, a name, a frame
+            said = " ".join(str(e).split()).rstrip(".")
+            raise sc.ScenarioError(
+                f"directives: Drake could not build the scene's plant: {said}. Check the directives' files, "
+                "model names (each once) and frame names (model::frame)"
+            ) from None
+    for message in drake_warnings.messages:
+        if "mass > 0" in message or "mass <= 0" in message:  # Drake then gives the body 1 kg, silently
+            raise sc.ScenarioError(
+                f"a model declares a body with no positive mass; Drake replaced its inertia ({message}). "
+                "Give the body <inertial><mass> > 0 in its model file, or weld it (add_weld) if it should "
+                "not move"
+            )
+    check_free_bodies(scene.plant)
+    scene.tissue = tissue[0] if tissue else None
+    return scene
+
+
+class _DrakeWarnings(logging.Handler):
+    """Drake's log warnings while a block runs (pydrake sends its log to Python's ``drake`` logger)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+    def __enter__(self):
+        logging.getLogger("drake").addHandler(self)
+        return self
+
+    def __exit__(self, *exc):
+        logging.getLogger("drake").removeHandler(self)
+
+
+def check_free_bodies(plant: MultibodyPlant) -> None:
+    """Refuse a free body without a positive, finite mass: Drake only logs a warning, and the body
+    then has no dynamics the coupling or contact could act on."""
+    for body in plant.GetFloatingBaseBodies():
+        body = plant.get_body(body)
+        mass = body.default_mass()
+        if not (math.isfinite(mass) and mass > 0):
+            raise sc.ScenarioError(
+                f"{body.scoped_name().get_full()}: a free body with mass {mass!r} kg; give it "
+                "<inertial><mass> > 0 in its model file, or weld it (add_weld) if it should not move"
+            )

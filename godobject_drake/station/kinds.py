@@ -1,7 +1,7 @@
 """What every god-object kind has: the parts it added, and the questions the library asks of it.
 
 A kind is one subclass of :class:`GodObject` (rigid, articulated, deformable), registered for its
-scenario config type in :data:`godobject_drake.god_objects.KINDS`. Everything kind-specific is
+scenario config type in :data:`godobject_drake.station.build.KINDS`. Everything kind-specific is
 a method or class attribute of the subclass; the builder, the simulation, the metrics and the
 studies call these and never compare a kind's name (docs/design.md "Adding a god-object kind").
 """
@@ -15,11 +15,16 @@ from pydrake.systems.framework import DiagramBuilder, System
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 if TYPE_CHECKING:
-    from godobject_drake.articulated import ArticulatedCoupling, ArticulatedFeedback
-    from godobject_drake.coupling import GodObjectCoupling
-    from godobject_drake.devices import DeviceSource, JointDevice
-    from godobject_drake.feedback import FeedbackPort
-    from godobject_drake.haptic import AdmittanceDevice, HapticDevice, PassivityController, SimulatedHand
+    from godobject_drake.devices.sources import DeviceSource, JointDevice
+    from godobject_drake.systems.articulated import ArticulatedCoupling, ArticulatedFeedback
+    from godobject_drake.systems.coupling import GodObjectCoupling
+    from godobject_drake.systems.feedback import FeedbackPort
+    from godobject_drake.systems.haptic import (
+        AdmittanceDevice,
+        HapticDevice,
+        PassivityController,
+        SimulatedHand,
+    )
 
 
 @dataclasses.dataclass
@@ -116,8 +121,8 @@ class GodObject:
         """``(part, what and likely cause)`` if a part outside the plant diverged: a simulated
         impedance device whose handle's state is non-finite or faster than ``max_speed`` (m/s).
         The safeguards ask at every check; a run Drake stopped asks it for the likely cause."""
-        from godobject_drake.haptic import HapticDevice
         from godobject_drake.limits import device_wall_limit
+        from godobject_drake.systems.haptic import HapticDevice
 
         dev = self.haptic
         if not isinstance(dev, HapticDevice):
@@ -151,7 +156,7 @@ class GodObject:
 
     def device_metrics(self, root_context) -> dict:
         """The device's counts and the haptic loop's energies (J) at the end of a run."""
-        from godobject_drake.haptic import HapticDevice
+        from godobject_drake.systems.haptic import HapticDevice
 
         out = dict(self.source.status(self.source.GetMyContextFromRoot(root_context)))
         if isinstance(self.haptic, HapticDevice):

@@ -20,7 +20,6 @@ import math
 import warnings
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
@@ -29,14 +28,22 @@ from pydrake.systems.primitives import VectorLogSink
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.devices import kind_of
-from godobject_drake.devices import DeviceSource, JointDevice
-from godobject_drake.god_objects import kind_for
-from godobject_drake.god_objects.articulated import add_articulated  # noqa: F401  (public here)
-from godobject_drake.god_objects.base import GodObject
-from godobject_drake.god_objects.deformable import add_deformable  # noqa: F401
-from godobject_drake.god_objects.rigid import (  # noqa: F401  the one-call helpers, public here too
+from godobject_drake.devices.sources import DeviceSource, JointDevice
+from godobject_drake.sleeping import SleepManager
+from godobject_drake.station.articulated_tool import (
+    ArticulatedGodObject,
+    add_articulated,  # noqa: F401  (public here)
+)
+from godobject_drake.station.deformable_tool import (
+    DeformableGodObject,
+    add_deformable,  # noqa: F401
+)
+from godobject_drake.station.kinds import GodObject
+from godobject_drake.station.plant import SceneParts
+from godobject_drake.station.rigid_tool import (  # noqa: F401  the one-call helpers, public here too
     ContactPair,
     PenetrationBudgetWarning,
+    RigidGodObject,
     add_god_object,
     coupling_options,
     hand_on_handle,
@@ -44,92 +51,27 @@ from godobject_drake.god_objects.rigid import (  # noqa: F401  the one-call help
     penetration_pairs,
     predict_penetration,
 )
-from godobject_drake.recording import add_meshcat_visualization, start_meshcat
-from godobject_drake.scenes import SceneParts, add_bricks
-from godobject_drake.scenes import add_plant as add_scene_plant
-from godobject_drake.sleeping import SleepManager
+from godobject_drake.systems.drawing import add_meshcat_visualization, start_meshcat
+
+KINDS = {
+    sc.Rigid: RigidGodObject,
+    sc.Articulated: ArticulatedGodObject,
+    sc.Deformable: DeformableGodObject,
+}
+
+
+def kind_for(config):
+    """The kind class of a scenario's ``god_object`` config; an unknown one is refused, naming the known."""
+    try:
+        return KINDS[type(config)]
+    except KeyError:
+        known = ", ".join(f"!{c.__name__}" for c in KINDS)
+        raise ValueError(
+            f"god_object: {type(config).__name__} is not a god-object kind; the kinds are {known}"
+        ) from None
+
 
 # -- the plant -------------------------------------------------------------------------------------------
-
-
-def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=None) -> SceneParts:
-    """The scenario's plant: its config, directives, ``bricks`` and contact settings; finalized."""
-
-    tissue = []
-
-    def before(plant, scene_graph):
-        if scenario.organs.model == "fem":
-            from godobject_drake.tissue import FemOrgan
-
-            try:
-                tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
-            except ValueError as e:
-                raise sc.ScenarioError(str(e)) from None
-        if scenario.bricks:
-            try:
-                add_bricks(plant, scenario.bricks)
-            except ValueError as e:
-                raise sc.ScenarioError(str(e)) from None
-        if before_finalize is not None:
-            before_finalize(plant, scene_graph)
-
-    with _DrakeWarnings() as drake_warnings:
-        try:
-            scene = add_scene_plant(
-                builder,
-                scenario.plant,
-                scenario.directives,
-                scenario.contact.geometry,
-                scenario.contact.relaxation_time_s,
-                before,
-            )
-        except RuntimeError as e:  # Drake's parser and plant: a model file, a name, a frame
-            said = " ".join(str(e).split()).rstrip(".")
-            raise sc.ScenarioError(
-                f"directives: Drake could not build the scene's plant: {said}. Check the directives' files, "
-                "model names (each once) and frame names (model::frame)"
-            ) from None
-    for message in drake_warnings.messages:
-        if "mass > 0" in message or "mass <= 0" in message:  # Drake then gives the body 1 kg, silently
-            raise sc.ScenarioError(
-                f"a model declares a body with no positive mass; Drake replaced its inertia ({message}). "
-                "Give the body <inertial><mass> > 0 in its model file, or weld it (add_weld) if it should "
-                "not move"
-            )
-    check_free_bodies(scene.plant)
-    scene.tissue = tissue[0] if tissue else None
-    return scene
-
-
-class _DrakeWarnings(logging.Handler):
-    """Drake's log warnings while a block runs (pydrake sends its log to Python's ``drake`` logger)."""
-
-    def __init__(self):
-        super().__init__(logging.WARNING)
-        self.messages: list[str] = []
-
-    def emit(self, record):
-        self.messages.append(record.getMessage())
-
-    def __enter__(self):
-        logging.getLogger("drake").addHandler(self)
-        return self
-
-    def __exit__(self, *exc):
-        logging.getLogger("drake").removeHandler(self)
-
-
-def check_free_bodies(plant: MultibodyPlant) -> None:
-    """Refuse a free body without a positive, finite mass: Drake only logs a warning, and the body
-    then has no dynamics the coupling or contact could act on."""
-    for body in plant.GetFloatingBaseBodies():
-        body = plant.get_body(body)
-        mass = body.default_mass()
-        if not (math.isfinite(mass) and mass > 0):
-            raise sc.ScenarioError(
-                f"{body.scoped_name().get_full()}: a free body with mass {mass!r} kg; give it "
-                "<inertial><mass> > 0 in its model file, or weld it (add_weld) if it should not move"
-            )
 
 
 # -- devices ---------------------------------------------------------------------------------------------
@@ -138,12 +80,6 @@ def check_free_bodies(plant: MultibodyPlant) -> None:
 def start_pose(config) -> RigidTransform:
     """Where a pose device's target starts: a path's first waypoint, a log's first row, or its start."""
     return config.start_pose()
-
-
-def first_pose(device: DeviceSource) -> RigidTransform:
-    """The pose a device system reports first (its t = 0 sample, noise and all)."""
-    p0, q0, _ = device.samples(0.0)[0][1]
-    return RigidTransform(Quaternion(q0 / np.linalg.norm(q0)), p0)
 
 
 def make_device(
@@ -237,7 +173,8 @@ class Station:
 def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     """The scenario's Meshcat, on ``visualization.host`` (this machine only, by default): at
     ``visualization.port`` when it is live (``visualization.serve`` or a browser device), on
-    any free port for a recording only, None otherwise (:func:`~godobject_drake.recording.start_meshcat`)."""
+    any free port for a recording only, None otherwise
+    (:func:`~godobject_drake.systems.drawing.start_meshcat`)."""
     vis = scenario.visualization
     if vis.serve or kind_of(scenario.device).live:
         return start_meshcat(vis.host, vis.port)

@@ -24,18 +24,18 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
-from godobject_drake.coupling import GodObjectCoupling
-from godobject_drake.devices import DeviceSource
-from godobject_drake.feedback import FeedbackPort
-from godobject_drake.god_objects.base import GodObject
-from godobject_drake.haptic import (
+from godobject_drake.devices.sources import DeviceSource
+from godobject_drake.limits import device_wall_limit
+from godobject_drake.station.kinds import GodObject
+from godobject_drake.systems.coupling import GodObjectCoupling
+from godobject_drake.systems.feedback import FeedbackPort
+from godobject_drake.systems.haptic import (
     AdmittanceDevice,
     HandImpedance,
     HapticDevice,
     PassivityController,
     SimulatedHand,
 )
-from godobject_drake.limits import device_wall_limit
 
 
 class PenetrationBudgetWarning(UserWarning):
@@ -51,13 +51,13 @@ class RigidGodObject(GodObject):
 
     @classmethod
     def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        from godobject_drake.building import add_plant
+        from godobject_drake.station.plant import add_plant
 
         config = scenario.god_object
         added = {}
         before = None
         if config.coupling == "implicit":
-            from godobject_drake.implicit import add_springs
+            from godobject_drake.systems.implicit import add_springs
 
             def before(plant, scene_graph):
                 added["springs"] = add_springs(plant)
@@ -74,7 +74,7 @@ class RigidGodObject(GodObject):
         return {**super().logged_ports(plant), "terms": self.coupling.GetOutputPort("terms")}
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-        from godobject_drake.recording import GodObjectVisualizer
+        from godobject_drake.systems.drawing import GodObjectVisualizer
 
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
@@ -117,14 +117,14 @@ class RigidGodObject(GodObject):
 
 
 class ImplicitGodObject(RigidGodObject):
-    """A rigid god-object on the implicit coupling (:mod:`godobject_drake.implicit`): the same
+    """A rigid god-object on the implicit coupling (:mod:`godobject_drake.systems.implicit`): the same
     questions answered, its terms computed from the logs after the run, its springs applied to the
-    plant between steps (:class:`~godobject_drake.implicit.SpringHook`)."""
+    plant between steps (:class:`~godobject_drake.systems.implicit.SpringHook`)."""
 
     @functools.cached_property
     def hook(self):
         """What applies the coupling's grasps to the plant between steps."""
-        from godobject_drake.implicit import SpringHook
+        from godobject_drake.systems.implicit import SpringHook
 
         return SpringHook(self.coupling.plant, self.coupling)
 
@@ -135,7 +135,7 @@ class ImplicitGodObject(RigidGodObject):
         }
 
     def complete_logs(self, rows: dict) -> dict:
-        from godobject_drake.implicit import implicit_terms
+        from godobject_drake.systems.implicit import implicit_terms
 
         coupling = rows["coupling"]
         terms = implicit_terms(self.coupling, rows["state"], coupling, self.hook.last_logged_row)
@@ -164,7 +164,7 @@ class _RigidFold:
         self.capped = 0
 
     def fold(self, rows: dict, data: dict, finite):
-        from godobject_drake.coupling import TERMS_LAYOUT
+        from godobject_drake.systems.coupling import TERMS_LAYOUT
 
         terms = rows["terms"]
         held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
@@ -257,18 +257,18 @@ def add_god_object(
 ) -> "RigidGodObject":
     """Make the plant's free bodies god-objects of ``device``: one call, after ``plant.Finalize()``.
 
-    Adds and wires a :class:`~godobject_drake.coupling.GodObjectCoupling` named ``name``
+    Adds and wires a :class:`~godobject_drake.systems.coupling.GodObjectCoupling` named ``name``
     (plant state in; its wrench into the plant's ``applied_generalized_force``) and a
-    :class:`~godobject_drake.feedback.FeedbackPort` named ``feedback`` with
+    :class:`~godobject_drake.systems.feedback.FeedbackPort` named ``feedback`` with
     ``feedback_gains`` (zero: a non-haptic device; any gains work, its ``F_Do_W`` output is
     there to read or to send to a device). ``device`` must already be in ``builder``; every
     grasp name it can report is checked here. ``haptic`` (a :class:`~godobject_drake.config.scenario.Haptic`)
     puts a simulated haptic device between ``device`` and the coupling:
 
-    - ``impedance``: a simulated hand pushes a 3-axis :class:`~godobject_drake.haptic.HapticDevice`
+    - ``impedance``: a simulated hand pushes a 3-axis :class:`~godobject_drake.systems.haptic.HapticDevice`
       along the device's path; its pose is the target and the feedback force (optionally
-      through a :class:`~godobject_drake.haptic.PassivityController`) acts on its handle;
-    - ``admittance``: the hand pulls an :class:`~godobject_drake.haptic.AdmittanceDevice`'s
+      through a :class:`~godobject_drake.systems.haptic.PassivityController`) acts on its handle;
+    - ``admittance``: the hand pulls an :class:`~godobject_drake.systems.haptic.AdmittanceDevice`'s
       handle with the coupling's own stiffness and damping; the sensed wrench drives the
       god-object, the handle follows it.
 
@@ -277,8 +277,8 @@ def add_god_object(
     device's (:func:`check_haptic_gains`; stability analysis only).
     ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
     ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
-    ``springs`` (:func:`~godobject_drake.implicit.add_springs`'s, added before ``Finalize``) make
-    the coupling implicit (:class:`~godobject_drake.implicit.ImplicitCoupling`): the springs are
+    ``springs`` (:func:`~godobject_drake.systems.implicit.add_springs`'s, added before ``Finalize``) make
+    the coupling implicit (:class:`~godobject_drake.systems.implicit.ImplicitCoupling`): the springs are
     SAP's, and the coupling's Python runs at the device rate only.
     """
     feedback_gains = feedback_gains or FeedbackGains()
@@ -287,7 +287,7 @@ def add_god_object(
         check_haptic_gains(haptic, feedback_gains)
     period = 1.0 / haptic.rate_hz
     if springs is not None:
-        from godobject_drake.implicit import ImplicitCoupling, ImplicitCouplingError
+        from godobject_drake.systems.implicit import ImplicitCoupling, ImplicitCouplingError
 
         if haptic.mode == "admittance" or not connect_forces or coupling_options.get("carried"):
             raise ImplicitCouplingError(

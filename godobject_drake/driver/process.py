@@ -4,11 +4,11 @@ the scene, the scene's feedback wrench to the device, and every safety on the de
     godobject-driver run FAMILY --scene udp://127.0.0.1:7667 [--rate 1000] [--watchdog-periods 10]
                      [--max-force N] [--rt-priority 50] [--log F.csv] [--summary F.json]
     godobject-driver calibrate FAMILY --scenario S.yaml --out CALIBRATED.yaml [--seconds 20]
-    (or python -m godobject_drake.driver ...)
+    (or python -m godobject_drake.driver.process ...)
 
 FAMILY is ``emulated``, ``haply``, ``forcedimension`` or ``openhaptics``
-(:mod:`godobject_drake.haptic_families`; docs/haptic_devices.md). The scene runs with
-``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.udp_lcm`).
+(:mod:`godobject_drake.driver.families`; docs/haptic_devices.md). The scene runs with
+``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.protocol`).
 
 Each device period the loop:
 
@@ -58,8 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from godobject_drake.haptic_families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
-from godobject_drake.lcm_device import (
+from godobject_drake.devices.lcm import (
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
@@ -68,6 +67,7 @@ from godobject_drake.lcm_device import (
     pose_message,
     status_message,
 )
+from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
 
 DEFAULT_URL = "udp://127.0.0.1:7667"
 DEFAULT_WATCHDOG_PERIODS = 10
@@ -139,7 +139,7 @@ class ForceSafety:
 
 class Driver:
     """The loop (module docstring), on an opened device and a transport (``Publish``, ``Subscribe``,
-    ``HandleSubscriptions``: :class:`~godobject_drake.udp_lcm.UdpLcm` or a ``DrakeLcm``)."""
+    ``HandleSubscriptions``: :class:`~godobject_drake.protocol.UdpLcm` or a ``DrakeLcm``)."""
 
     def __init__(
         self,
@@ -383,7 +383,7 @@ def open_device(family: str, args) -> tuple:
 
 
 def make_transport(url: str):
-    from godobject_drake.udp_lcm import UdpLcm, is_udp_url
+    from godobject_drake.protocol import UdpLcm, is_udp_url
 
     if is_udp_url(url):
         return UdpLcm.connect(url)

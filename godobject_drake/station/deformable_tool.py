@@ -14,12 +14,12 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
-from godobject_drake.deformable import add_deformable_god_object
-from godobject_drake.devices import DeviceSource
-from godobject_drake.god_objects.rigid import RigidGodObject, add_god_object, impose_target
+from godobject_drake.devices.sources import DeviceSource
+from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
+from godobject_drake.systems.shell import add_deformable_god_object
 
 if TYPE_CHECKING:
-    from godobject_drake.deformable import Shell, ShellObserver
+    from godobject_drake.systems.shell import Shell, ShellObserver
 
 
 @dataclasses.dataclass
@@ -29,7 +29,7 @@ class DeformableGodObject(RigidGodObject):
     Attributes
     ----------
     shell, observer :
-        The shell and its :class:`~godobject_drake.deformable.ShellObserver`.
+        The shell and its :class:`~godobject_drake.systems.shell.ShellObserver`.
     """
 
     shell: "Shell | None" = None
@@ -43,7 +43,8 @@ class DeformableGodObject(RigidGodObject):
 
     @classmethod
     def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        from godobject_drake.building import add_plant, first_pose
+        from godobject_drake.devices.sources import first_pose
+        from godobject_drake.station.plant import add_plant
 
         config = scenario.god_object
         if check_gains:
@@ -71,7 +72,7 @@ class DeformableGodObject(RigidGodObject):
         return ports
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-        from godobject_drake.recording import ShellVisualizer
+        from godobject_drake.systems.drawing import ShellVisualizer
 
         period = scenario.visualization.publish_period_s
         drawing = builder.AddNamedSystem("shell_visualizer", ShellVisualizer(meshcat, self.shell, period))
@@ -106,8 +107,8 @@ class _ShellFold:
     """The deformable kind's metrics (:class:`~godobject_drake.metrics.ShellMetrics`)."""
 
     def __init__(self, station, god):
-        from godobject_drake.deformable import obstacle_geometries
         from godobject_drake.metrics import ShellMetrics
+        from godobject_drake.systems.shell import obstacle_geometries
 
         plant, scene_graph = station.plant, station.scene_graph
         self._acc = ShellMetrics(
@@ -138,7 +139,7 @@ def add_deformable(
     """A deformable god-object: its shell's observer, and :func:`add_god_object` on its core,
     with gains and gravity compensation scaled by core + shell (``carried``).
 
-    ``shell`` comes from :func:`~godobject_drake.deformable.add_deformable_god_object`,
+    ``shell`` comes from :func:`~godobject_drake.systems.shell.add_deformable_god_object`,
     called before ``plant.Finalize()`` (:func:`add_plant`'s ``before_finalize``).
     """
     observer = shell.connect(builder, plant)

@@ -174,7 +174,7 @@ class _HotBody:
 
 class GraspingCoupling:
     """What every rigid coupling (explicit :class:`GodObjectCoupling`, implicit
-    :class:`~godobject_drake.implicit.ImplicitCoupling`) knows of the bodies it may hold: which they
+    :class:`~godobject_drake.systems.implicit.ImplicitCoupling`) knows of the bodies it may hold: which they
     are, their force caps, and which one a grasp name or the ``"*"`` button selects."""
 
     def _setup_bodies(
@@ -312,7 +312,7 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
         - generalized_force
 
     ``plant_state`` is the plant's ``[q; v]``; ``X_WD``/``V_WD``/``grasp``
-    come from a :class:`~godobject_drake.devices.DeviceSource`.
+    come from a :class:`~godobject_drake.devices.sources.DeviceSource`.
     ``spatial_forces`` goes to the plant's ``applied_spatial_force``, or
     ``generalized_force`` (the same wrench as generalized forces of the held
     body's floating joint, cheaper per step: add_god_object wires this one) to
@@ -330,7 +330,7 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
     directly"): if the optional input ``F_device_W`` (``[τ; f]``, N·m and N,
     at Go in W) is connected, it *is* the wrench on the held body, gravity
     compensation added; the PD spring is not used, and the device gets the
-    god-object's pose from ``pose_WG`` (:class:`~godobject_drake.haptic.AdmittanceDevice`).
+    god-object's pose from ``pose_WG`` (:class:`~godobject_drake.systems.haptic.AdmittanceDevice`).
 
     Grasping: when ``grasp`` changes, the coupling stores the pose of G in D
     at that instant (``X_DG``), so grasping does not move the target and

@@ -27,7 +27,7 @@ Use ``127.0.0.1`` on one machine: nothing leaves the host (tests use nothing els
 :class:`UdpLcm` has the part of ``DrakeLcm``'s interface the devices use (``Subscribe``,
 ``HandleSubscriptions``, ``Publish``, ``get_lcm_url``); Drake's ``LcmPublisherSystem`` needs a
 C++ ``DrakeLcmInterface``, which Python cannot subclass in pydrake 1.51, so the feedback on
-this transport is published by :class:`~godobject_drake.lcm_device.ForceTorquePublisher`.
+this transport is published by :class:`~godobject_drake.devices.lcm.ForceTorquePublisher`.
 """
 
 from __future__ import annotations

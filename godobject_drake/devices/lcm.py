@@ -24,12 +24,12 @@ counted in the metrics (:data:`LCM_STATUS_KEYS`):
 - several new messages in one period (a burst): the newest is used (``lcm_bursts``);
 - a message that does not decode as ``lcmt_robot_state``, names other entries, or grasps a
   body the coupling does not know: dropped (``lcm_bad_messages``);
-- NaN, infinite or a non-unit quaternion: the device's :class:`~godobject_drake.devices.SampleGuard`
+- NaN, infinite or a non-unit quaternion: the device's :class:`~godobject_drake.devices.sources.SampleGuard`
   handles it as for any device (joint devices: a non-finite value drops the message).
 
 Use ``memq://`` for tests (in-process; nothing leaves the process). Drake's default URL is UDP
 multicast, for a lab's own network. ``udp://HOST:PORT`` is a point-to-point link to a driver
-process (:mod:`~godobject_drake.udp_lcm`, :mod:`~godobject_drake.driver`).
+process (:mod:`~godobject_drake.protocol`, :mod:`~godobject_drake.driver.process`).
 
 **Device frame** (docs/haptic_devices.md "Calibration"): a driver reports the device's pose in
 its own frame Dev (m); ``X_WDev`` and ``scale`` map it into W, ``p_W = X_WDev (scale p_Dev)``,
@@ -42,7 +42,7 @@ was. Samples outside the scenario's workspace are counted (``device_outside_work
 an empty ``lcmt_force_torque`` on ``<feedback channel>_STOP``, which a driver takes as "the scene
 has stopped": zero force at once, without waiting for its watchdog.
 
-**Driver status**: a driver (:mod:`~godobject_drake.driver`) publishes its fault counts on
+**Driver status**: a driver (:mod:`~godobject_drake.driver.process`) publishes its fault counts on
 ``GODOBJECT_DRIVER_STATUS`` (``lcmt_robot_state``, one entry per count, :data:`DRIVER_STATUS_KEYS`);
 on a ``udp://`` link the newest counts are in the metrics as ``driver_*``.
 """
@@ -61,7 +61,7 @@ from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGuard
 from godobject_drake.config.gains import GRASP_NEAREST
-from godobject_drake.devices import DeviceSource, JointDevice
+from godobject_drake.devices.sources import DeviceSource, JointDevice
 
 POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
 JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"
@@ -69,7 +69,7 @@ FEEDBACK_CHANNEL = "GODOBJECT_FEEDBACK"
 DRIVER_STATUS_CHANNEL = "GODOBJECT_DRIVER_STATUS"
 STOP_SUFFIX = "_STOP"
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
-# What a driver counts (godobject_drake.driver), in the metrics as driver_<key>.
+# What a driver counts (godobject_drake.driver.process), in the metrics as driver_<key>.
 DRIVER_STATUS_KEYS = (
     "loops",  # device periods run
     "overruns",  # periods that started more than one period late
@@ -92,8 +92,8 @@ LCM_STATUS_KEYS = (
 
 def make_lcm(url: str = ""):
     """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast); ``udp://HOST:PORT``:
-    a point-to-point link to a driver process (:class:`~godobject_drake.udp_lcm.UdpLcm`)."""
-    from godobject_drake.udp_lcm import UdpLcm, is_udp_url
+    a point-to-point link to a driver process (:class:`~godobject_drake.protocol.UdpLcm`)."""
+    from godobject_drake.protocol import UdpLcm, is_udp_url
 
     if is_udp_url(url):
         return UdpLcm.listen(url)
@@ -214,7 +214,7 @@ class LcmDevice(DeviceSource):
     timeout_periods : int
         Samples without a message after which the device holds at rest.
     period_s, latency_s, guard, interpolation :
-        As for :class:`~godobject_drake.devices.DeviceSource`: the rate the driver is expected
+        As for :class:`~godobject_drake.devices.sources.DeviceSource`: the rate the driver is expected
         to publish at.
     feedback_channel : str
         Where :func:`add_feedback_publisher` sends the feedback wrench.

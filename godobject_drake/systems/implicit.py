@@ -1,6 +1,6 @@
 """The implicit coupling (``god_object.coupling: implicit``): the paper's spring integrated by SAP.
 
-The explicit coupling (:class:`~godobject_drake.coupling.GodObjectCoupling`) computes the PD
+The explicit coupling (:class:`~godobject_drake.systems.coupling.GodObjectCoupling`) computes the PD
 wrench in Python at every plant step and hands it to the plant as an applied force, so the
 discrete plant integrates it explicitly: stable only while ``ωn h < 2(√(1+ζ²) − ζ)``
 (docs/theory.md §1), and a Python call in every step. Here the same spring is made of
@@ -58,7 +58,6 @@ from pydrake.multibody.tree import BodyIndex, JointIndex, SpatialInertia
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.gains import CouplingGains
-from godobject_drake.coupling import GraspableBody, GraspingCoupling
 from godobject_drake.spatial import (
     pose_arrays,
     quat_conjugate,
@@ -66,6 +65,7 @@ from godobject_drake.spatial import (
     quat_to_rotation,
     quats_to_rotations,
 )
+from godobject_drake.systems.coupling import GraspableBody, GraspingCoupling
 
 # Each spring's length at rest (m). A spring of stiffness k_j along the world axis e, its world end
 # LENGTH_M beyond its target point P along e and its rest length LENGTH_M, pulls its body point x
@@ -206,7 +206,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
     body's centre of mass and orientation, and counts the sample (``sample``: what tells
     :class:`SpringHook` to move the springs). ``coupling_state`` goes to a logger straight from the
     state (C++, no Python per step); ``pose_WT``/``V_WT``/``pose_WG``/``V_WG``/``held_body`` mean
-    what the explicit coupling's do (:class:`~godobject_drake.coupling.GodObjectCoupling`) and are
+    what the explicit coupling's do (:class:`~godobject_drake.systems.coupling.GodObjectCoupling`) and are
     computed when read (the feedback port and the drawing read them at their own rates).
     """
 
@@ -433,7 +433,7 @@ class SpringHook:
 def implicit_terms(
     coupling: ImplicitCoupling, plant_states: np.ndarray, coupling_states: np.ndarray, previous=None
 ) -> np.ndarray:
-    """The explicit coupling's ``terms`` rows (:data:`~godobject_drake.coupling.TERMS_LAYOUT`)
+    """The explicit coupling's ``terms`` rows (:data:`~godobject_drake.systems.coupling.TERMS_LAYOUT`)
     computed after the run from the logged plant and coupling states, vectorized.
 
     Row ``i``'s wrench is the springs' at state ``i`` with the target that was in force during the
@@ -446,7 +446,7 @@ def implicit_terms(
     spring's world end (:meth:`ImplicitCoupling.world_points` of the logged target).
     ``pose_WG``/``V_WG`` are the held body's centre-of-mass frame; nothing held: T's.
     """
-    from godobject_drake.coupling import _TERMS, TERMS_LAYOUT
+    from godobject_drake.systems.coupling import _TERMS, TERMS_LAYOUT
 
     n = len(plant_states)
     out = np.zeros((n, _TERMS))

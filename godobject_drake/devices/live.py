@@ -2,7 +2,7 @@
 
 ``--device meshcat`` on every scene uses these (README "Driving a scene live").
 They are ordinary device sources, sampled at the device rate through the
-same :class:`~godobject_drake.devices.SampleGuard`, so a live run is the loop
+same :class:`~godobject_drake.devices.sources.SampleGuard`, so a live run is the loop
 of a scripted one with a human in it:
 
 - :class:`MeshcatDevice` (pose devices: bricks, deformable probe): Drake's
@@ -29,7 +29,7 @@ from pydrake.visualization import MeshcatPoseSliders
 
 from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, RelativeAids, SampleGuard
 from godobject_drake.config.gains import GRASP_NEAREST
-from godobject_drake.devices import DeviceSource, JointDevice
+from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.spatial import pose_arrays
 
 STOP_BUTTON = "Stop"
@@ -68,7 +68,7 @@ class MeshcatDevice(DeviceSource):
         body). A name: the device always holds that body (the deformable
         probe's core) and no button is added.
     period_s, latency_s, guard, interpolation :
-        As for :class:`~godobject_drake.devices.DeviceSource`.
+        As for :class:`~godobject_drake.devices.sources.DeviceSource`.
     step_m : float
         Slider and key step (m); rotation steps are 0.05 rad.
     """
@@ -199,7 +199,7 @@ class MeshcatJointDevice(JointDevice):
     keys : sequence of (decrement, increment) key codes, optional
         Default: Q/E, S/W, A/D, J/L, K/I, U/O for the first six channels.
     mix, period_s, latency_s :
-        As for :class:`~godobject_drake.devices.JointDevice`.
+        As for :class:`~godobject_drake.devices.sources.JointDevice`.
     """
 
     DEFAULT_KEYS = (("KeyQ", "KeyE"), ("KeyS", "KeyW"), ("KeyA", "KeyD"),

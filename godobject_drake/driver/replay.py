@@ -1,6 +1,6 @@
 """Replay a device CSV onto LCM at its timestamps: a stand-in for a device driver.
 
-``python -m godobject_drake.lcm_replay LOG.csv --lcm-url URL [--channel C] [--speed S]``
+``python -m godobject_drake.driver.replay LOG.csv --lcm-url URL [--channel C] [--speed S]``
 
 Each row ``t,x,y,z,qw,qx,qy,qz,grasp`` (README "Device log format") is published at ``t / S``
 seconds after the start as an ``lcmt_robot_state`` pose sample (``utime`` = t in µs; a grasp
@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 
 from godobject_drake.config.device_files import DeviceLog, read_device_log
-from godobject_drake.lcm_device import POSE_CHANNEL, make_lcm, pose_message
+from godobject_drake.devices.lcm import POSE_CHANNEL, make_lcm, pose_message
 
 
 def replay(
@@ -41,7 +41,7 @@ def replay(
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m godobject_drake.lcm_replay", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m godobject_drake.driver.replay", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("log", help="a device CSV (t,x,y,z,qw,qx,qy,qz,grasp)")
     parser.add_argument("--lcm-url", default="", help="Drake's LCM URL (default Drake's: UDP multicast)")

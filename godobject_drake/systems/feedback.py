@@ -39,7 +39,7 @@ class FeedbackPort(LeafSystem):
 
     ``X_WD`` is the device pose (abstract ``RigidTransform``); the others are
     the vector ports of the same names on
-    :class:`~godobject_drake.coupling.GodObjectCoupling`. ``F_Do_W`` is
+    :class:`~godobject_drake.systems.coupling.GodObjectCoupling`. ``F_Do_W`` is
     ``[τ; f]`` (N·m, N).
     """
 

@@ -15,11 +15,11 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
-from godobject_drake.articulated import ArticulatedFeedback, add_articulated_god_object
 from godobject_drake.config import scenario as sc
-from godobject_drake.devices import JointDevice
-from godobject_drake.god_objects.base import GodObject
-from godobject_drake.scenes import SceneParts, exclude_self_collisions
+from godobject_drake.devices.sources import JointDevice
+from godobject_drake.station.kinds import GodObject
+from godobject_drake.station.plant import SceneParts, exclude_self_collisions
+from godobject_drake.systems.articulated import ArticulatedFeedback, add_articulated_god_object
 
 
 @dataclasses.dataclass
@@ -29,8 +29,8 @@ class ArticulatedGodObject(GodObject):
     Attributes
     ----------
     tissue, tissue_observer :
-        With ``organs.model: fem``: the :class:`~godobject_drake.tissue.FemOrgan` and its
-        :class:`~godobject_drake.tissue.TissueObserver` (logged, drawn, folded into the metrics).
+        With ``organs.model: fem``: the :class:`~godobject_drake.systems.tissue.FemOrgan` and its
+        :class:`~godobject_drake.systems.tissue.TissueObserver` (logged, drawn, folded into the metrics).
     """
 
     tissue: object = None
@@ -45,12 +45,12 @@ class ArticulatedGodObject(GodObject):
 
     @property
     def tool(self):
-        """The :class:`~godobject_drake.articulated.ArticulatedTool`."""
+        """The :class:`~godobject_drake.systems.articulated.ArticulatedTool`."""
         return self.coupling.tool
 
     @classmethod
     def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        from godobject_drake.building import add_plant
+        from godobject_drake.station.plant import add_plant
 
         scene = add_plant(builder, scenario)
         god = add_articulated(
@@ -70,7 +70,7 @@ class ArticulatedGodObject(GodObject):
         return ports
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-        from godobject_drake.recording import ToolGhostVisualizer
+        from godobject_drake.systems.drawing import ToolGhostVisualizer
 
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
@@ -78,7 +78,7 @@ class ArticulatedGodObject(GodObject):
         )
         builder.Connect(self.source.GetOutputPort("q_device"), ghost.GetInputPort("q_device"))
         if self.tissue_observer is not None:
-            from godobject_drake.recording import TissueVisualizer
+            from godobject_drake.systems.drawing import TissueVisualizer
 
             drawing = builder.AddNamedSystem(
                 "tissue_visualizer", TissueVisualizer(meshcat, self.tissue, period)
@@ -195,9 +195,9 @@ def add_articulated(
 ) -> ArticulatedGodObject:
     """An articulated god-object from its scenario config: the tool starts where the device is.
 
-    Calls :func:`~godobject_drake.articulated.add_articulated_god_object` (checked at every
+    Calls :func:`~godobject_drake.systems.articulated.add_articulated_god_object` (checked at every
     ``config.check_every``-th device sample up to ``duration_s``), adds an
-    :class:`~godobject_drake.articulated.ArticulatedFeedback` named ``feedback`` with
+    :class:`~godobject_drake.systems.articulated.ArticulatedFeedback` named ``feedback`` with
     ``feedback_gains`` (the scenario's ``feedback``; zero by default: the joint-space devices here
     are non-haptic, and with gains its wrenches are logged for a device of the user's own) and
     connects the device to both.
@@ -229,7 +229,7 @@ def add_articulated(
     god = ArticulatedGodObject(coupling, feedback, source=device, device=device, mode=mode)
     tissue = getattr(scene, "tissue", None)
     if tissue is not None:
-        from godobject_drake.tissue import tool_capsules
+        from godobject_drake.systems.tissue import tool_capsules
 
         god.tissue = tissue
         god.tissue_observer = tissue.connect(

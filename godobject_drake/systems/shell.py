@@ -103,7 +103,7 @@ class Shell:
     Built by :func:`add_deformable_god_object` before ``Finalize()``;
     :meth:`connect` wires what needs the finalized plant and returns a
     :class:`ShellObserver`. Grasp the core by :attr:`grasp_name` with a
-    :class:`~godobject_drake.coupling.GodObjectCoupling` given
+    :class:`~godobject_drake.systems.coupling.GodObjectCoupling` given
     ``carried={grasp_name: shell_inertia}``.
 
     Attributes

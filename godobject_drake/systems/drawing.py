@@ -45,8 +45,8 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from godobject_drake.coupling import graspable_bodies
 from godobject_drake.spatial import pose_from_array
+from godobject_drake.systems.coupling import graspable_bodies
 
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
@@ -84,7 +84,7 @@ class GodObjectVisualizer(LeafSystem):
         - held_body
 
     Connect the ports of the same names on
-    :class:`~godobject_drake.coupling.GodObjectCoupling`.
+    :class:`~godobject_drake.systems.coupling.GodObjectCoupling`.
     """
 
     def __init__(
@@ -224,7 +224,7 @@ class ToolGhostVisualizer(LeafSystem):
 
     Every illustration shape of the tool's bodies is drawn as a wireframe
     under ``/godobject/device_tool``, placed by forward kinematics of the
-    device's joint values (:class:`~godobject_drake.articulated.ArticulatedTool`);
+    device's joint values (:class:`~godobject_drake.systems.articulated.ArticulatedTool`);
     the plant's own drawing shows the god-object tool solid.
     """
 
@@ -280,7 +280,7 @@ class ShellVisualizer(LeafSystem):
         - pose_WC
         - pose_WT
 
-    Connect the first two to :class:`~godobject_drake.deformable.ShellObserver`
+    Connect the first two to :class:`~godobject_drake.systems.shell.ShellObserver`
     and ``pose_WT`` to the coupling's target. Meshcat recordings replay
     transforms and properties but not changing triangle meshes (Drake issue
     #23206), so the shell is drawn as one sphere per surface point, moved
@@ -328,7 +328,7 @@ class ShellVisualizer(LeafSystem):
 
 
 class TissueVisualizer(LeafSystem):
-    """Draws FEM tissue (:class:`~godobject_drake.tissue.FemOrgan`) as it deforms.
+    """Draws FEM tissue (:class:`~godobject_drake.systems.tissue.FemOrgan`) as it deforms.
 
     .. pydrake_system::
 

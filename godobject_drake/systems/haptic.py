@@ -8,7 +8,7 @@ samples the mechanics are integrated exactly (zero-order-hold discretisation
 of ``m_d ẍ + b_d ẋ = f``), so the simulated device is the sampled-data system
 Colgate's passivity analysis describes, with no integrator error of its own.
 
-It plugs into the god-object loop where a :class:`~godobject_drake.devices.DeviceSource`
+It plugs into the god-object loop where a :class:`~godobject_drake.devices.sources.DeviceSource`
 would: it outputs ``X_WD``, ``V_WD`` (backward difference of the last two
 samples, as a device's encoder-based velocity) and ``grasp``. It also
 integrates the exact work of each held force over each hold interval,
@@ -75,7 +75,7 @@ class HapticDevice(LeafSystem):
         - work
 
     ``F_Do_W`` is the feedback wrench ``[τ; f]`` (N·m, N) from
-    :class:`~godobject_drake.feedback.FeedbackPort`; only the force along the
+    :class:`~godobject_drake.systems.feedback.FeedbackPort`; only the force along the
     device's axes acts. ``human_force`` (N, one entry per axis) is the user's
     force, zero when unconnected. ``q_WD`` (optional) is the orientation a
     6-DoF-sensing, 3-DoF-force device (a Phantom's gimbal) reads, ``[w x y z]``;
@@ -363,7 +363,7 @@ class PassivityController(LeafSystem):
         - F_out
         - energy
 
-    Placed between :class:`~godobject_drake.feedback.FeedbackPort`'s
+    Placed between :class:`~godobject_drake.systems.feedback.FeedbackPort`'s
     ``F_Do_W`` (``F_in``) and the device's force input (``F_out``), with the
     device's sampled pose ``X_WD``. The observer counts the exact work of
     each zero-order-hold interval, which the device applies between two

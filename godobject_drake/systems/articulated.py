@@ -40,7 +40,7 @@ choose not to simulate them but instead impose their overture"): they are
 locked in the plant (SAP removes their velocities, so contact on the jaws
 acts on the tube rigidly) and set to the device's value before every plant
 step (:meth:`ArticulatedCoupling.impose`, which the safeguards' monitor calls
-through :meth:`godobject_drake.building.GodObject.before_step`).
+through :meth:`godobject_drake.station.build.GodObject.before_step`).
 """
 
 from __future__ import annotations
@@ -407,7 +407,7 @@ class ArticulatedCoupling(LeafSystem):
 
     ``plant_state``, ``body_poses`` and ``body_spatial_velocities`` come from
     the plant; ``q_device``/``v_device`` from a
-    :class:`~godobject_drake.devices.JointDevice` (positions of the device
+    :class:`~godobject_drake.devices.sources.JointDevice` (positions of the device
     joints, and their time derivatives). Once per device period (half a
     plant step after the device samples) the coupling puts the kinematic
     copy at the device's values and stores each coupled body's target
@@ -713,13 +713,13 @@ def add_articulated_god_object(
     Adds an :class:`ArticulatedCoupling` named ``name`` and connects it to
     the plant (state, body poses and velocities in; forces, generalized
     forces or desired state out, as the coupling mode needs). Connect a
-    :class:`~godobject_drake.devices.JointDevice`'s ``q_device`` and
+    :class:`~godobject_drake.devices.sources.JointDevice`'s ``q_device`` and
     ``v_device`` to it. ``connect_forces=False`` leaves the plant's inputs
     alone (the position baseline). ``q_check`` lists device configurations
     at which the explicit modes' stability is checked (default
     ``q_reference``); ``check_gains=False`` skips it (stability analysis only).
     A tool's own parts usually overlap at their joints (the grasper's jaws at
-    the hinge): filter them with :func:`godobject_drake.scenes.exclude_self_collisions`.
+    the hinge): filter them with :func:`godobject_drake.station.plant.exclude_self_collisions`.
     """
     tool = ArticulatedTool(plant, model, device_joints, imposed_joints)
     system = builder.AddNamedSystem(
