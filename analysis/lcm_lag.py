@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.devices.lcm import POSE_CHANNEL, pose_message
+from godobject_drake.protocol import POSE_CHANNEL, pose_message
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station, make_device
 

@@ -1,4 +1,12 @@
-"""LCM messages over unicast UDP: the scene and a device driver in separate processes.
+"""The link between a scene and a device's driver: channels, messages, and the transport.
+
+What the scene's LCM devices (:mod:`godobject_drake.devices.lcm`) and a driver process
+(:mod:`godobject_drake.driver.process`) share, and nothing else: the channel names, the packing of a pose
+sample, a driver's counts and the parsing of a pose message (Drake's ``lcmt_*`` types, which the
+drake wheel ships without ``pydrake.systems``), and the unicast UDP transport below. The message
+formats are in :mod:`godobject_drake.devices.lcm`'s docstring and docs/haptic_devices.md.
+
+**Transport: LCM messages over unicast UDP**, the scene and a device driver in separate processes.
 
 Drake's LCM (``DrakeLcm``) speaks multicast (``udpm://``) between processes, which a lab's
 network or a locked-down machine may not carry, and ``memq://`` stays in one process. A driver
@@ -37,6 +45,110 @@ import socket
 import struct
 import urllib.parse
 from collections.abc import Callable
+
+from drake import lcmt_robot_state
+from pydrake.lcm import DrakeLcm
+
+POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
+
+
+JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"
+
+
+FEEDBACK_CHANNEL = "GODOBJECT_FEEDBACK"
+
+
+DRIVER_STATUS_CHANNEL = "GODOBJECT_DRIVER_STATUS"
+
+
+STOP_SUFFIX = "_STOP"
+
+
+POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+
+
+# What a driver counts (godobject_drake.driver.process), in the metrics as driver_<key>.
+DRIVER_STATUS_KEYS = (
+    "loops",  # device periods run
+    "overruns",  # periods that started more than one period late
+    "watchdog_trips",  # feedback went silent for the watchdog time: force zeroed
+    "scene_stops",  # the scene said it stopped: force zeroed
+    "force_clamps",  # device periods with the force cut to the device's rated maximum
+    "rate_clamps",  # device periods with the force's change cut to the rated rate
+    "buzz_events",  # feedback oscillating near the device's Nyquist rate: damped
+    "bad_feedback",  # feedback messages that did not decode or were not finite
+)
+
+
+GRASP_PREFIX = "grasp="
+
+
+LCM_STATUS_KEYS = (
+    "lcm_messages",
+    "lcm_bad_messages",
+    "lcm_stale_messages",
+    "lcm_bursts",
+    "lcm_silent_samples",
+)
+
+
+def make_lcm(url: str = ""):
+    """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast); ``udp://HOST:PORT``:
+    a point-to-point link to a driver process, listened on (:class:`UdpLcm`): the scene's side."""
+    if is_udp_url(url):
+        return UdpLcm.listen(url)
+    return DrakeLcm(url) if url else DrakeLcm()
+
+
+def driver_lcm(url: str = ""):
+    """The driver's side of :func:`make_lcm`: ``udp://HOST:PORT`` is the scene's address, sent to
+    from an ephemeral port of the same host (:meth:`UdpLcm.connect`); any other URL is Drake's LCM."""
+    if is_udp_url(url):
+        return UdpLcm.connect(url)
+    return DrakeLcm(url) if url else DrakeLcm()
+
+
+def parse_robot_state(raw: bytes, names) -> tuple[int, list[str], list[float], str | None] | None:
+    """An ``lcmt_robot_state`` pose or joint sample: ``(utime, names, values, grasp)`` with the
+    ``grasp=`` entry taken out (``grasp`` None when the message has none), or None when ``raw`` is
+    not one (another type, a truncated message, lengths that disagree)."""
+    try:
+        msg = lcmt_robot_state.decode(raw)
+    except ValueError:  # another type, or a truncated message
+        return None
+    names, values = list(msg.joint_name), list(msg.joint_position)
+    if len(names) != msg.num_joints or len(values) != msg.num_joints:
+        return None
+    grasp = None
+    for i, name in enumerate(names):
+        if name.startswith(GRASP_PREFIX):
+            grasp = name[len(GRASP_PREFIX) :]
+            del names[i], values[i]
+            break
+    return int(msg.utime), names, values, grasp
+
+
+def status_message(utime: int, counts: dict) -> lcmt_robot_state:
+    """A driver's counts as an ``lcmt_robot_state`` (names :data:`DRIVER_STATUS_KEYS`)."""
+    msg = lcmt_robot_state()
+    msg.utime = int(utime)
+    msg.num_joints = len(DRIVER_STATUS_KEYS)
+    msg.joint_name = list(DRIVER_STATUS_KEYS)
+    msg.joint_position = [float(counts.get(k, 0)) for k in DRIVER_STATUS_KEYS]
+    return msg
+
+
+def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state:
+    """An ``lcmt_robot_state`` pose sample, as a driver publishes it."""
+    msg = lcmt_robot_state()
+    msg.utime = int(utime)
+    names, values = list(POSE_NAMES), [*map(float, p), *map(float, q)]
+    if grasp is not None:
+        names.append(GRASP_PREFIX + grasp)
+        values.append(0.0)
+    msg.num_joints, msg.joint_name, msg.joint_position = len(names), names, values
+    return msg
+
 
 SCHEME = "udp"
 MAGIC = 0x4C433032  # "LC02": LCM's short-message packet

@@ -28,18 +28,20 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.devices.lcm import (
+from godobject_drake.devices.lcm import ForceTorqueMessage, LcmDevice
+from godobject_drake.driver import process as drv
+from godobject_drake.driver.families import RATED, HandPath
+from godobject_drake.protocol import (
     DRIVER_STATUS_CHANNEL,
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
-    ForceTorqueMessage,
-    LcmDevice,
+    UdpLcm,
+    pack,
+    parse_url,
     pose_message,
     status_message,
+    unpack,
 )
-from godobject_drake.driver import process as drv
-from godobject_drake.driver.families import RATED, HandPath
-from godobject_drake.protocol import UdpLcm, pack, parse_url, unpack
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 

@@ -30,8 +30,9 @@ from godobject_drake.config.device_files import (
     read_increment_log,
     read_joint_log,
 )
-from godobject_drake.devices.lcm import POSE_CHANNEL, POSE_NAMES, LcmDevice
+from godobject_drake.devices.lcm import LcmDevice
 from godobject_drake.devices.sources import DeviceSource
+from godobject_drake.protocol import POSE_CHANNEL, POSE_NAMES
 
 pytestmark = pytest.mark.slow  # hypothesis: seconds per property
 

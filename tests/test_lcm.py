@@ -14,16 +14,10 @@ from pydrake.systems.analysis import Simulator
 from godobject_drake.config.device_files import write_device_log
 from godobject_drake.config.gains import GRASP_NEAREST
 from godobject_drake.config.scenario import ScenarioError
-from godobject_drake.devices.lcm import (
-    FEEDBACK_CHANNEL,
-    JOINT_CHANNEL,
-    POSE_CHANNEL,
-    LcmDevice,
-    LcmJointDevice,
-    pose_message,
-)
+from godobject_drake.devices.lcm import LcmDevice, LcmJointDevice
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.driver.replay import replay
+from godobject_drake.protocol import FEEDBACK_CHANNEL, JOINT_CHANNEL, POSE_CHANNEL, pose_message
 from godobject_drake.simulation import RealtimeLag, simulate
 
 T = 0.01  # the device's expected period (s)

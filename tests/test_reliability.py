@@ -16,10 +16,10 @@ from drake import lcmt_force_torque
 
 from godobject_drake import cli
 from godobject_drake.config.scenario import ScenarioError, load_scenario
-from godobject_drake.devices.lcm import FEEDBACK_CHANNEL
 from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
+from godobject_drake.protocol import FEEDBACK_CHANNEL
 from godobject_drake.simulation import UnsupportedBodyWarning, simulate
 from godobject_drake.station.build import build_station
 

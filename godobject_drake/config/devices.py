@@ -458,7 +458,8 @@ class Lcm(_PoseDevice):
                 raise ValueError(f"url: {e}") from None
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.devices.lcm import LcmDevice, make_lcm
+        from godobject_drake.devices.lcm import LcmDevice
+        from godobject_drake.protocol import make_lcm
 
         frame = {}
         if not self.device_to_world.is_identity():
@@ -601,7 +602,8 @@ class LcmJoints(_JointDevice):
             raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")
 
     def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.devices.lcm import LcmJointDevice, make_lcm
+        from godobject_drake.devices.lcm import LcmJointDevice
+        from godobject_drake.protocol import make_lcm
 
         s = self.sampling()
         return LcmJointDevice(

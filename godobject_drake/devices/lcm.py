@@ -62,64 +62,17 @@ from pydrake.systems.framework import LeafSystem
 from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGuard
 from godobject_drake.config.gains import GRASP_NEAREST
 from godobject_drake.devices.sources import DeviceSource, JointDevice
-
-POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
-JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"
-FEEDBACK_CHANNEL = "GODOBJECT_FEEDBACK"
-DRIVER_STATUS_CHANNEL = "GODOBJECT_DRIVER_STATUS"
-STOP_SUFFIX = "_STOP"
-POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
-# What a driver counts (godobject_drake.driver.process), in the metrics as driver_<key>.
-DRIVER_STATUS_KEYS = (
-    "loops",  # device periods run
-    "overruns",  # periods that started more than one period late
-    "watchdog_trips",  # feedback went silent for the watchdog time: force zeroed
-    "scene_stops",  # the scene said it stopped: force zeroed
-    "force_clamps",  # device periods with the force cut to the device's rated maximum
-    "rate_clamps",  # device periods with the force's change cut to the rated rate
-    "buzz_events",  # feedback oscillating near the device's Nyquist rate: damped
-    "bad_feedback",  # feedback messages that did not decode or were not finite
+from godobject_drake.protocol import (
+    DRIVER_STATUS_CHANNEL,
+    DRIVER_STATUS_KEYS,
+    FEEDBACK_CHANNEL,
+    JOINT_CHANNEL,
+    LCM_STATUS_KEYS,
+    POSE_CHANNEL,
+    POSE_NAMES,
+    STOP_SUFFIX,
+    parse_robot_state,
 )
-GRASP_PREFIX = "grasp="
-LCM_STATUS_KEYS = (
-    "lcm_messages",
-    "lcm_bad_messages",
-    "lcm_stale_messages",
-    "lcm_bursts",
-    "lcm_silent_samples",
-)
-
-
-def make_lcm(url: str = ""):
-    """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast); ``udp://HOST:PORT``:
-    a point-to-point link to a driver process (:class:`~godobject_drake.protocol.UdpLcm`)."""
-    from godobject_drake.protocol import UdpLcm, is_udp_url
-
-    if is_udp_url(url):
-        return UdpLcm.listen(url)
-    return DrakeLcm(url) if url else DrakeLcm()
-
-
-def status_message(utime: int, counts: dict) -> lcmt_robot_state:
-    """A driver's counts as an ``lcmt_robot_state`` (names :data:`DRIVER_STATUS_KEYS`)."""
-    msg = lcmt_robot_state()
-    msg.utime = int(utime)
-    msg.num_joints = len(DRIVER_STATUS_KEYS)
-    msg.joint_name = list(DRIVER_STATUS_KEYS)
-    msg.joint_position = [float(counts.get(k, 0)) for k in DRIVER_STATUS_KEYS]
-    return msg
-
-
-def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state:
-    """An ``lcmt_robot_state`` pose sample, as a driver publishes it."""
-    msg = lcmt_robot_state()
-    msg.utime = int(utime)
-    names, values = list(POSE_NAMES), [*map(float, p), *map(float, q)]
-    if grasp is not None:
-        names.append(GRASP_PREFIX + grasp)
-        values.append(0.0)
-    msg.num_joints, msg.joint_name, msg.joint_position = len(names), names, values
-    return msg
 
 
 class LcmReceiver:
@@ -182,22 +135,13 @@ class LcmReceiver:
         return self.latest is not None and self._quiet > self.timeout_periods
 
     def _parse(self, raw: bytes):
-        try:
-            msg = lcmt_robot_state.decode(raw)
-        except ValueError:  # another type, or a truncated message
+        parsed = parse_robot_state(raw, self.names)
+        if parsed is None:
             return None
-        names, values = list(msg.joint_name), list(msg.joint_position)
-        if len(names) != msg.num_joints or len(values) != msg.num_joints:
-            return None
-        grasp = None
-        for i, name in enumerate(names):
-            if name.startswith(GRASP_PREFIX):
-                grasp = name[len(GRASP_PREFIX) :]
-                del names[i], values[i]
-                break
+        utime, names, values, grasp = parsed
         if tuple(names) != self.names or (grasp is not None and not self.grasp_ok(grasp)):
             return None
-        return int(msg.utime), np.asarray(values, float), grasp
+        return utime, np.asarray(values, float), grasp
 
 
 class LcmDevice(DeviceSource):

@@ -58,16 +58,17 @@ from pathlib import Path
 
 import numpy as np
 
-from godobject_drake.devices.lcm import (
+from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
+from godobject_drake.protocol import (
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
     STOP_SUFFIX,
+    driver_lcm,
     pose_message,
     status_message,
 )
-from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
 
 DEFAULT_URL = "udp://127.0.0.1:7667"
 DEFAULT_WATCHDOG_PERIODS = 10
@@ -382,16 +383,6 @@ def open_device(family: str, args) -> tuple:
     return FAMILIES[family](), rated
 
 
-def make_transport(url: str):
-    from godobject_drake.protocol import UdpLcm, is_udp_url
-
-    if is_udp_url(url):
-        return UdpLcm.connect(url)
-    from pydrake.lcm import DrakeLcm
-
-    return DrakeLcm(url) if url else DrakeLcm()
-
-
 def _check(args) -> None:
     rated = RATED[args.family]
     if not (math.isfinite(args.rate) and 100 <= args.rate <= 10_000):
@@ -422,7 +413,7 @@ def _check(args) -> None:
 def _run(args) -> int:
     _check(args)
     try:
-        lcm = make_transport(args.scene)
+        lcm = driver_lcm(args.scene)
     except ValueError as e:
         raise BadInput(f"--scene: {e}") from None
     device, rated = open_device(args.family, args)

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 
 from godobject_drake.config.device_files import DeviceLog, read_device_log
-from godobject_drake.devices.lcm import POSE_CHANNEL, make_lcm, pose_message
+from godobject_drake.protocol import POSE_CHANNEL, make_lcm, pose_message
 
 
 def replay(
