@@ -12,6 +12,7 @@ from conftest import REPO
 from godobject_drake import cli
 from godobject_drake.config.devices import DEVICE_KINDS, _PoseDevice, device_kind, kind_of, kinds_in
 from godobject_drake.config.scenario import ScenarioError, load_scenario, scenario_from_yaml
+from godobject_drake.devices.factory import device_factory
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station, make_device
@@ -48,13 +49,16 @@ class Circle(_PoseDevice):
         if not self.radius_m > 0:
             raise ValueError(f"radius_m: {self.radius_m!r} m must be > 0 (e.g. 0.02)")
 
-    def make(self, *, seed=0, meshcat=None, workspace=None, duration_s=math.inf):
-        return CircleDevice(self.center_m, self.radius_m, self.turn_s, self.period_s)
-
     def start_pose(self):
         from pydrake.math import RigidTransform
 
         return RigidTransform(CircleDevice(self.center_m, self.radius_m, self.turn_s, 0.02).point(0.0))
+
+
+@device_factory(Circle)
+def make_circle(config: Circle, **scene) -> CircleDevice:
+    """The toy kind's factory: its config to its system."""
+    return CircleDevice(config.center_m, config.radius_m, config.turn_s, config.period_s)
 
 
 def test_a_kind_defined_here_runs_through_build_station():
@@ -65,7 +69,7 @@ def test_a_kind_defined_here_runs_through_build_station():
     result = simulate(build_station(s), progress=False)
     assert result.metrics["device"] == "circle" and not result.metrics["diverged"]
     p_WT = result.coupling_terms("pose_WT")[:, 4:]
-    device = s.device.make()
+    device = make_device(s.device)
     for k in range(1, 25):  # the middle of each 20 ms sample: 10 plant steps after sample k
         row = 20 * k + 10
         moved = device.point(0.02 * k) - device.point(0.0)

@@ -1,10 +1,10 @@
-"""The device kinds: each a scenario dataclass registered once, with all a kind decides.
+"""The device kinds' configs: each a scenario dataclass registered once, with all a kind decides.
 
-A device kind is two things: its runtime system (:mod:`~godobject_drake.devices.sources`,
-:mod:`~godobject_drake.devices.live`, :mod:`~godobject_drake.devices.lcm`, or a module of one's own) and
-its config here, a dataclass whose fields are the YAML keys under ``device: !Tag``. The
-:func:`device_kind` decorator registers the config in :data:`DEVICE_KINDS` with what the rest of
-the library asks of a kind:
+A device kind is two things: its config here, a dataclass whose fields are the YAML keys under
+``device: !Tag``, and its runtime system (:mod:`godobject_drake.devices`), made from the config
+by the factory registered for it there (:func:`godobject_drake.devices.factory.device_factory`).
+The :func:`device_kind` decorator registers the config in :data:`DEVICE_KINDS` with what the rest
+of the library asks of a kind:
 
 - its name on the command line (``--device NAME``) and in the metrics (``device``);
 - its space: ``pose`` (rigid and deformable tools) or ``joint`` (articulated tools);
@@ -12,17 +12,17 @@ the library asks of a kind:
   time), lives on the wall clock otherwise (``real_time``: a real device), reports increments
   (the pseudo-haptic aids apply), reads a log (``--device NAME`` needs ``--device-log``) or
   renders the feedback wrench itself (a real haptic device: no simulated one may stand in
-  between).
+  between);
 
-and the config's methods say the rest: :meth:`make` builds the runtime system (the factory),
-:meth:`check` refuses bad values naming the field, the value and the fix, ``start_pose`` (pose
-kinds) says where the target starts, and :meth:`stand_in` what ``analyze`` runs instead of a
-kind that needs a browser or a driver (a kind that needs one and has none says so).
+and the config's methods say the rest: :meth:`~DeviceConfig.check` refuses bad values naming
+the field, the value and the fix, ``start_pose`` (pose kinds) says where the target starts, and
+:meth:`~DeviceConfig.stand_in` what ``analyze`` runs instead of a kind that needs a browser or a
+driver (a kind that needs one and has none says so).
 
-Adding a device kind is therefore one dataclass with ``@device_kind(...)`` (in this file or one
-of one's own) and its runtime class; the scenario's ``device`` field, the command line's
-``--device`` choices, the metrics and ``analyze`` pick it up from the registry
-(docs/design.md "Adding a device kind").
+Adding a device kind is therefore one dataclass with ``@device_kind(...)`` and one factory with
+``@device_factory(ThatConfig)``; the scenario's ``device`` field, the command line's ``--device``
+choices, the metrics and ``analyze`` pick it up from the registry (docs/design.md "Adding a
+device kind").
 
 This module must not use ``from __future__ import annotations``: ``yaml_load_typed`` reads the
 field types at run time.
@@ -32,7 +32,6 @@ import dataclasses
 import functools
 import math
 import operator
-import sys
 from typing import ClassVar
 
 import numpy as np
@@ -48,13 +47,8 @@ from godobject_drake.config.device_files import (
     Waypoint,
     load_device_path,
     load_joint_path,
-)
-from godobject_drake.devices.sources import (
-    RelativeDevice,
-    ReplayDevice,
-    ReplayJointDevice,
-    ScriptedDevice,
-    ScriptedJointDevice,
+    read_device_log,
+    read_joint_log,
 )
 
 SPACES = ("pose", "joint")
@@ -116,7 +110,8 @@ def device_kind(
             cls, name, space, live, real_time, increments, needs_log, renders_feedback,
             summary or cls.__doc__.strip().splitlines()[0],
         )  # fmt: skip
-        _retype_scenario()
+        for callback in _ON_REGISTER:
+            callback()
         return cls
 
     return register
@@ -144,11 +139,13 @@ def device_union():
     return functools.reduce(operator.or_, DEVICE_KINDS)
 
 
-def _retype_scenario() -> None:
-    """A kind registered after the scenario module was imported: its ``device`` field learns the tag."""
-    scenario = sys.modules.get("godobject_drake.config.scenario")
-    if scenario is not None and hasattr(scenario, "Scenario"):
-        scenario.Scenario.__dataclass_fields__["device"].type = device_union()
+_ON_REGISTER: list = []
+
+
+def on_register(callback) -> None:
+    """Call ``callback()`` after each kind registered from now on (the scenario's ``device`` field
+    retypes itself so: :mod:`godobject_drake.config.scenario`)."""
+    _ON_REGISTER.append(callback)
 
 
 class DeviceConfig:
@@ -167,11 +164,6 @@ class DeviceConfig:
     @property
     def period_s(self) -> float:
         return 1.0 / self.rate_hz
-
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        """The runtime system (not yet added to a builder). ``duration_s``: how long the run goes,
-        so a log is read only as far as the run can reach."""
-        raise NotImplementedError(f"{type(self).__name__}.make")
 
     def stand_in(self):
         """What ``analyze`` runs instead of this device: ``self`` for a device that needs nothing
@@ -284,12 +276,9 @@ class Scripted(_PoseDevice):
         self.check()
         return load_device_path(self.path).waypoints if self.path else self.waypoints
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        return ScriptedDevice(self.path_waypoints(), noise_m=self.noise_m, seed=seed, **self.sampling())
-
     def start_pose(self) -> RigidTransform:
-        p, q, _ = ScriptedDevice(self.path_waypoints()).path_sample(0.0)
-        return RigidTransform(Quaternion(q), p)
+        first = self.path_waypoints()[0]
+        return RigidTransform(RollPitchYaw(np.radians(first.rpy_deg)), np.asarray(first.xyz, dtype=float))
 
 
 @device_kind("replay", space="pose", needs_log=True, summary="a CSV log")
@@ -304,13 +293,9 @@ class Replay(_PoseDevice):
         if not self.log:
             raise ValueError("log: !Replay needs log: FILE.csv (docs/guide/devices.md)")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        self.check()
-        return ReplayDevice(self.log, noise_m=self.noise_m, seed=seed, **self.sampling(), until_s=duration_s)
-
     def start_pose(self) -> RigidTransform:
-        log = ReplayDevice(self.log).log
-        return RigidTransform(Quaternion(log.q[0]), log.p[0])
+        log = read_device_log(self.log, until_s=0.0)
+        return RigidTransform(Quaternion(log.q[0] / np.linalg.norm(log.q[0])), log.p[0])
 
 
 @device_kind(
@@ -336,11 +321,6 @@ class Relative(_PoseDevice):
         if not self.log:
             raise ValueError("log: !Relative needs log: FILE.csv (docs/guide/devices.md)")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        self.check()
-        return RelativeDevice(self.log, self.start_pose(), noise_m=self.noise_m, seed=seed, **self.sampling(),
-                              aids=self.aids(), until_s=duration_s)  # fmt: skip
-
 
 @device_kind(
     "meshcat", space="pose", live=True, real_time=True, increments=True, summary="live from the browser"
@@ -362,16 +342,6 @@ class MeshcatSliders(_PoseDevice):
         super().check()
         if self.noise_m:
             raise ValueError("noise_m: a live device's samples are the user's own; leave it 0")
-
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.devices.live import MeshcatDevice
-
-        if meshcat is None or workspace is None:
-            raise ValueError("device: !MeshcatSliders needs the scene's Meshcat and workspace")
-        self.check()
-        box = (workspace.lower_m, workspace.upper_m)
-        return MeshcatDevice(meshcat, self.start_pose(), box, grasp=self.grasp or None, **self.sampling(),
-                             aids=self.aids())  # fmt: skip
 
 
 @dataclasses.dataclass
@@ -457,20 +427,6 @@ class Lcm(_PoseDevice):
             except ValueError as e:
                 raise ValueError(f"url: {e}") from None
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.devices.lcm import LcmDevice
-        from godobject_drake.protocol import make_lcm
-
-        frame = {}
-        if not self.device_to_world.is_identity():
-            frame = dict(X_WDev=self.device_to_world.transform(), scale=self.device_to_world.scale)
-        box = None if workspace is None else (workspace.lower_m, workspace.upper_m)
-        return LcmDevice(
-            make_lcm(self.url), self.start_pose(), self.channel, self.timeout_periods, self.period_s,
-            self.latency_s, self.guard, self.interpolation, self.feedback_channel, self.grasp,
-            workspace=box, **frame,
-        )  # fmt: skip
-
 
 def _check_timeout(timeout_periods) -> None:
     if not (isinstance(timeout_periods, int) and timeout_periods >= 1):
@@ -508,8 +464,8 @@ class _JointDevice(DeviceConfig):
         return dict(mix=mix, period_s=self.period_s, latency_s=self.latency_s)
 
     def start_values(self) -> list[float]:
-        """The channels' values at t = 0."""
-        return [float(v) for v in self.make().channel_values(0.0)]
+        """The channels' values at t = 0 (each kind says where they come from)."""
+        return [float(v) for v in self.start]
 
     def stand_in(self):
         if not (kind_of(self).live or kind_of(self).real_time):
@@ -534,15 +490,16 @@ class ScriptedJoints(_JointDevice):
         if self.path and self.waypoints:
             raise ValueError("path: give a joint path as path or as waypoints, not both")
 
+    def start_values(self) -> list[float]:
+        first = self.joint_path().waypoints[0]
+        return [float(first.values[c]) for c in self.joint_path().channels]
+
     def joint_path(self) -> JointPath:
         self.check()
         path = load_joint_path(self.path) if self.path else JointPath(self.channels, self.waypoints)
         if self.channels and list(path.channels) != list(self.channels):
             raise ValueError(f"channels: {self.channels} differ from the path's channels {path.channels}")
         return path
-
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        return ScriptedJointDevice(self.joint_path(), **self.sampling())
 
 
 @device_kind("replay", space="joint", needs_log=True, summary="a CSV log")
@@ -557,9 +514,9 @@ class ReplayJoints(_JointDevice):
         if not self.log:
             raise ValueError("log: !ReplayJoints needs log: FILE.csv (header t,<channels>)")
 
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        self.check()
-        return ReplayJointDevice(self.log, self.channels, **self.sampling(), until_s=duration_s)
+    def start_values(self) -> list[float]:
+        _, values = read_joint_log(self.log, self.channels, until_s=0.0)
+        return [float(v) for v in values[0]]
 
 
 @device_kind("meshcat", space="joint", live=True, real_time=True, summary="live from the browser")
@@ -573,14 +530,6 @@ class MeshcatJointSliders(_JointDevice):
         super().check()
         if len(self.limits) != len(self.channels):
             raise ValueError(f"limits: {self.limits}: give one [lower, upper] per channel {self.channels}")
-
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.devices.live import MeshcatJointDevice
-
-        if meshcat is None:
-            raise ValueError("device: !MeshcatJointSliders needs the scene's Meshcat")
-        limits = [tuple(lim) for lim in self.limits]
-        return MeshcatJointDevice(meshcat, self.channels, limits, self.start, **self.sampling())
 
 
 @device_kind("lcm", space="joint", real_time=True, summary="a real device's driver over LCM")
@@ -600,13 +549,3 @@ class LcmJoints(_JointDevice):
         _check_timeout(self.timeout_periods)
         if len(self.start) != len(self.channels):
             raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")
-
-    def make(self, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf):
-        from godobject_drake.devices.lcm import LcmJointDevice
-        from godobject_drake.protocol import make_lcm
-
-        s = self.sampling()
-        return LcmJointDevice(
-            make_lcm(self.url), self.channels, self.start, self.channel, self.timeout_periods, s["mix"],
-            self.period_s, self.latency_s,
-        )  # fmt: skip

@@ -50,6 +50,7 @@ from godobject_drake.config.devices import (  # noqa: F401
     ScriptedJoints,
     device_union,
     kind_of,
+    on_register,
 )
 from godobject_drake.config.gains import CouplingGains, FeedbackGains  # noqa: F401
 from godobject_drake.config.scene import (  # noqa: F401
@@ -164,6 +165,13 @@ class Scenario:
         """The plant step h (s)."""
         return self.plant.time_step
 
+
+def _retype_device() -> None:
+    """A device kind registered after this module was imported: the ``device`` field takes its tag."""
+    Scenario.__dataclass_fields__["device"].type = device_union()
+
+
+on_register(_retype_device)
 
 # The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
 SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
@@ -360,7 +368,7 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             "plant.time_step",
             f"{h!r} s; SAP is discrete: give a step h > 0 (e.g. 0.001). A continuous plant (time_step 0, "
             "Drake's cenic integrator) is not offered: on the brick scene it was slower than SAP at "
-            "equal penetration (docs/results.md, 'CENIC against SAP'; analysis/cenic_trial.py measures it)",
+            "equal penetration (docs/results.md, 'CENIC against SAP')",
         )
     if h < MIN_TIME_STEP_S:
         _fail(

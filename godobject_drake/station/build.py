@@ -28,6 +28,7 @@ from pydrake.systems.primitives import VectorLogSink
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.devices import kind_of
+from godobject_drake.devices import factory
 from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.sleeping import SleepManager
 from godobject_drake.station.articulated_tool import (
@@ -91,7 +92,8 @@ def make_device(
     duration_s: float = math.inf,
 ) -> DeviceSource | JointDevice:
     """The device a scenario's ``device`` field describes (not yet added to a builder): its
-    registered kind's factory (:mod:`~godobject_drake.config.devices`).
+    registered kind's factory (:func:`godobject_drake.devices.factory.make_device`), its errors
+    as a :class:`~godobject_drake.config.scenario.ScenarioError` naming the field.
 
     ``seed`` seeds the pose devices' noise; a live device (``MeshcatSliders``,
     ``MeshcatJointSliders``) needs the ``meshcat`` whose page drives it, and a pose one the
@@ -104,7 +106,9 @@ def make_device(
     except ValueError as e:
         raise sc.ScenarioError(f"device.{e}") from None
     try:
-        return config.make(seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s)
+        return factory.make_device(
+            config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s
+        )
     except ValueError as e:
         if str(e).startswith("device:"):  # what the kind needs from the scene (a Meshcat, a workspace)
             raise sc.ScenarioError(str(e)) from None

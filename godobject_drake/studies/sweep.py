@@ -1,8 +1,7 @@
 """Run many independent simulations: local processes by default, a Dask cluster on request.
 
-Both the speed-vs-error benchmark (``analysis/speed_vs_error.py``) and the
-stability report's Drake bisections (``analysis/stability_report.py``) hand
-their cases to :func:`run_tasks`::
+The speed-vs-error benchmark (``analysis/speed_vs_error.py``) hands its cases to
+:func:`run_tasks`::
 
     results = run_tasks(simulate_one, cases, workers=2)                  # this machine
     results = run_tasks(simulate_one, cases, scheduler="tcp://host:8786")  # a Dask cluster

@@ -1,0 +1,130 @@
+"""Each device kind's factory: its config (:mod:`godobject_drake.config.devices`) to its system.
+
+One function per kind, registered for its config type with :func:`device_factory`, as Drake's
+``hardware_sim`` has one ``Apply…Config`` per driver config; :func:`make_device` is the one
+dispatch. A kind of one's own registers its config with ``@device_kind`` and its factory here with
+``@device_factory(ItsConfig)`` (docs/design.md "Adding a device kind").
+
+Every factory takes the config and the scene's context as keywords: ``seed`` (the noise of pose
+devices), ``meshcat`` and ``workspace`` (a live device's page and slider range; an LCM device's
+expected box), ``duration_s`` (the run's length: a log is read only as far as the run reaches).
+"""
+
+import math
+from collections.abc import Callable
+
+from godobject_drake.config import devices as dk
+from godobject_drake.devices.lcm import LcmDevice, LcmJointDevice
+from godobject_drake.devices.live import MeshcatDevice, MeshcatJointDevice
+from godobject_drake.devices.sources import (
+    DeviceSource,
+    JointDevice,
+    RelativeDevice,
+    ReplayDevice,
+    ReplayJointDevice,
+    ScriptedDevice,
+    ScriptedJointDevice,
+)
+from godobject_drake.protocol import make_lcm
+
+FACTORIES: dict[type, Callable] = {}
+
+
+def device_factory(config_type: type):
+    """Register the decorated function as the factory of the device kind ``config_type``."""
+    if config_type not in dk.DEVICE_KINDS:
+        raise ValueError(
+            f"device_factory({config_type.__name__}): register the config first with "
+            "@godobject_drake.config.devices.device_kind(...)"
+        )
+
+    def register(function):
+        FACTORIES[config_type] = function
+        return function
+
+    return register
+
+
+def make_device(
+    config, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf
+) -> DeviceSource | JointDevice:
+    """The system of a device config (not yet added to a builder), checked first."""
+    kind = dk.kind_of(config)
+    factory = FACTORIES.get(type(config))
+    if factory is None:
+        raise ValueError(
+            f"device: !{type(config).__name__} has no factory; register one with "
+            "godobject_drake.devices.factory.device_factory"
+        )
+    config.check()
+    if kind.live and meshcat is None:
+        raise ValueError(f"device: !{type(config).__name__} needs the scene's Meshcat")
+    return factory(config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s)
+
+
+def _box(workspace):
+    return None if workspace is None else (workspace.lower_m, workspace.upper_m)
+
+
+@device_factory(dk.Scripted)
+def scripted(config: dk.Scripted, *, seed, meshcat, workspace, duration_s) -> ScriptedDevice:
+    return ScriptedDevice(config.path_waypoints(), noise_m=config.noise_m, seed=seed, **config.sampling())
+
+
+@device_factory(dk.Replay)
+def replay(config: dk.Replay, *, seed, meshcat, workspace, duration_s) -> ReplayDevice:
+    return ReplayDevice(
+        config.log, noise_m=config.noise_m, seed=seed, **config.sampling(), until_s=duration_s
+    )
+
+
+@device_factory(dk.Relative)
+def relative(config: dk.Relative, *, seed, meshcat, workspace, duration_s) -> RelativeDevice:
+    return RelativeDevice(config.log, config.start_pose(), noise_m=config.noise_m, seed=seed,
+                          **config.sampling(), aids=config.aids(), until_s=duration_s)  # fmt: skip
+
+
+@device_factory(dk.MeshcatSliders)
+def meshcat_sliders(config: dk.MeshcatSliders, *, seed, meshcat, workspace, duration_s) -> MeshcatDevice:
+    if workspace is None:
+        raise ValueError("device: !MeshcatSliders needs the scene's workspace (its sliders' range)")
+    return MeshcatDevice(meshcat, config.start_pose(), _box(workspace), grasp=config.grasp or None,
+                         **config.sampling(), aids=config.aids())  # fmt: skip
+
+
+@device_factory(dk.Lcm)
+def lcm(config: dk.Lcm, *, seed, meshcat, workspace, duration_s) -> LcmDevice:
+    frame = {}
+    if not config.device_to_world.is_identity():
+        frame = dict(X_WDev=config.device_to_world.transform(), scale=config.device_to_world.scale)
+    return LcmDevice(
+        make_lcm(config.url), config.start_pose(), config.channel, config.timeout_periods, config.period_s,
+        config.latency_s, config.guard, config.interpolation, config.feedback_channel, config.grasp,
+        workspace=_box(workspace), **frame,
+    )  # fmt: skip
+
+
+@device_factory(dk.ScriptedJoints)
+def scripted_joints(
+    config: dk.ScriptedJoints, *, seed, meshcat, workspace, duration_s
+) -> ScriptedJointDevice:
+    return ScriptedJointDevice(config.joint_path(), **config.sampling())
+
+
+@device_factory(dk.ReplayJoints)
+def replay_joints(config: dk.ReplayJoints, *, seed, meshcat, workspace, duration_s) -> ReplayJointDevice:
+    return ReplayJointDevice(config.log, config.channels, **config.sampling(), until_s=duration_s)
+
+
+@device_factory(dk.MeshcatJointSliders)
+def meshcat_joint_sliders(config, *, seed, meshcat, workspace, duration_s) -> MeshcatJointDevice:
+    limits = [tuple(lim) for lim in config.limits]
+    return MeshcatJointDevice(meshcat, config.channels, limits, config.start, **config.sampling())
+
+
+@device_factory(dk.LcmJoints)
+def lcm_joints(config: dk.LcmJoints, *, seed, meshcat, workspace, duration_s) -> LcmJointDevice:
+    return LcmJointDevice(
+        make_lcm(config.url), config.channels, config.start, config.channel, config.timeout_periods,
+        config.sampling()["mix"], config.period_s, config.latency_s,
+    )  # fmt: skip
