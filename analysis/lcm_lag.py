@@ -18,7 +18,8 @@ import numpy as np
 from godobject_drake.config import scenario as sc
 from godobject_drake.protocol import POSE_CHANNEL, pose_message
 from godobject_drake.simulation import simulate
-from godobject_drake.station.build import build_station, make_device
+from godobject_drake.station.build import build_station
+from godobject_drake.station.loop import make_device
 
 
 def main(argv=None) -> int:

@@ -10,48 +10,24 @@ mass_spring`` the paper's mass–spring net. ``--mode position`` imposes the
 core's pose (the paper's first idea, which it rejects) and leaves only the
 shell simulated. The scene is diagrams/deformable_probe.yaml (README
 "Deformable probe"); every flag overrides a field (--help).
+
+This script is ``godobject run diagrams/deformable_probe.yaml`` with the same flags: every entry point builds
+the scene through one path (``godobject_drake.station.build.build_station``). The loop it wires,
+device → coupling → plant → feedback → device, reads in ``godobject_drake/station/loop.py``;
+``examples/compose_diagram.py`` composes the same parts by hand.
 """
 
 import sys
 from pathlib import Path
 
-from pydrake.systems.framework import DiagramBuilder
-
 from godobject_drake import cli
-from godobject_drake.devices.sources import first_pose
-from godobject_drake.station import build as building
-from godobject_drake.station.plant import add_plant
-from godobject_drake.systems.shell import add_deformable_god_object
 
 SCENARIO = Path(__file__).with_suffix(".yaml")
 
 
-def build(scenario, meshcat=None):
-    """The wiring: device → coupling → core; the shell is held to the core and observed."""
-    builder = DiagramBuilder()
-    device = builder.AddNamedSystem(
-        "device", building.make_device(scenario.device, seed=scenario.random_seed, meshcat=meshcat,
-                                       workspace=scenario.workspace,
-                                       duration_s=scenario.simulation.duration_s),  # a log: what it reaches
-    )  # fmt: skip
-    probe = scenario.god_object
-    probe.gains.check(scenario.time_step)  # before meshing anything
-    X_WC = first_pose(device)  # the probe starts at the device
-    shells = []
-    scene = add_plant(  # the block; the core and its shell go in before Finalize
-        builder, scenario, before_finalize=lambda plant, scene_graph: shells.append(
-            add_deformable_god_object(plant, scene_graph, probe.shell, probe.spec, X_WC, probe.name)),
-    )  # fmt: skip
-    god_object = building.add_deformable(
-        builder, scene.plant, shells[0], device, probe.gains, scenario.feedback, haptic=scenario.haptic,
-        connect_forces=scenario.simulation.mode == "god_object",
-    )  # fmt: skip
-    return building.finish(builder, scenario, scene, god_object, meshcat)  # logs, drawing, Build, checks
-
-
 def main(argv=None) -> int:
-    """The command line: the scenario's fields, overridden by flags (``--help``)."""
-    return cli.main(argv, scenario=SCENARIO, build=build, description=__doc__)
+    """``godobject run`` on this scene's scenario, with the command line's flags (``--help``)."""
+    return cli.scene_main(SCENARIO, argv, prog="python diagrams/deformable_probe.py", description=__doc__)
 
 
 if __name__ == "__main__":

@@ -6,40 +6,24 @@
 The scene is diagrams/lego.yaml (README "Brick scene"); every flag overrides
 one of its fields (--help names them). The same run:
 python -m godobject_drake run diagrams/lego.yaml.
+
+This script is ``godobject run diagrams/lego.yaml`` with the same flags: every entry point builds
+the scene through one path (``godobject_drake.station.build.build_station``). The loop it wires,
+device → coupling → plant → feedback → device, reads in ``godobject_drake/station/loop.py``;
+``examples/compose_diagram.py`` composes the same parts by hand.
 """
 
 import sys
 from pathlib import Path
 
-from pydrake.systems.framework import DiagramBuilder
-
 from godobject_drake import cli
-from godobject_drake.station import build as building
-from godobject_drake.station.plant import add_plant
 
 SCENARIO = Path(__file__).with_suffix(".yaml")
 
 
-def build(scenario, meshcat=None):
-    """The wiring: device → [haptic device] → coupling → plant, coupling → feedback → [haptic device]."""
-    builder = DiagramBuilder()
-    device = builder.AddNamedSystem(
-        "device", building.make_device(scenario.device, seed=scenario.random_seed, meshcat=meshcat,
-                                       workspace=scenario.workspace,
-                                       duration_s=scenario.simulation.duration_s),  # a log: what it reaches
-    )  # fmt: skip
-    scene = add_plant(builder, scenario)  # baseplate, wall, 8 bricks; proxies touch true boxes
-    god = scenario.god_object
-    god_object = building.add_god_object(
-        builder, scene.plant, device, god.gains, scenario.feedback, haptic=scenario.haptic,
-        connect_forces=scenario.simulation.mode == "god_object", **building.coupling_options(god),
-    )  # fmt: skip
-    return building.finish(builder, scenario, scene, god_object, meshcat)  # logs, drawing, Build, checks
-
-
 def main(argv=None) -> int:
-    """The command line: the scenario's fields, overridden by flags (``--help``)."""
-    return cli.main(argv, scenario=SCENARIO, build=build, description=__doc__)
+    """``godobject run`` on this scene's scenario, with the command line's flags (``--help``)."""
+    return cli.scene_main(SCENARIO, argv, prog="python diagrams/lego.py", description=__doc__)
 
 
 if __name__ == "__main__":

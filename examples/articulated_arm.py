@@ -10,8 +10,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config.gains import CouplingGains
 from godobject_drake.devices.sources import JointDevice
+from godobject_drake.station.loop import add_joint_coupling
 from godobject_drake.station.plant import add_scene_from_directives
-from godobject_drake.systems.articulated import add_articulated_god_object
 
 builder = DiagramBuilder()
 plant = add_scene_from_directives(
@@ -21,7 +21,7 @@ goal = np.array([0.3, -0.2, 0.4, 0.6])  # shoulder roll, pitch, yaw (ball joint)
 device = builder.AddNamedSystem(
     "device", JointDevice(lambda t: goal * min(t / 0.5, 1.0), ["roll", "pitch", "yaw", "elbow"])
 )
-coupling = add_articulated_god_object(
+coupling = add_joint_coupling(
     builder,
     plant,
     "arm",

@@ -37,10 +37,10 @@ _EXPORTS = {
     "load_scenario": "config.scenario",
     "shipped_scenario": "config.scenario",
     "build_station": "station.build",
-    "add_god_object": "station.build",
+    "add_god_object": "station.rigid_tool",
     "simulate": "simulation",
     "install_safeguards": "safeguards",
-    "add_articulated_god_object": "systems.articulated",
+    "add_joint_coupling": "station.loop",
 }
 
 

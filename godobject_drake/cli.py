@@ -18,6 +18,7 @@ import threading
 import warnings
 from pathlib import Path
 
+from godobject_drake import __version__
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import INTERPOLATIONS
 from godobject_drake.config.devices import DEVICE_KINDS, kind_of, kinds_in
@@ -26,7 +27,7 @@ from godobject_drake.config.tools import SHELL_MODELS, ShellSpecError
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError
 from godobject_drake.safeguards import WiringError
-from godobject_drake.simulation import RunInterrupted
+from godobject_drake.simulation import RunInterrupted, simulate
 from godobject_drake.station.build import build_station, make_meshcat
 from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 
@@ -536,12 +537,11 @@ def _rpy(X):
     return RollPitchYaw(X.rotation()).vector()
 
 
-def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
-    """Build (with ``build(scenario, meshcat)``, default :func:`build_station`) and simulate in
-    bounded memory (no logs kept); with a metrics file, the metrics so far are written to it
-    every ``metrics.checkpoint_period_s`` of wall time, marked ``partial``, so a killed run leaves
-    its last ones."""
-    from godobject_drake.simulation import simulate
+def run_scenario(scenario: sc.Scenario, progress: bool = True):
+    """Build (:func:`~godobject_drake.station.build.build_station`) and simulate in bounded
+    memory (no logs kept); with a metrics file, the metrics so far are written to it every
+    ``metrics.checkpoint_period_s`` of wall time, marked ``partial``, so a killed run leaves its
+    last ones."""
 
     for field, output in (
         ("metrics.file", scenario.metrics.file),
@@ -553,7 +553,7 @@ def run_scenario(scenario: sc.Scenario, build=None, progress: bool = True):
                 "or write elsewhere"
             )
     meshcat = make_meshcat(scenario)
-    station = (build or build_station)(scenario, meshcat)
+    station = build_station(scenario, meshcat)
     path = scenario.metrics.file
     failed = []
 
@@ -624,8 +624,6 @@ def version_text() -> str:
     """``--version``: this package's version and the Drake it runs on."""
     import importlib.metadata
 
-    from godobject_drake import __version__
-
     try:
         drake = importlib.metadata.version("drake")
     except importlib.metadata.PackageNotFoundError:
@@ -638,56 +636,53 @@ def console_main() -> int:
     return main(prog="godobject")
 
 
-def main(
-    argv=None,
-    *,
-    scenario: str | Path | None = None,
-    build=None,
-    description: str | None = None,
-    prog: str = "python -m godobject_drake",
-) -> int:
-    """Run a scenario with the command line's overrides; the exit status is 1 for a diverged run
-    or a failed metric, 2 for bad input.
-
-    ``scenario`` None: ``argv`` starts with ``run SCENARIO.yaml`` (``python -m godobject_drake``).
-    A scene script passes its own ``scenario`` file and ``build`` wiring.
-    """
+def main(argv=None, *, prog: str = "python -m godobject_drake") -> int:
+    """The command line: ``run SCENARIO`` or ``analyze SCENARIO``, the scenario's fields overridden by
+    the flags; the exit status is 1 for a diverged run or a failed metric, 2 for bad input. The
+    scene scripts (``diagrams/*.py``) call it with ``run`` and their own scenario file."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    if scenario is None:
-        parser = argparse.ArgumentParser(prog=prog, description=DESCRIPTION,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-        parser.add_argument("--version", action="version", version=version_text())
-        commands = parser.add_subparsers(dest="command", required=True)
-        run = commands.add_parser(
-            "run", help="run a scenario: the metrics table, and a recording with --record"
-        )
-        run.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
-        add_arguments(run)
-        analyze = commands.add_parser(
-            "analyze", help="the scenario's stability and passivity report, each verdict checked in Drake"
-        )
-        analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
-        analyze.add_argument("--out", type=Path, required=True, help="directory for report.md, summary.json")
-        analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
-        analyze.add_argument(
-            "--verify", action=argparse.BooleanOptionalAction, default=None,
-            help="simulate each prediction in Drake on this scene (default: on, off with --quick)",
-        )  # fmt: skip
-        add_arguments(analyze, exclude=RUN_ONLY_FLAGS)
-        args = parser.parse_args(argv)
-        configure_logging(args.verbose, args.quiet)
-        if args.command == "analyze":
-            return _analyze(args, analyze)
-        path, parser = args.scenario, run
-    else:
-        path = Path(scenario)
-        kinds = (type(sc.load_scenario(path).god_object),)
-        parser = argparse.ArgumentParser(
-            description=plain(description), formatter_class=argparse.RawDescriptionHelpFormatter
-        )
-        add_arguments(parser, kinds)
-        args = parser.parse_args(argv)
-        configure_logging(args.verbose, args.quiet)
+    parser = argparse.ArgumentParser(prog=prog, description=DESCRIPTION,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--version", action="version", version=version_text())
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="run a scenario: the metrics table, and a recording with --record")
+    run.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
+    add_arguments(run)
+    analyze = commands.add_parser(
+        "analyze", help="the scenario's stability and passivity report, each verdict checked in Drake"
+    )
+    analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
+    analyze.add_argument("--out", type=Path, required=True, help="directory for report.md, summary.json")
+    analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
+    analyze.add_argument(
+        "--verify", action=argparse.BooleanOptionalAction, default=None,
+        help="simulate each prediction in Drake on this scene (default: on, off with --quick)",
+    )  # fmt: skip
+    add_arguments(analyze, exclude=RUN_ONLY_FLAGS)
+    args = parser.parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
+    if args.command == "analyze":
+        return _analyze(args, analyze)
+    return _run(args, run)
+
+
+def scene_main(scenario: str | Path, argv=None, *, prog: str, description: str | None = None) -> int:
+    """A scene script's command line (``python diagrams/lego.py [flags]``): ``run`` on its own
+    ``scenario`` file, the script's docstring as the help's description. The same path as
+    ``godobject run SCENARIO [flags]`` (:func:`_run`)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog=prog, description=plain(description),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    args.scenario = Path(scenario)
+    configure_logging(args.verbose, args.quiet)
+    return _run(args, parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``run``: build, simulate, print the metrics table, write what was asked."""
+    path = args.scenario
     interrupted = None
     previous = (
         signal.signal(signal.SIGTERM, _terminate)
@@ -698,7 +693,7 @@ def main(
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
             s = apply_arguments(load_with_sets(path, args.set_fields), args)
-            result = run_scenario(s, build, progress=not args.no_progress)
+            result = run_scenario(s, progress=not args.no_progress)
     except USER_ERRORS as e:
         refuse_input(parser, e)
     except RunInterrupted as e:  # Ctrl-C or SIGTERM: what the run produced is written, marked partial
@@ -728,6 +723,7 @@ def main(
 
 def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``analyze``: write the report; exit 1 if a check fails, 2 for bad input."""
+    # The studies (python-control, matplotlib) load for ``analyze`` only: ``run`` starts without them.
     from godobject_drake.studies.analyze import analyze, verdict_table, write_report
 
     try:

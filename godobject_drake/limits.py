@@ -60,6 +60,28 @@ def semi_implicit_matrix(M, K, D, K_i, D_i, time_step: float) -> np.ndarray:
     return np.block([[np.eye(n) - h * h * S, h * R], [-h * S, R]])
 
 
+def zoh_mass_damper(mass: float, damping: float, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact one-period map of ``m ẍ + b ẋ = f`` with ``f`` held: ``[x, v]⁺ = A [x, v] + B f``.
+
+    Closed form (``a = b/m``, ``e = exp(−a T)``): ``A = [[1, (1−e)/a], [0, e]]``,
+    ``B = [[(T − (1−e)/a)/b], [(1−e)/b]]``; ``b = 0`` gives ``[[T²/2m], [T/m]]``.
+    """
+    if not (math.isfinite(mass) and mass > 0):
+        raise ValueError(f"device mass={mass!r} kg must be > 0")
+    if not (math.isfinite(damping) and damping >= 0):
+        raise ValueError(f"device damping={damping!r} N·s/m must be ≥ 0 (a physical damper)")
+    if not (math.isfinite(period_s) and period_s > 0):
+        raise ValueError(f"device period_s={period_s!r} s must be > 0")
+    a = damping / mass
+    if a * period_s < 1e-9:
+        return np.array([[1.0, period_s], [0.0, 1.0]]), np.array([period_s**2 / (2 * mass), period_s / mass])
+    e = math.exp(-a * period_s)
+    one_minus_e_over_a = -math.expm1(-a * period_s) / a
+    A = np.array([[1.0, one_minus_e_over_a], [0.0, e]])
+    B = np.array([(period_s - one_minus_e_over_a) / damping, one_minus_e_over_a * a / damping])
+    return A, B
+
+
 def device_wall_matrix(
     mass: float,
     damping: float,
@@ -76,10 +98,8 @@ def device_wall_matrix(
     spring and damper on the sampled position and its backward difference), held for one
     period ``T`` with the hand's ``−k_h x − b_h v`` on the handle (a simulated hand, 0 for
     a hand that lets go). The handle is the exact zero-order-hold map of
-    ``m ẍ + b ẋ = f`` (:func:`godobject_drake.systems.haptic.zoh_mass_damper`). State ``[x, v, x_prev]``.
+    ``m ẍ + b ẋ = f`` (:func:`zoh_mass_damper`). State ``[x, v, x_prev]``.
     """
-    from godobject_drake.systems.haptic import zoh_mass_damper
-
     A, B = zoh_mass_damper(mass, damping, period_s)
     # the held force u = −c·[x, v, x_prev]
     c = np.array([kd + gamma_d / period_s + hand_k, hand_b, -gamma_d / period_s])

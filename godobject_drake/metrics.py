@@ -19,6 +19,7 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
 from pydrake.multibody.plant import MultibodyPlant
 
+from godobject_drake.outputs import dumps_metrics, write_atomically
 from godobject_drake.spatial import quats_to_rotations
 from godobject_drake.station.plant import is_proxy
 from godobject_drake.systems.coupling import GraspableBody, graspable_bodies
@@ -315,7 +316,6 @@ def write_metrics(path: str | Path, metrics: dict | list) -> None:
     """Write metrics as strict JSON, all at once (:mod:`godobject_drake.outputs`): a non-finite
     value is ``null`` and listed under ``non_finite``; a failed write raises
     :class:`~godobject_drake.outputs.OutputError` and leaves the previous file."""
-    from godobject_drake.outputs import dumps_metrics, write_atomically
 
     write_atomically(path, dumps_metrics(metrics))
 

@@ -40,6 +40,9 @@ from pydrake.multibody.tree import JointIndex
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, EventStatus
 
+from godobject_drake.devices.live import add_stop_button, stop_requested
+from godobject_drake.systems.coupling import GodObjectCoupling
+
 DIVERGED_SPEED = 1000.0  # m/s or rad/s: any generalized velocity past this is a blow-up
 CHECK_PERIOD_S = 0.05
 
@@ -287,8 +290,6 @@ def install_safeguards(
         check_wiring(diagram, mode=mode)
     stop = None
     if meshcat is not None:
-        from godobject_drake.devices.live import add_stop_button, stop_requested
-
         add_stop_button(meshcat)
 
         def stop():
@@ -326,7 +327,6 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
     """
     if mode not in MODES:
         raise ValueError(f"mode={mode!r}; choose one of {MODES}")
-    from godobject_drake.systems.coupling import GodObjectCoupling
 
     for sub in [diagram, *(s for s in _all_systems(diagram) if isinstance(s, Diagram))]:
         children = set(sub.GetSystems())
@@ -352,7 +352,7 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
                 raise WiringError(
                     f"coupling {name!r} drives no force into the plant: the held body would never move "
                     f"while the feedback reads its weight. Connect it: {fix} (or build with "
-                    "godobject_drake.station.build.add_god_object, which wires it)"
+                    "godobject_drake.add_god_object, which wires it)"
                 )
             if mode == "god_object" and len(into_plant) > 1:
                 raise WiringError(

@@ -183,7 +183,7 @@ def simulate(
     guard = install_safeguards(
         simulator, plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
         meshcat=meshcat if live else None, before_step=before_step, mode=god.mode, sleeper=station.sleeper,
-        wiring_checked=True,  # when the station was built (building.finish)
+        wiring_checked=True,  # when the station was built (station.build.finish)
         watch=god.diverged_part,
     )  # fmt: skip
     recording_steps = None

@@ -358,7 +358,7 @@ def test_aids_without_the_coupling_wired_say_what_to_connect():
         RuntimeError,
         value=r"^mouse: a tether or control/display ratio",
         limit=r"needs the coupling's pose_WT and pose_WG on the device's inputs of the same names",
-        fix=r"connect them \(godobject_drake\.station\.build\.add_god_object does\), or build the "
+        fix=r"connect them \(godobject_drake\.add_god_object does\), or build the "
         r"device without",
     )
 

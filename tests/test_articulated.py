@@ -15,12 +15,12 @@ from pydrake.systems.primitives import LogVectorOutput
 from godobject_drake.config.gains import CouplingGainError, CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import JointDevice
 from godobject_drake.spatial import rotation_error
+from godobject_drake.station.loop import add_joint_coupling
 from godobject_drake.station.plant import add_scene_from_directives, exclude_self_collisions
 from godobject_drake.studies.stability import bisect
 from godobject_drake.systems.articulated import (
     ArticulatedFeedback,
     ArticulatedTool,
-    add_articulated_god_object,
     joint_space_loop,
     propagate_to_parents,
 )
@@ -149,7 +149,7 @@ def run_grasper(coupling, omega_n, samples, duration, check_gains=True, h=1e-3):
     exclude_self_collisions(plant, scene.scene_graph, "grasper")  # the jaws overlap at the hinge
     T = 1.0 / 60.0
     device = builder.AddNamedSystem("device", JointDevice(lambda t: samples(t), GRASPER_JOINTS, period_s=T))
-    system = add_articulated_god_object(
+    system = add_joint_coupling(
         builder, plant, "grasper", GRASPER_JOINTS, coupling=coupling,
         gains=CouplingGains(omega_n, 1.0, omega_n), device_period_s=T, q_reference=HOME,
         check_gains=check_gains,
@@ -222,11 +222,11 @@ def test_ball_jointed_arm_through_the_same_call():
 
     device = builder.AddNamedSystem("device", JointDevice(sample, ("r", "p", "y", "elbow")))
     with pytest.raises(ValueError, match=r"ball_rpy.*cartesian"):
-        add_articulated_god_object(
+        add_joint_coupling(
             DiagramBuilder(), plant, "arm", ("shoulder", "elbow"), coupling="joint_pd",
             gains=CouplingGains(20.0, 1.0), device_period_s=device.period_s, q_reference=np.zeros(4),
         )  # fmt: skip
-    coupling = add_articulated_god_object(
+    coupling = add_joint_coupling(
         builder, plant, "arm", ("shoulder", "elbow"), coupling="cartesian",
         gains=CouplingGains(60.0, 1.0, 60.0), device_period_s=device.period_s, q_reference=np.zeros(4),
     )  # fmt: skip

@@ -735,7 +735,7 @@ def mixed_plant():
 def test_bodies_that_cannot_be_grasped_say_why():
     plant = mixed_plant()
     welded = "is welded to the world (an obstacle)"
-    linked = "is a link of an articulated model (use add_articulated_god_object for it)"
+    linked = "is a link of an articulated model (use godobject_drake.station.loop.add_joint_coupling for it)"
     assert fixed_bodies(plant) == {
         "wall::box": f"wall::box {welded}",
         "box": f"wall::box {welded}",
@@ -753,7 +753,7 @@ def test_bodies_that_cannot_be_grasped_say_why():
     ):
         coupling.body_for_grasp("wall")
     with pytest.raises(
-        ValueError, match=r"'link' names arm::link is a link of an articulated model \(use add_articulated"
+        ValueError, match=r"'link' names arm::link is a link of an articulated model \(use godobject_drake"
     ):
         coupling.body_for_grasp("link")
     with pytest.raises(ValueError, match=r"unknown body 'world'; graspable bodies are \['brick'\]"):

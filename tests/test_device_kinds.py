@@ -15,7 +15,8 @@ from godobject_drake.config.scenario import ScenarioError, load_scenario, scenar
 from godobject_drake.devices.factory import device_factory
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.simulation import simulate
-from godobject_drake.station.build import build_station, make_device
+from godobject_drake.station.build import build_station
+from godobject_drake.station.loop import make_device
 
 LEGO = REPO / "diagrams" / "lego.yaml"
 

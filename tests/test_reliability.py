@@ -347,7 +347,7 @@ def test_the_device_limit_at_build_is_python_controls_closed_loop_limit():
 
     from godobject_drake.config.scene import Haptic
     from godobject_drake.limits import device_wall_limit
-    from godobject_drake.station.rigid_tool import hand_on_handle
+    from godobject_drake.station.haptic_chain import hand_on_handle
     from godobject_drake.studies.analyze import _device_with_hand
     from godobject_drake.studies.stability import DeviceParams, bisect, wall_impedance
 
@@ -384,7 +384,7 @@ def test_an_unstable_haptic_gain_is_refused_at_build_naming_the_limit_and_the_fi
     assert re.search(r"feedback\.kd: 1e\+06 N/m is past the stability limit 2\.884e\+04 N/m", run.stderr)
     assert re.search(r"Use feedback\.kd < 2\.884e\+04 N/m \(--kd\), or raise haptic\.device_", run.stderr)
     # Within 20 % of the limit, or past the limit without a hand: built, with a warning.
-    from godobject_drake.station.rigid_tool import HapticGainWarning
+    from godobject_drake.station.haptic_chain import HapticGainWarning
 
     with pytest.warns(HapticGainWarning, match=r"past the limit 4013 N/m of the same device with no hand"):
         build_scene("lego", "--haptic", "impedance", "--kd", "5000")

@@ -3,8 +3,9 @@ scenario file itself: loading, errors that name the file and key, paths, round t
 
 Each shipped scene (``diagrams/NAME.yaml``) is run for a short time: the same scenario gives the
 same trajectory, every vector output of every system is finite, every common metric key is
-there, the YAML round-trips, and the scene's script (``diagrams/NAME.py``, its wiring in one
-screen) builds the very diagram ``build_station`` builds.
+there, the YAML round-trips; and every entry point (the command line's ``run`` and ``analyze``,
+the scene scripts, the library, the benchmark) builds the scenario its flags say, through
+``build_station`` alone.
 """
 
 import json
@@ -13,7 +14,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import REPO, SCENES, load_script, scenario
+from conftest import REPO, SCENES, scenario
 
 from godobject_drake.config.scenario import (
     ScenarioError,
@@ -35,22 +36,21 @@ COMMON_KEYS = (
 SHORT = ("--duration", "0.3")
 
 
-def short_run(name, *flags, build=None):
+def short_run(name, *flags):
     s = scenario(name, *SHORT, *flags)
-    return simulate((build or build_station)(s, make_meshcat(s)), progress=False)
+    return simulate(build_station(s, make_meshcat(s)), progress=False)
 
 
 @pytest.fixture(scope="module", params=SCENES)
 def runs(request):
-    """Two runs of each shipped scene with the same scenario, and one built by its script."""
+    """Two runs of each shipped scene with the same scenario."""
     name = request.param
-    script = load_script(f"diagrams/{name}.py")
-    return name, short_run(name), short_run(name), short_run(name, build=script.build)
+    return name, short_run(name), short_run(name)
 
 
 @pytest.mark.slow
 def test_same_scenario_same_trajectory(runs):
-    name, a, b, _ = runs
+    name, a, b = runs
     # 0.3 s at h = 1 ms (the probe's h = 10 ms), one row per plant step, t = 0 included
     assert len(a.states) == {"lego": 301, "laparoscopy": 301, "deformable_probe": 31}[name]
     np.testing.assert_array_equal(a.states, b.states)
@@ -59,7 +59,7 @@ def test_same_scenario_same_trajectory(runs):
 
 
 def test_every_output_is_finite(runs):
-    _, result, _, _ = runs
+    _, result, _ = runs
     context = result.context
     checked = 0
     for system in result.station.diagram.GetSystems():
@@ -75,20 +75,13 @@ def test_every_output_is_finite(runs):
 
 
 def test_every_common_metric_key_is_there(runs):
-    name, result, _, _ = runs
+    name, result, _ = runs
     m = result.metrics
     assert "metrics_error" not in m, m.get("metrics_error")
     missing = [k for k in COMMON_KEYS if k not in m]
     assert not missing, missing
     assert m["scene"] == name and not m["diverged"] and m["sim_time_s"] == pytest.approx(0.3)
     json.dumps(m)  # JSON-ready
-
-
-def test_the_script_builds_what_the_scenario_builds(runs):
-    _, result, _, by_script = runs
-    np.testing.assert_array_equal(by_script.states, result.states)
-    names = sorted(s.get_name() for s in result.station.diagram.GetSystems())
-    assert sorted(s.get_name() for s in by_script.station.diagram.GetSystems()) == names
 
 
 @pytest.mark.parametrize("name", SCENES)

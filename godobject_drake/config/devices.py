@@ -50,6 +50,7 @@ from godobject_drake.config.device_files import (
     read_device_log,
     read_joint_log,
 )
+from godobject_drake.protocol import parse_url
 
 SPACES = ("pose", "joint")
 MAX_RATE_HZ = 1e5  # a device sample every 10 µs at most
@@ -420,8 +421,6 @@ class Lcm(_PoseDevice):
             raise ValueError("noise_m: a real device's samples are its own; leave it 0")
         self.device_to_world.check()
         if self.url.startswith("udp://"):
-            from godobject_drake.protocol import parse_url
-
             try:
                 parse_url(self.url)
             except ValueError as e:

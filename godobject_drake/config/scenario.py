@@ -173,6 +173,9 @@ def _retype_device() -> None:
 
 on_register(_retype_device)
 
+# The installed package godobject_models (the clone's models/ folder in an editable install): the
+# models a scenario names as package://godobject_models/...
+MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 # The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
 SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
 SHIPPED = ("lego", "laparoscopy", "deformable_probe")  # the shipped scenes: diagrams/NAME.yaml
@@ -319,8 +322,6 @@ PACKAGE_URL = "package://godobject_models/"
 def _resolve(value: str, base: Path) -> str:
     """A path relative to ``base`` made absolute; ``package://godobject_models/`` to the models."""
     if value.startswith(PACKAGE_URL):
-        from godobject_drake.station.plant import MODELS_DIR
-
         return str(MODELS_DIR / value[len(PACKAGE_URL) :])
     if not value or "://" in value or Path(value).is_absolute():
         return value

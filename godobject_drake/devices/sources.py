@@ -108,7 +108,7 @@ class DeviceSource(LeafSystem):
         A tether and a control/display ratio, for a device that reports increments
         (``reports_increments``; others refuse them). Active aids add the input ports
         ``pose_WT`` and ``pose_WG`` (``[qw qx qy qz x y z]``), to wire from the coupling's
-        outputs of the same names (:func:`~godobject_drake.station.build.add_god_object` does); the
+        outputs of the same names (:func:`~godobject_drake.add_god_object` does); the
         outputs do not depend on them, so the loop has no algebraic cycle.
     """
 
@@ -256,7 +256,7 @@ class DeviceSource(LeafSystem):
             raise RuntimeError(
                 f"{self.get_name()}: a tether or control/display ratio needs the coupling's pose_WT and "
                 "pose_WG on the device's inputs of the same names; connect them "
-                "(godobject_drake.station.build.add_god_object does), or build the device without aids"
+                "(godobject_drake.add_god_object does), or build the device without aids"
             )
         pose_WT, pose_WG = (port.Eval(context) for port in self._aid_ports)
         dR = quat_to_rotation(q_raw) @ quat_to_rotation(x[_QR]).T

@@ -17,11 +17,15 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.devices.sources import JointDevice
-from godobject_drake.station.kinds import GodObject
+from godobject_drake.metrics import TissueMetrics, ToolMetrics
+from godobject_drake.station import loop
+from godobject_drake.station.kinds import GodObject, tool_kind
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
-from godobject_drake.systems.articulated import ArticulatedFeedback, add_articulated_god_object
+from godobject_drake.systems.drawing import TissueVisualizer, ToolGhostVisualizer
+from godobject_drake.systems.tissue import tool_capsules
 
 
+@tool_kind(sc.Articulated)
 @dataclasses.dataclass
 class ArticulatedGodObject(GodObject):
     """An articulated god-object (:func:`add_articulated`).
@@ -49,16 +53,12 @@ class ArticulatedGodObject(GodObject):
         return self.coupling.tool
 
     @classmethod
-    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        from godobject_drake.station.plant import add_plant
-
-        scene = add_plant(builder, scenario)
-        god = add_articulated(
+    def build(cls, builder, scene, scenario, device, added: dict, *, check_gains=True):
+        return add_articulated(
             builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
             feedback_gains=scenario.feedback,
         )  # fmt: skip
-        return scene, god
 
     def logged_ports(self, plant):
         ports = {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}
@@ -70,7 +70,6 @@ class ArticulatedGodObject(GodObject):
         return ports
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-        from godobject_drake.systems.drawing import ToolGhostVisualizer
 
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
@@ -78,8 +77,6 @@ class ArticulatedGodObject(GodObject):
         )
         builder.Connect(self.source.GetOutputPort("q_device"), ghost.GetInputPort("q_device"))
         if self.tissue_observer is not None:
-            from godobject_drake.systems.drawing import TissueVisualizer
-
             drawing = builder.AddNamedSystem(
                 "tissue_visualizer", TissueVisualizer(meshcat, self.tissue, period)
             )
@@ -128,7 +125,6 @@ class _ToolFold:
     """The articulated kind's metrics (:class:`~godobject_drake.metrics.ToolMetrics`)."""
 
     def __init__(self, station, god):
-        from godobject_drake.metrics import ToolMetrics
 
         plant, config = station.plant, station.scenario.god_object
         tip = config.tip_body or plant.get_body(BodyIndex(god.tool.bodies[-1].index)).name()
@@ -136,8 +132,6 @@ class _ToolFold:
                                 config.pivot_body or None)  # fmt: skip
         self._tissue = None
         if god.tissue_observer is not None:
-            from godobject_drake.metrics import TissueMetrics
-
             self._tissue = TissueMetrics()
         self._feedback = None
         if god.feedback.has_gains:
@@ -195,9 +189,10 @@ def add_articulated(
 ) -> ArticulatedGodObject:
     """An articulated god-object from its scenario config: the tool starts where the device is.
 
-    Calls :func:`~godobject_drake.systems.articulated.add_articulated_god_object` (checked at every
+    Calls :func:`~godobject_drake.station.loop.add_joint_coupling` (checked at every
     ``config.check_every``-th device sample up to ``duration_s``), adds an
-    :class:`~godobject_drake.systems.articulated.ArticulatedFeedback` named ``feedback`` with
+    :class:`~godobject_drake.systems.articulated.ArticulatedFeedback`
+    (:func:`~godobject_drake.station.loop.add_joint_feedback`) with
     ``feedback_gains`` (the scenario's ``feedback``; zero by default: the joint-space devices here
     are non-haptic, and with gains its wrenches are logged for a device of the user's own) and
     connects the device to both.
@@ -206,7 +201,7 @@ def add_articulated(
     if not config.self_collisions:
         exclude_self_collisions(plant, scene.scene_graph, config.model)
     q_home = device.sample(0.0)
-    coupling = add_articulated_god_object(
+    coupling = loop.add_joint_coupling(
         builder, plant, config.model, config.device_joints, coupling=config.coupling, gains=config.gains,
         device_period_s=device.period_s, q_reference=q_home, imposed_joints=tuple(config.imposed_joints),
         q_check=device.samples(duration_s)[:: config.check_every], connect_forces=connect_forces,
@@ -216,23 +211,14 @@ def add_articulated(
     q = plant.GetDefaultPositions()
     q[tool.q_device] = q_home
     plant.SetDefaultPositions(q)  # the tool starts where the interface is
-    feedback = builder.AddNamedSystem("feedback", ArticulatedFeedback(tool, feedback_gains))
-    for name in ("q_device", "v_device"):
+    feedback = loop.add_joint_feedback(builder, plant, device, coupling, feedback_gains)
+    for name in ("q_device", "v_device"):  # the joint device is the target (no haptic chain)
         builder.Connect(device.GetOutputPort(name), coupling.GetInputPort(name))
-    builder.Connect(device.GetOutputPort("q_device"), feedback.GetInputPort("q_device"))
-    builder.Connect(coupling.GetOutputPort("targets"), feedback.GetInputPort("targets"))
-    builder.Connect(plant.get_body_poses_output_port(), feedback.GetInputPort("body_poses"))
-    builder.Connect(
-        plant.get_body_spatial_velocities_output_port(), feedback.GetInputPort("body_spatial_velocities")
-    )
     mode = "god_object" if connect_forces else "position"
-    god = ArticulatedGodObject(coupling, feedback, source=device, device=device, mode=mode)
-    tissue = getattr(scene, "tissue", None)
-    if tissue is not None:
-        from godobject_drake.systems.tissue import tool_capsules
-
-        god.tissue = tissue
-        god.tissue_observer = tissue.connect(
+    god = ArticulatedGodObject(coupling, feedback, source=device, mode=mode)
+    if scene.tissue is not None:
+        god.tissue = scene.tissue
+        god.tissue_observer = scene.tissue.connect(
             builder, plant, tool_capsules(plant, scene.scene_graph, tool.model)
         )
     return god

@@ -14,14 +14,18 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
-from godobject_drake.devices.sources import DeviceSource
+from godobject_drake.devices.sources import DeviceSource, first_pose
+from godobject_drake.metrics import ShellMetrics
+from godobject_drake.station.kinds import tool_kind
 from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
-from godobject_drake.systems.shell import add_deformable_god_object
+from godobject_drake.systems.drawing import ShellVisualizer
+from godobject_drake.systems.shell import add_deformable_god_object, obstacle_geometries
 
 if TYPE_CHECKING:
     from godobject_drake.systems.shell import Shell, ShellObserver
 
 
+@tool_kind(sc.Deformable)
 @dataclasses.dataclass
 class DeformableGodObject(RigidGodObject):
     """A deformable god-object (:func:`add_deformable`): the rigid coupling on the core, and
@@ -42,28 +46,22 @@ class DeformableGodObject(RigidGodObject):
     )
 
     @classmethod
-    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        from godobject_drake.devices.sources import first_pose
-        from godobject_drake.station.plant import add_plant
-
+    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+        """The core and its shell, at the device's first pose (the gains checked before meshing)."""
         config = scenario.god_object
         if check_gains:
             config.gains.check(scenario.time_step)  # before meshing anything
-        X_WC = first_pose(device)  # the probe starts at the device
-        shells = {}
+        shell = add_deformable_god_object(plant, scene_graph, config.shell, config.spec, first_pose(device),
+                                          config.name)  # fmt: skip
+        return {"shell": shell}
 
-        def add_shell(plant, scene_graph):
-            shells["shell"] = add_deformable_god_object(
-                plant, scene_graph, config.shell, config.spec, X_WC, config.name
-            )
-
-        scene = add_plant(builder, scenario, before_finalize=add_shell)
-        god = add_deformable(
-            builder, scene.plant, shells["shell"], device, config.gains, scenario.feedback,
+    @classmethod
+    def build(cls, builder, scene, scenario, device, added: dict, *, check_gains=True):
+        return add_deformable(
+            builder, scene.plant, added["shell"], device, scenario.god_object.gains, scenario.feedback,
             haptic=scenario.haptic, connect_forces=scenario.simulation.mode == "god_object",
             check_gains=check_gains,
         )  # fmt: skip
-        return scene, god
 
     def logged_ports(self, plant):
         ports = {"state": plant.get_state_output_port(), "pose_WT": self.coupling.GetOutputPort("pose_WT")}
@@ -72,7 +70,6 @@ class DeformableGodObject(RigidGodObject):
         return ports
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-        from godobject_drake.systems.drawing import ShellVisualizer
 
         period = scenario.visualization.publish_period_s
         drawing = builder.AddNamedSystem("shell_visualizer", ShellVisualizer(meshcat, self.shell, period))
@@ -107,8 +104,6 @@ class _ShellFold:
     """The deformable kind's metrics (:class:`~godobject_drake.metrics.ShellMetrics`)."""
 
     def __init__(self, station, god):
-        from godobject_drake.metrics import ShellMetrics
-        from godobject_drake.systems.shell import obstacle_geometries
 
         plant, scene_graph = station.plant, station.scene_graph
         self._acc = ShellMetrics(

@@ -1,30 +1,56 @@
-"""What every god-object kind has: the parts it added, and the questions the library asks of it.
+"""What every tool (god-object) kind has: the parts it added, and the questions the library asks of it.
 
-A kind is one subclass of :class:`GodObject` (rigid, articulated, deformable), registered for its
-scenario config type in :data:`godobject_drake.station.build.KINDS`. Everything kind-specific is
-a method or class attribute of the subclass; the builder, the simulation, the metrics and the
-studies call these and never compare a kind's name (docs/design.md "Adding a god-object kind").
+A kind is one subclass of :class:`GodObject` (rigid, articulated, deformable), registered once for
+its scenario config type with :func:`tool_kind`; :func:`kind_for` is the one dispatch on a
+scenario's ``god_object``. Everything kind-specific is a method or class attribute of the subclass:
+what it adds to the plant before ``Finalize`` and how it builds its loop, its loggers, metrics and
+drawing, the penetration it can cause, what runs before each plant step, and what the studies ask
+of it. The builder, the simulation, the metrics, the CLI and the studies call these and never ask
+which kind they have (docs/design.md "Adding a tool kind"). The haptic chain is a part of its own
+(:mod:`~godobject_drake.station.haptic_chain`), composed into the loop.
 """
 
 import dataclasses
 from typing import TYPE_CHECKING, ClassVar
 
-import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder, System
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
+
+from godobject_drake.station.haptic_chain import HapticChain
 
 if TYPE_CHECKING:
     from godobject_drake.devices.sources import DeviceSource, JointDevice
     from godobject_drake.systems.articulated import ArticulatedCoupling, ArticulatedFeedback
     from godobject_drake.systems.coupling import GodObjectCoupling
     from godobject_drake.systems.feedback import FeedbackPort
-    from godobject_drake.systems.haptic import (
-        AdmittanceDevice,
-        HapticDevice,
-        PassivityController,
-        SimulatedHand,
-    )
+
+TOOL_KINDS: dict[type, type["GodObject"]] = {}
+
+
+def tool_kind(config_type: type):
+    """Register the decorated :class:`GodObject` subclass as the kind of ``config_type`` (a
+    scenario ``god_object`` config: :mod:`godobject_drake.config.tools`)."""
+
+    def register(cls):
+        other = TOOL_KINDS.get(config_type)
+        if other is not None and other is not cls:
+            raise ValueError(f"tool kind !{config_type.__name__} is registered already, as {other.__name__}")
+        TOOL_KINDS[config_type] = cls
+        return cls
+
+    return register
+
+
+def kind_for(config) -> type["GodObject"]:
+    """The kind class of a scenario's ``god_object`` config; an unknown one is refused, naming the known."""
+    try:
+        return TOOL_KINDS[type(config)]
+    except KeyError:
+        known = ", ".join(f"!{c.__name__}" for c in TOOL_KINDS)
+        raise ValueError(
+            f"god_object: {type(config).__name__} is not a god-object kind; the kinds are {known}"
+        ) from None
 
 
 @dataclasses.dataclass
@@ -40,12 +66,8 @@ class GodObject:
         whatever its gains, so a logger or a device of one's own can read it.
     source : DeviceSource | JointDevice
         The user's device.
-    device : System
-        What the coupling reads its target from: ``source``, or the haptic device in between.
-    haptic : HapticDevice | AdmittanceDevice | None
-    hand : SimulatedHand | None
-        The simulated user on an impedance device's handle.
-    passivity : PassivityController | None
+    chain : HapticChain
+        The haptic chain between the device and the coupling (none, impedance, admittance).
     publisher : System | None
         What renders the feedback wrench on a real device (its kind's ``connect_feedback``).
     mode : str
@@ -55,12 +77,33 @@ class GodObject:
     coupling: "GodObjectCoupling | ArticulatedCoupling"
     feedback: "FeedbackPort | ArticulatedFeedback"
     source: "DeviceSource | JointDevice"
-    device: System
-    haptic: "HapticDevice | AdmittanceDevice | None" = None
-    hand: "SimulatedHand | None" = None
-    passivity: "PassivityController | None" = None
+    chain: HapticChain = None
     publisher: System | None = None
     mode: str = "god_object"
+
+    def __post_init__(self):
+        if self.chain is None:
+            self.chain = HapticChain(self.source)
+
+    @property
+    def device(self) -> System:
+        """What the coupling reads its target from: the device, or the simulated one in between."""
+        return self.chain.target
+
+    @property
+    def haptic(self):
+        """The simulated haptic device (impedance or admittance), or None."""
+        return getattr(self.chain, "handle", None) or getattr(self.chain, "admittance", None)
+
+    @property
+    def hand(self):
+        """The simulated user on an impedance device's handle, or None."""
+        return getattr(self.chain, "hand", None)
+
+    @property
+    def passivity(self):
+        """The passivity controller on an impedance device's feedback, or None."""
+        return getattr(self.chain, "passivity", None)
 
     # -- what a kind says of itself (class attributes) -----------------------------------------------
     kind: ClassVar[str] = ""  # its name in reports: "rigid", "articulated", "deformable"
@@ -70,8 +113,15 @@ class GodObject:
     no_prediction_reason: ClassVar[str] = ""  # why not, for analyze's contact row
 
     @classmethod
-    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        """Add the scenario's plant and this god-object to ``builder``; ``(SceneParts, god)``."""
+    def add_to_plant(cls, plant: MultibodyPlant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+        """What the kind adds to the plant before ``Finalize`` (nothing by default); the returned
+        dict is handed to :meth:`build`."""
+        return {}
+
+    @classmethod
+    def build(cls, builder: DiagramBuilder, scene, scenario, device, added: dict, *, check_gains=True):
+        """The tool's loop on the finalized plant of ``scene`` (:mod:`~godobject_drake.station.loop`),
+        from the scenario's ``god_object`` and the device already in ``builder``; the tool."""
         raise NotImplementedError(f"{cls.__name__}.build")
 
     def logged_ports(self, plant: MultibodyPlant) -> dict:
@@ -118,53 +168,13 @@ class GodObject:
         return None
 
     def diverged_part(self, root_context, max_speed: float) -> tuple[str, str] | None:
-        """``(part, what and likely cause)`` if a part outside the plant diverged: a simulated
-        impedance device whose handle's state is non-finite or faster than ``max_speed`` (m/s).
-        The safeguards ask at every check; a run Drake stopped asks it for the likely cause."""
-        from godobject_drake.limits import device_wall_limit
-        from godobject_drake.systems.haptic import HapticDevice
-
-        dev = self.haptic
-        if not isinstance(dev, HapticDevice):
-            return None
-        state = dev.GetOutputPort("device_state").Eval(dev.GetMyContextFromRoot(root_context))
-        n = dev.num_axes
-        x, v = state[:n], state[n:]
-        if np.all(np.isfinite(state)) and float(np.max(np.abs(v))) <= max_speed:
-            return None
-        what = (
-            f"its handle's state is not finite (x = {x}, v = {v})"
-            if not np.all(np.isfinite(state))
-            else f"its handle's speed reached {float(np.max(np.abs(v))):.3g} m/s (> {max_speed:g})"
-        )
-        kd, gd = self.feedback.gains.kd, self.feedback.gains.gamma_d
-        hand = self.hand.hand if self.hand is not None else None
-        on_handle = (hand.k, hand.b) if hand else ()
-        limit = device_wall_limit(dev.mass, dev.damping, dev.period_s, gd, *on_handle)
-        if kd >= limit:
-            cause = (
-                f"the likely cause: feedback.kd {kd:g} N/m is past the device's stability limit "
-                f"{limit:.4g} N/m against a rigid obstacle; use feedback.kd < {limit:.4g} N/m, or raise "
-                "haptic.device_damping or haptic.rate_hz"
-            )
-        else:
-            cause = (
-                f"the likely cause: the haptic loop (feedback.kd {kd:g} N/m, gamma_d {gd:g} N·s/m) on this "
-                "scene's contact; `python -m godobject_drake analyze SCENARIO` gives the device's limit"
-            )
-        return "the simulated haptic device", f"{what}; {cause}"
+        """``(part, what and likely cause)`` if a part outside the plant diverged (the haptic chain's
+        simulated device). The safeguards ask at every check; a run Drake stopped asks it for the
+        likely cause."""
+        return self.chain.diverged_part(root_context, max_speed, self.feedback.gains)
 
     def device_metrics(self, root_context) -> dict:
-        """The device's counts and the haptic loop's energies (J) at the end of a run."""
-        from godobject_drake.systems.haptic import HapticDevice
-
+        """The device's counts and the haptic chain's energies (J) at the end of a run."""
         out = dict(self.source.status(self.source.GetMyContextFromRoot(root_context)))
-        if isinstance(self.haptic, HapticDevice):
-            work = self.haptic.GetOutputPort("work").Eval(self.haptic.GetMyContextFromRoot(root_context))
-            out["haptic_energy_to_user_j"] = float(-work[0])
-            out["haptic_feedback_work_j"] = float(work[1])
-        if self.passivity is not None:
-            e = self.passivity.GetOutputPort("energy").Eval(self.passivity.GetMyContextFromRoot(root_context))
-            out["passivity_observed_energy_j"] = float(e[0] + e[1])
-            out["passivity_dissipated_j"] = float(e[2] + e[3])
+        out.update(self.chain.metrics(root_context))
         return out

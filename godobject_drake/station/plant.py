@@ -9,7 +9,6 @@ always measured on true shapes (:mod:`godobject_drake.metrics`).
 from __future__ import annotations
 
 import dataclasses
-import importlib.resources
 import logging
 import math
 import re
@@ -36,9 +35,10 @@ from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
+from godobject_drake.config.scenario import MODELS_DIR
+from godobject_drake.systems.tissue import FemOrgan
 
 # The installed package godobject_models (the clone's models/ folder in an editable install).
-MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 PROXY_PREFIX = "proxy_"
 CORNER_PREFIX = "proxy_corner_"  # a proxy at a vertex of its body's convex true shape
 FLAT_PREFIX = "flat_"  # a welded geometry only ever touched on one flat face (a floor, a baseplate)
@@ -282,8 +282,6 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
 
     def before(plant, scene_graph):
         if scenario.organs.model == "fem":
-            from godobject_drake.systems.tissue import FemOrgan
-
             try:
                 tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
             except ValueError as e:

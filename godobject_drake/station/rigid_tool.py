@@ -10,7 +10,6 @@ per-step imposition.
 import dataclasses
 import functools
 import math
-import warnings
 from typing import ClassVar
 
 import numpy as np
@@ -25,23 +24,20 @@ from pydrake.systems.framework import DiagramBuilder
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import DeviceSource
-from godobject_drake.limits import device_wall_limit
-from godobject_drake.station.kinds import GodObject
-from godobject_drake.systems.coupling import GodObjectCoupling
-from godobject_drake.systems.feedback import FeedbackPort
-from godobject_drake.systems.haptic import (
-    AdmittanceDevice,
-    HandImpedance,
-    HapticDevice,
-    PassivityController,
-    SimulatedHand,
-)
+from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
+from godobject_drake.station import loop
+from godobject_drake.station.haptic_chain import add_haptic_chain, check_haptic_gains
+from godobject_drake.station.kinds import GodObject, tool_kind
+from godobject_drake.systems.coupling import TERMS_LAYOUT
+from godobject_drake.systems.drawing import GodObjectVisualizer
+from godobject_drake.systems.implicit import ImplicitCouplingError, SpringHook, add_springs, implicit_terms
 
 
 class PenetrationBudgetWarning(UserWarning):
     """A god-object's capped pull can push it deeper into an obstacle than the scene's budget."""
 
 
+@tool_kind(sc.Rigid)
 @dataclasses.dataclass
 class RigidGodObject(GodObject):
     """A rigid god-object (:func:`add_god_object`): the coupling holds one free body at a time."""
@@ -50,32 +46,25 @@ class RigidGodObject(GodObject):
     predicts_penetration: ClassVar[bool] = True
 
     @classmethod
-    def build(cls, builder: DiagramBuilder, scenario, device, *, check_gains: bool = True):
-        from godobject_drake.station.plant import add_plant
+    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+        """The implicit coupling's springs (SAP constraints, added before ``Finalize``)."""
+        if scenario.god_object.coupling == "implicit":
+            return {"springs": add_springs(plant)}
+        return {}
 
+    @classmethod
+    def build(cls, builder, scene, scenario, device, added: dict, *, check_gains=True):
         config = scenario.god_object
-        added = {}
-        before = None
-        if config.coupling == "implicit":
-            from godobject_drake.systems.implicit import add_springs
-
-            def before(plant, scene_graph):
-                added["springs"] = add_springs(plant)
-
-        scene = add_plant(builder, scenario, before)
-        god = add_god_object(
+        return add_god_object(
             builder, scene.plant, device, config.gains, scenario.feedback, haptic=scenario.haptic,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
             springs=added.get("springs"), **coupling_options(config),
         )  # fmt: skip
-        return scene, god
 
     def logged_ports(self, plant):
         return {**super().logged_ports(plant), "terms": self.coupling.GetOutputPort("terms")}
 
     def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-        from godobject_drake.systems.drawing import GodObjectVisualizer
-
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
             "god_object_visualizer",
@@ -124,8 +113,6 @@ class ImplicitGodObject(RigidGodObject):
     @functools.cached_property
     def hook(self):
         """What applies the coupling's grasps to the plant between steps."""
-        from godobject_drake.systems.implicit import SpringHook
-
         return SpringHook(self.coupling.plant, self.coupling)
 
     def logged_ports(self, plant):
@@ -135,8 +122,6 @@ class ImplicitGodObject(RigidGodObject):
         }
 
     def complete_logs(self, rows: dict) -> dict:
-        from godobject_drake.systems.implicit import implicit_terms
-
         coupling = rows["coupling"]
         terms = implicit_terms(self.coupling, rows["state"], coupling, self.hook.last_logged_row)
         if len(coupling):
@@ -158,13 +143,11 @@ class _RigidFold:
     """The rigid kind's metrics: true-shape penetration and tracking of the held body, capped steps."""
 
     def __init__(self, station):
-        from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
 
         self._acc = RigidMetrics(TrueShapeMetrics(station.plant, station.scene_graph, station.diagram))
         self.capped = 0
 
     def fold(self, rows: dict, data: dict, finite):
-        from godobject_drake.systems.coupling import TERMS_LAYOUT
 
         terms = rows["terms"]
         held = terms[:, TERMS_LAYOUT["held_body"]].round().astype(int)
@@ -174,71 +157,6 @@ class _RigidFold:
 
     def result(self) -> dict:
         return {**self._acc.result(), "coupling_capped_steps": self.capped}
-
-
-def hand_on_handle(haptic: "sc.Haptic") -> HandImpedance:
-    """The simulated user: critically damped at ``hand_frequency_hz`` on the handle's mass."""
-    w = 2 * math.pi * haptic.hand_frequency_hz
-    return HandImpedance(k=haptic.device_mass_kg * w**2, b=2 * haptic.device_mass_kg * w)
-
-
-WARN_FRACTION = 0.8  # a feedback stiffness past 80 % of the device's limit warns (as analyze does)
-
-
-class HapticGainError(ValueError):
-    """A feedback stiffness past the simulated haptic device's stability limit."""
-
-
-class HapticGainWarning(UserWarning):
-    """A feedback stiffness the device holds only while the simulated hand holds its handle."""
-
-
-def check_haptic_gains(haptic: "sc.Haptic", feedback_gains: FeedbackGains) -> None:
-    """Refuse a feedback stiffness the impedance device cannot render stably, as the coupling
-    refuses a bandwidth past its explicit limit (docs/theory.md §2).
-
-    The model (:func:`godobject_drake.limits.device_wall_limit`) is the device's worst case:
-    the god-object held still by a rigid obstacle, the handle's exact sampled mechanics, the
-    feedback port's ``kd`` and ``γd`` on its sampled position, the simulated hand on the
-    handle. Past that limit the device diverges at the first rigid contact: refused. Within
-    20 % of it, or past the limit of the same device without a hand (stable only while the hand
-    holds it), a warning. Drake's boundary on a scene, bisected by ``analyze --verify``, depends
-    on its contact: 6 % below this limit on the brick scene, 33 % above it on the README's cube
-    (docs/theory.md §2). A passivity controller (``passivity_damping > 0``) is meant to hold a
-    stiffer wall, so it gets the warning only.
-    """
-    if haptic.mode != "impedance" or feedback_gains.kd <= 0.0:
-        return
-    hand = hand_on_handle(haptic)
-    period = 1.0 / haptic.rate_hz
-    m, b, gd, kd = haptic.device_mass_kg, haptic.device_damping, feedback_gains.gamma_d, feedback_gains.kd
-    held = device_wall_limit(m, b, period, gd, hand.k, hand.b)
-    alone = device_wall_limit(m, b, period, gd)
-    where = (
-        f"the simulated haptic device (mass {m:g} kg, damping {b:g} N·s/m, {haptic.rate_hz:g} Hz) "
-        f"pressing a rigid obstacle with feedback.gamma_d {gd:g} N·s/m"
-    )
-    if kd >= held and haptic.passivity_damping <= 0.0:
-        raise HapticGainError(
-            f"feedback.kd: {kd:g} N/m is past the stability limit {held:.4g} N/m of {where} and "
-            f"the simulated hand on its handle: the device would diverge at the first contact. Use "
-            f"feedback.kd < {held:.4g} N/m (--kd), or raise haptic.device_damping or haptic.rate_hz "
-            f"(the limit grows as (damping + gamma_d) x rate), or set haptic.passivity_damping > 0"
-        )
-    near = []
-    if kd >= alone:
-        near.append(f"past the limit {alone:.4g} N/m of the same device with no hand on its handle")
-    if kd >= WARN_FRACTION * held:
-        near.append(
-            f"within {1 - WARN_FRACTION:.0%} of the limit {held:.4g} N/m with the hand against a rigid "
-            "obstacle (a scene's own boundary depends on its contact: `analyze --verify` measures it)"
-        )
-    if near:
-        warnings.warn(
-            f"feedback.kd {kd:g} N/m for {where} is " + "; and ".join(near),
-            HapticGainWarning,
-            stacklevel=3,
-        )
 
 
 def add_god_object(
@@ -257,121 +175,40 @@ def add_god_object(
 ) -> "RigidGodObject":
     """Make the plant's free bodies god-objects of ``device``: one call, after ``plant.Finalize()``.
 
-    Adds and wires a :class:`~godobject_drake.systems.coupling.GodObjectCoupling` named ``name``
-    (plant state in; its wrench into the plant's ``applied_generalized_force``) and a
-    :class:`~godobject_drake.systems.feedback.FeedbackPort` named ``feedback`` with
-    ``feedback_gains`` (zero: a non-haptic device; any gains work, its ``F_Do_W`` output is
-    there to read or to send to a device). ``device`` must already be in ``builder``; every
-    grasp name it can report is checked here. ``haptic`` (a :class:`~godobject_drake.config.scenario.Haptic`)
-    puts a simulated haptic device between ``device`` and the coupling:
-
-    - ``impedance``: a simulated hand pushes a 3-axis :class:`~godobject_drake.systems.haptic.HapticDevice`
-      along the device's path; its pose is the target and the feedback force (optionally
-      through a :class:`~godobject_drake.systems.haptic.PassivityController`) acts on its handle;
-    - ``admittance``: the hand pulls an :class:`~godobject_drake.systems.haptic.AdmittanceDevice`'s
-      handle with the coupling's own stiffness and damping; the sensed wrench drives the
-      god-object, the handle follows it.
+    The loop's steps (:mod:`~godobject_drake.station.loop`) for a rigid tool: the coupling named
+    ``name`` (explicit, or implicit with ``springs`` from
+    :func:`~godobject_drake.systems.implicit.add_springs`), the haptic chain ``haptic`` puts between
+    ``device`` and the coupling (:mod:`~godobject_drake.station.haptic_chain`: none, impedance or
+    admittance), the feedback port named ``feedback`` with ``feedback_gains`` (zero: a non-haptic
+    device; its ``F_Do_W`` is wired whatever its gains), the coupling's wrench into the plant, and
+    the wrench back to the device. ``device`` must already be in ``builder``.
 
     ``connect_forces=False`` leaves the plant's force inputs alone (the position baseline).
     ``check_gains=False`` builds gains past the explicit limit, and haptic gains past the
-    device's (:func:`check_haptic_gains`; stability analysis only).
-    ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
+    device's (:func:`~godobject_drake.station.haptic_chain.check_haptic_gains`; stability analysis
+    only). ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
     ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
-    ``springs`` (:func:`~godobject_drake.systems.implicit.add_springs`'s, added before ``Finalize``) make
-    the coupling implicit (:class:`~godobject_drake.systems.implicit.ImplicitCoupling`): the springs are
-    SAP's, and the coupling's Python runs at the device rate only.
     """
-    feedback_gains = feedback_gains or FeedbackGains()
     haptic = haptic or sc.Haptic()
     if check_gains:
-        check_haptic_gains(haptic, feedback_gains)
-    period = 1.0 / haptic.rate_hz
-    if springs is not None:
-        from godobject_drake.systems.implicit import ImplicitCoupling, ImplicitCouplingError
-
-        if haptic.mode == "admittance" or not connect_forces or coupling_options.get("carried"):
-            raise ImplicitCouplingError(
-                "the implicit coupling drives a rigid body with springs: not an admittance device "
-                "(haptic.mode admittance), the position baseline (connect_forces=False) or a carried shell"
-            )
-        coupling = builder.AddNamedSystem(
-            name,
-            ImplicitCoupling(
-                plant, gains, springs, period if haptic.mode == "impedance" else device.period_s,
-                **coupling_options,
-            ),
-        )  # fmt: skip
-        god_class = ImplicitGodObject
-    else:
-        coupling = builder.AddNamedSystem(
-            name,
-            GodObjectCoupling(
-                plant, gains, device_period_s=device.period_s, check_gains=check_gains, **coupling_options
-            ),
+        check_haptic_gains(haptic, feedback_gains or FeedbackGains())
+    if springs is not None and (haptic.mode == "admittance" or not connect_forces):
+        raise ImplicitCouplingError(
+            "the implicit coupling drives a rigid body with springs: not an admittance device "
+            "(haptic.mode admittance), the position baseline (connect_forces=False) or a carried shell"
         )
-        god_class = RigidGodObject
-    coupling.validate_grasp_names(device.grasp_names())
-    builder.Connect(plant.get_state_output_port(), coupling.GetInputPort("plant_state"))
-    device.follow(builder, coupling)  # pseudo-haptic aids read T and G
-    feedback = builder.AddNamedSystem("feedback", FeedbackPort(feedback_gains))
-    god = god_class(coupling, feedback, source=device, device=device)
-    p0, q0, _ = device.samples(0.0)[0][1]
-    if haptic.mode == "impedance":
-        handle = builder.AddNamedSystem(
-            "haptic_device",
-            HapticDevice(haptic.device_mass_kg, haptic.device_damping, period, axes="xyz",
-                         X_WD_home=RigidTransform(p0)),
-        )  # fmt: skip
-        hand = builder.AddNamedSystem("hand", SimulatedHand(hand_on_handle(haptic), p0))
-        builder.Connect(device.GetOutputPort("X_WD"), hand.GetInputPort("X_WH"))
-        builder.Connect(device.GetOutputPort("V_WD"), hand.GetInputPort("V_WH"))
-        builder.Connect(handle.GetOutputPort("device_state"), hand.GetInputPort("device_state"))
-        builder.Connect(hand.GetOutputPort("human_force"), handle.GetInputPort("human_force"))
-        builder.Connect(hand.GetOutputPort("q_WD"), handle.GetInputPort("q_WD"))
-        builder.Connect(device.GetOutputPort("grasp"), handle.GetInputPort("grasp_in"))
-        force = feedback.GetOutputPort("F_Do_W")
-        if haptic.passivity_damping > 0.0:
-            pc = builder.AddNamedSystem("passivity", PassivityController(period, haptic.passivity_damping))
-            builder.Connect(force, pc.GetInputPort("F_in"))
-            builder.Connect(handle.GetOutputPort("X_WD"), pc.GetInputPort("X_WD"))
-            force = pc.GetOutputPort("F_out")
-            god.passivity = pc
-        builder.Connect(force, handle.GetInputPort("F_Do_W"))
-        god.haptic = god.device = handle
-        god.hand = hand
-    elif haptic.mode == "admittance":
-        names = sorted(device.grasp_names())
-        if not names:
-            raise ValueError(
-                "haptic mode admittance sizes the hand on the first body the device grasps; it grasps none"
-            )
-        body = coupling.body_for_grasp(names[0])
-        hand = HandImpedance.matching(coupling.gains, body.mass, float(np.trace(body.I_Bcm_B)) / 3.0)
-        adm = builder.AddNamedSystem(
-            "admittance_device", AdmittanceDevice(hand, period, RigidTransform(Quaternion(q0), p0))
-        )
-        builder.Connect(device.GetOutputPort("X_WD"), adm.GetInputPort("X_WH"))
-        builder.Connect(device.GetOutputPort("V_WD"), adm.GetInputPort("V_WH"))
-        builder.Connect(device.GetOutputPort("grasp"), adm.GetInputPort("grasp_in"))
-        for port in ("pose_WG", "V_WG"):
-            builder.Connect(coupling.GetOutputPort(port), adm.GetInputPort(port))
-        builder.Connect(adm.GetOutputPort("F_device_W"), coupling.GetInputPort("F_device_W"))
-        god.haptic = god.device = adm
-    for port in ("X_WD", "V_WD", "grasp"):
-        builder.Connect(god.device.GetOutputPort(port), coupling.GetInputPort(port))
-    if springs is not None:
-        pass  # the springs are in the plant
-    elif connect_forces:
-        builder.Connect(
-            coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
-        )
-    else:
-        god.mode = "position"
-    builder.Connect(god.device.GetOutputPort("X_WD"), feedback.GetInputPort("X_WD"))
-    for port in ("pose_WT", "V_WT", "pose_WG", "V_WG"):
-        builder.Connect(coupling.GetOutputPort(port), feedback.GetInputPort(port))
-    god.publisher = device.connect_feedback(builder, feedback.GetOutputPort("F_Do_W"), coupling.bodies)
-    return god
+    period = 1.0 / haptic.rate_hz if haptic.mode == "impedance" else None
+    coupling = loop.add_coupling(builder, plant, device, gains, period_s=period, springs=springs,
+                                 check_gains=check_gains, name=name, **coupling_options)  # fmt: skip
+    chain = add_haptic_chain(builder, haptic, device, coupling)
+    feedback = loop.add_feedback(builder, chain, coupling, feedback_gains)
+    loop.connect_target(builder, chain, coupling)
+    if connect_forces:
+        loop.connect_forces(builder, plant, coupling)
+    publisher = loop.render_feedback(builder, device, chain, feedback, coupling)
+    god_class = ImplicitGodObject if springs is not None else RigidGodObject
+    return god_class(coupling, feedback, source=device, chain=chain, publisher=publisher,
+                     mode="god_object" if connect_forces else "position")  # fmt: skip
 
 
 def coupling_options(config: "sc.Rigid") -> dict:

@@ -34,10 +34,12 @@ from pydrake.multibody.tree import BodyIndex
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import JointWaypoint, Waypoint
 from godobject_drake.config.gains import CouplingGains, CouplingGainWarning
-from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.limits import explicit_limit_omega_h, semi_implicit_matrix
+from godobject_drake.metrics import TrueShapeMetrics
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning, hand_on_handle, penetration_pairs
+from godobject_drake.station.haptic_chain import hand_on_handle
+from godobject_drake.station.rigid_tool import PenetrationBudgetWarning, penetration_pairs
 from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
@@ -59,6 +61,7 @@ from godobject_drake.studies.stability import (
 from godobject_drake.studies.validation import is_growing
 from godobject_drake.systems.articulated import joint_space_loop
 from godobject_drake.systems.coupling import graspable_bodies
+from godobject_drake.systems.tissue import contact_stiffness, ray_surface_hit, tool_capsules
 
 WARN_FRACTION = 0.8  # a number past 80 % of its limit (less than 25 % margin) warns
 PUSH_IN_M = 0.05  # the verification holds the target this far inside the nearest obstacle
@@ -302,7 +305,6 @@ def _tissue_pose(station, q_device: np.ndarray) -> dict | None:
     contact) against the FEM organ's rest surface: the tube's axis from the tip body's origin
     (``d``, toward the tip), how far the tool reaches past that origin along it, and where the
     axis meets the surface; None if the axis misses the organ."""
-    from godobject_drake.systems.tissue import ray_surface_hit, tool_capsules
 
     tool, plant = station.coupling.tool, station.plant
     organ = station.god_object.tissue
@@ -338,8 +340,6 @@ def _tissue_press(station, duration_s: float) -> dict | None:
     the tissue's stiffness from the FEM model, the coupling's stiffness at the tip along the
     axis, the joint that slides the tip along it, and the joint-space loop."""
     from pydrake.multibody.tree import JacobianWrtVariable
-
-    from godobject_drake.systems.tissue import contact_stiffness
 
     tool, plant = station.coupling.tool, station.plant
     poses = [_tissue_pose(station, q) for q in station.device.samples(duration_s)]
@@ -420,7 +420,6 @@ def _tissue_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
                           None, None, "", why))  # fmt: skip
         out["tissue"] = tissue
         return rows
-    from godobject_drake.limits import semi_implicit_matrix
 
     loop, Jd = press["loop"], press["Jd"]
     K_i = k * np.outer(Jd, Jd)
@@ -755,7 +754,6 @@ def _verify_penetration(station, scenario, out: dict) -> Check | None:
         depth = (f_cap + gravity) / (n * k)
     settle = 1.0 + 20.0 / coupling.gains.omega_n
     s = _hold_scenario(_without_haptics(analysis_scenario(scenario)), body.name, X0, X1, settle)
-    from godobject_drake.metrics import TrueShapeMetrics
 
     run_station = _quiet_build(s)
     result = simulate(run_station, progress=False)

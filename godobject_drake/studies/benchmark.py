@@ -21,7 +21,14 @@ import numpy as np
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGainError
-from godobject_drake.config.scenario import Scenario, scenario_from_yaml, scenario_to_yaml
+from godobject_drake.config.scenario import Scenario, scenario_from_yaml, scenario_to_yaml, shipped_scenario
+from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
+from godobject_drake.simulation import simulate
+from godobject_drake.spatial import quat_to_rotation
+from godobject_drake.station.build import build_station
+from godobject_drake.station.loop import make_device
+from godobject_drake.station.plant import add_plant
+from godobject_drake.systems.coupling import GodObjectCoupling, graspable_bodies
 
 SAMPLE_DT_S = 0.01  # trajectories are compared on this grid (s)
 ENGINES = ("drake", "mujoco")
@@ -160,7 +167,6 @@ def machine() -> str:
 def god_object_body(scenario: Scenario) -> str:
     """The body whose pose is "the god-object's pose": the first body a rigid scene's device
     grasps, an articulated tool's tip body, a deformable probe's core."""
-    from godobject_drake.station.build import make_device
 
     if isinstance(scenario.god_object, sc.Articulated):
         return scenario.god_object.tip_body
@@ -181,8 +187,6 @@ def run_case(case: Case) -> dict:
     explicit limit at this h), and the trajectory ``times``, ``p_WG`` (N×3), ``q_WG`` (N×4, wxyz),
     ``energy_j`` (N).
     """
-    from godobject_drake.simulation import simulate
-    from godobject_drake.station.build import build_station
 
     if case.repeats < 1:
         raise ValueError(f"repeats={case.repeats}; give at least 1 (the report uses ≥ 3)")
@@ -243,8 +247,6 @@ def trajectory(plant, states: np.ndarray, time_step: float, body_name: str):
     context = plant.CreateDefaultContext()
     from pydrake.multibody.tree import BodyIndex
 
-    from godobject_drake.systems.coupling import graspable_bodies
-
     free = graspable_bodies(plant)  # "brick_0" names the body of model instance brick_0
     body = (
         plant.get_body(BodyIndex(free[body_name].index))
@@ -278,11 +280,6 @@ def engine_neutral_errors(scenario: Scenario, states: np.ndarray, sample_dt_s: f
     positions are read).
     """
     from pydrake.systems.framework import DiagramBuilder
-
-    from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
-    from godobject_drake.station.build import make_device
-    from godobject_drake.station.plant import add_plant
-    from godobject_drake.systems.coupling import graspable_bodies
 
     parts = add_plant(DiagramBuilder(), scenario)
     name = god_object_body(scenario)
@@ -326,7 +323,6 @@ def rigid_energy(p, q, v, w, masses, inertias_B, g: float = 9.81) -> np.ndarray:
     the body frame. The formula both engines' trajectories are measured with
     (tests/test_benchmark.py checks it against Drake's own energy).
     """
-    from godobject_drake.spatial import quat_to_rotation
 
     N, B = p.shape[:2]
     E = np.zeros(N)
@@ -377,6 +373,7 @@ def summarize_cost(walls: list[float]) -> dict:
 
 
 def _run_mujoco(scenario: Scenario, case: Case) -> dict:
+    # MuJoCo is an optional extra (the bench extra): the peer loads only when a case asks for it.
     from godobject_drake.studies import mujoco_peer
 
     r = mujoco_peer.run_mujoco(
@@ -416,9 +413,6 @@ def _drake_states(scenario: Scenario, r: dict) -> np.ndarray:
     """The MuJoCo samples as rows of the Drake plant's state (free bodies' poses, zero velocity)."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.station.plant import add_plant
-    from godobject_drake.systems.coupling import graspable_bodies
-
     plant = add_plant(DiagramBuilder(), scenario).plant
     bodies = graspable_bodies(plant)
     x0 = plant.GetPositionsAndVelocities(plant.CreateDefaultContext())
@@ -434,9 +428,6 @@ def _rigid_bodies(scenario: Scenario):
     """The free bodies of the scenario's plant (the plant alone, no diagram around it)."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from godobject_drake.station.plant import add_plant
-    from godobject_drake.systems.coupling import graspable_bodies
-
     return graspable_bodies(add_plant(DiagramBuilder(), scenario).plant)
 
 
@@ -451,10 +442,6 @@ def coupling_overhead_us(samples: int = 2000, rounds: int = 5) -> dict:
     from pydrake.common.value import AbstractValue
     from pydrake.math import RigidTransform
     from pydrake.systems.framework import DiagramBuilder
-
-    from godobject_drake.config.scenario import shipped_scenario
-    from godobject_drake.station.plant import add_plant
-    from godobject_drake.systems.coupling import GodObjectCoupling
 
     lego = shipped_scenario("lego")
     plant = add_plant(DiagramBuilder(), lego).plant

@@ -116,6 +116,8 @@ import time
 
 import numpy as np
 
+from godobject_drake.station.plant import brick_grid_positions
+
 try:
     import mujoco
 except ImportError as e:  # an optional extra, never a runtime dependency of godobject_drake
@@ -162,7 +164,6 @@ def brick_names(bricks: int = 8) -> list[str]:
 
 def brick_positions(bricks: int = 8) -> list[tuple[float, float, float]]:
     """The scene's 8 bricks, and more where Drake's ``--bricks`` puts them (a grid, in layers)."""
-    from godobject_drake.station.plant import brick_grid_positions
 
     if not (isinstance(bricks, int) and bricks >= 8):
         raise ValueError(f"bricks={bricks!r}: the brick scene has 8; give an integer ≥ 8")

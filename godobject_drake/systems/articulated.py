@@ -7,7 +7,7 @@ model simulated in the plant, pulled toward a *kinematic copy* of the device
 the same plant: no second model is simulated). The joints the device does
 not drive are left to the simulation, and so are the bodies below them.
 
-Three couplings, one call (:func:`add_articulated_god_object`):
+Three couplings, one call (:func:`godobject_drake.station.loop.add_joint_coupling`):
 
 ``cartesian``
     paper Eq. 6: every coupled body B is pulled toward the same body of the
@@ -60,7 +60,7 @@ from pydrake.multibody.tree import (
     ModelInstanceIndex,
     PdControllerGains,
 )
-from pydrake.systems.framework import DiagramBuilder, LeafSystem, ValueProducer
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from godobject_drake.config.gains import CouplingGainError, CouplingGains, FeedbackGains
 from godobject_drake.limits import symplectic_euler_radius
@@ -664,7 +664,7 @@ class ArticulatedCoupling(LeafSystem):
         s = context.get_discrete_state(self._targets).get_value()
         output.SetFromVector(s[self._nt : self._nt + self.tool.nq_device])
 
-    # -- imposing joints (the station calls these: building.GodObject) ------------
+    # -- imposing joints (the station's articulated tool calls these) ------------
     def lock_imposed(self, plant_context) -> None:
         """Lock the imposed joints (call once on the simulator's plant context)."""
         for j in self.tool.imposed:
@@ -690,60 +690,6 @@ class ArticulatedCoupling(LeafSystem):
             )
         plant.SetPositions(plant_context, q)
         plant.SetVelocities(plant_context, v)
-
-
-def add_articulated_god_object(
-    builder: DiagramBuilder,
-    plant: MultibodyPlant,
-    model,
-    device_joints,
-    *,
-    coupling: str = "cartesian",
-    gains: CouplingGains,
-    device_period_s: float,
-    q_reference,
-    imposed_joints=(),
-    q_check=None,
-    connect_forces: bool = True,
-    check_gains: bool = True,
-    name: str = "coupling",
-) -> ArticulatedCoupling:
-    """Make a tree model a god-object: one call, after ``plant.Finalize()``.
-
-    Adds an :class:`ArticulatedCoupling` named ``name`` and connects it to
-    the plant (state, body poses and velocities in; forces, generalized
-    forces or desired state out, as the coupling mode needs). Connect a
-    :class:`~godobject_drake.devices.sources.JointDevice`'s ``q_device`` and
-    ``v_device`` to it. ``connect_forces=False`` leaves the plant's inputs
-    alone (the position baseline). ``q_check`` lists device configurations
-    at which the explicit modes' stability is checked (default
-    ``q_reference``); ``check_gains=False`` skips it (stability analysis only).
-    A tool's own parts usually overlap at their joints (the grasper's jaws at
-    the hinge): filter them with :func:`godobject_drake.station.plant.exclude_self_collisions`.
-    """
-    tool = ArticulatedTool(plant, model, device_joints, imposed_joints)
-    system = builder.AddNamedSystem(
-        name,
-        ArticulatedCoupling(
-            tool, coupling, gains, device_period_s, q_reference, q_check, check_gains=check_gains
-        ),
-    )
-    builder.Connect(plant.get_state_output_port(), system.GetInputPort("plant_state"))
-    builder.Connect(plant.get_body_poses_output_port(), system.GetInputPort("body_poses"))
-    builder.Connect(
-        plant.get_body_spatial_velocities_output_port(), system.GetInputPort("body_spatial_velocities")
-    )
-    if connect_forces:
-        builder.Connect(system.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port())
-        if coupling == "joint_pd":
-            builder.Connect(
-                system.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
-            )
-        if coupling == "joint_pd_sap":
-            builder.Connect(
-                system.GetOutputPort("desired_state"), plant.get_desired_state_input_port(tool.model)
-            )
-    return system
 
 
 class ArticulatedFeedback(LeafSystem):
@@ -876,7 +822,6 @@ __all__ = [
     "JointSpaceLoop",
     "ToolBody",
     "ToolJoint",
-    "add_articulated_god_object",
     "device_targets",
     "generalized_forces",
     "joint_space_loop",

@@ -111,7 +111,8 @@ def fixed_bodies(plant: MultibodyPlant) -> dict[str, str]:
         why = (
             "is welded to the world (an obstacle)"
             if plant.IsAnchored(body)
-            else "is a link of an articulated model (use add_articulated_god_object for it)"
+            else "is a link of an articulated model "
+            "(use godobject_drake.station.loop.add_joint_coupling for it)"
         )
         instance = plant.GetModelInstanceName(body.model_instance())
         aliases = [body.scoped_name().get_full(), body.name()]

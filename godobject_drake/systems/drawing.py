@@ -45,6 +45,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
+from godobject_drake.outputs import write_atomically
 from godobject_drake.spatial import pose_from_array
 from godobject_drake.systems.coupling import graspable_bodies
 
@@ -405,6 +406,5 @@ def save_recording(meshcat: Meshcat, path: str | Path) -> int:
     """Stop and publish the recording, write Meshcat's self-contained HTML; return its size (bytes)."""
     meshcat.StopRecording()
     meshcat.PublishRecording()
-    from godobject_drake.outputs import write_atomically
 
     return write_atomically(path, meshcat.StaticHtml())  # all at once: never half a page

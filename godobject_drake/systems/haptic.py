@@ -28,30 +28,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from godobject_drake.limits import zoh_mass_damper
 from godobject_drake.spatial import pose_arrays, rotation_error
-
-
-def zoh_mass_damper(mass: float, damping: float, period_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact one-period map of ``m ẍ + b ẋ = f`` with ``f`` held: ``[x, v]⁺ = A [x, v] + B f``.
-
-    Closed form (``a = b/m``, ``e = exp(−a T)``): ``A = [[1, (1−e)/a], [0, e]]``,
-    ``B = [[(T − (1−e)/a)/b], [(1−e)/b]]``; ``b = 0`` gives ``[[T²/2m], [T/m]]``.
-    """
-    if not (math.isfinite(mass) and mass > 0):
-        raise ValueError(f"device mass={mass!r} kg must be > 0")
-    if not (math.isfinite(damping) and damping >= 0):
-        raise ValueError(f"device damping={damping!r} N·s/m must be ≥ 0 (a physical damper)")
-    if not (math.isfinite(period_s) and period_s > 0):
-        raise ValueError(f"device period_s={period_s!r} s must be > 0")
-    a = damping / mass
-    if a * period_s < 1e-9:
-        return np.array([[1.0, period_s], [0.0, 1.0]]), np.array([period_s**2 / (2 * mass), period_s / mass])
-    e = math.exp(-a * period_s)
-    one_minus_e_over_a = -math.expm1(-a * period_s) / a
-    A = np.array([[1.0, one_minus_e_over_a], [0.0, e]])
-    B = np.array([(period_s - one_minus_e_over_a) / damping, one_minus_e_over_a * a / damping])
-    return A, B
-
 
 AXES = {"x": [[1, 0, 0]], "y": [[0, 1, 0]], "z": [[0, 0, 1]], "xyz": np.eye(3).tolist()}
 

@@ -65,7 +65,7 @@ from godobject_drake.spatial import (
     quat_to_rotation,
     quats_to_rotations,
 )
-from godobject_drake.systems.coupling import GraspableBody, GraspingCoupling
+from godobject_drake.systems.coupling import _TERMS, TERMS_LAYOUT, GraspableBody, GraspingCoupling
 
 # Each spring's length at rest (m). A spring of stiffness k_j along the world axis e, its world end
 # LENGTH_M beyond its target point P along e and its rest length LENGTH_M, pulls its body point x
@@ -446,7 +446,6 @@ def implicit_terms(
     spring's world end (:meth:`ImplicitCoupling.world_points` of the logged target).
     ``pose_WG``/``V_WG`` are the held body's centre-of-mass frame; nothing held: T's.
     """
-    from godobject_drake.systems.coupling import _TERMS, TERMS_LAYOUT
 
     n = len(plant_states)
     out = np.zeros((n, _TERMS))
