@@ -1,9 +1,10 @@
 """The command line: ``python -m godobject_drake run SCENARIO.yaml [flags]``, ``python -m
 godobject_drake analyze SCENARIO.yaml --out DIR [flags]``, and the scene scripts.
 
-Every flag overrides one scenario field (``--help`` names it); a flag left out
-keeps the scenario's value. The scene scripts (``diagrams/*.py``) take the same
-flags through :func:`main`, with their own wiring as ``build``.
+Every named flag is an alias of one scenario field, ``--set FIELD=VALUE`` (``--help`` names the
+field; the few that set a second field declare it: :mod:`godobject_drake.config.flags`); a flag
+left out keeps the scenario's value. The scene scripts (``diagrams/*.py``) are ``run`` on their own
+scenario file (:func:`scene_main`): one build path for every entry point.
 """
 
 import argparse
@@ -22,8 +23,9 @@ from godobject_drake import __version__
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import INTERPOLATIONS
 from godobject_drake.config.devices import DEVICE_KINDS, kind_of, kinds_in
+from godobject_drake.config.flags import Flag, on_off
 from godobject_drake.config.gains import CouplingGainError
-from godobject_drake.config.tools import SHELL_MODELS, ShellSpecError
+from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError
 from godobject_drake.safeguards import WiringError
@@ -61,188 +63,102 @@ def device_help() -> str:
     return plain("; ".join(f"{name}: {' / '.join(texts)}" for name, texts in summaries.items()))
 
 
-# (flag, argparse options, help, the scenario field it sets)
+def _keep_rotation_ratio(given: float, s: sc.Scenario, flags: set) -> dict:
+    """``--omega-n`` without ``--omega-n-rot`` keeps the scenario's rotation-to-translation ratio."""
+    gains = s.god_object.gains
+    if gains.omega_n_rot is None or "--omega-n-rot" in flags:
+        return {}
+    return {"god_object.gains.omega_n_rot": gains.omega_r / gains.omega_n * given}
+
+
+def _contact_model(given: str, s: sc.Scenario, flags: set) -> dict:
+    """``--contact`` picks the plant's contact model with the geometry that touches."""
+    return {"plant.contact_model": "point" if given == "proxies" else "hydroelastic_with_fallback"}
+
+
+def _as_str(given, s) -> str:
+    return str(given)
+
+
+# Each flag is an alias of one scenario field (config.flags.Flag): --omega-n 30 is
+# --set god_object.gains.omega_n=30. The tool kinds add their own (config.tools: FLAGS).
 COMMON_FLAGS = (
-    (
-        "--mode",
-        dict(choices=sc.SIMULATION_MODES),
-        "god_object: the PD coupling; position: impose the device pose (the baseline)",
-        "simulation.mode",
-    ),
-    ("--duration", dict(type=float), "simulated time (s)", "simulation.duration_s"),
-    ("--time-step", dict(type=float), "plant step h (s)", "plant.time_step"),
-    (
-        "--device",
-        dict(choices=device_names),
-        device_help,
-        "device",
-    ),
-    (
-        "--lcm-url",
-        dict(),
-        "a device read over LCM: Drake's LCM URL (default Drake's: UDP multicast; memq:// stays in the "
-        "process)",
-        "device.url",
-    ),
-    (
-        "--device-log",
-        dict(type=Path),
-        "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
-        "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)",
-        "device.log",
-    ),
-    ("--device-rate", dict(type=float), "device rate (Hz)", "device.rate_hz"),
-    ("--device-latency", dict(type=float), "device latency (s)", "device.latency_s"),
-    (
-        "--device-interpolation",
-        dict(choices=INTERPOLATIONS),
-        "between device samples: hold, or linear (smooth, one period late)",
-        "device.interpolation",
-    ),
-    (
-        "--max-device-speed",
-        dict(type=float),
-        "a sample farther than this speed (m/s) could go is held back as a glitch; inf: off",
-        "device.guard.max_speed_m_s",
-    ),
-    (
-        "--device-noise",
-        dict(type=float),
-        "std. dev. of Gaussian noise on each device position sample (m), seeded by --seed",
-        "device.noise_m",
-    ),
-    ("--seed", dict(type=int), "seed of every random draw", "random_seed"),
-    ("--omega-n", dict(type=float), "coupling bandwidth ωn (rad/s)", "god_object.gains.omega_n"),
-    ("--zeta", dict(type=float), "coupling damping ratio ζ", "god_object.gains.zeta"),
-    (
-        "--omega-n-rot",
-        dict(type=float),
-        "rotational bandwidth (rad/s); left out with --omega-n, it keeps the scenario's ratio to ωn",
-        "god_object.gains.omega_n_rot",
-    ),
-    (
-        "--contact",
-        dict(choices=sc.CONTACT_GEOMETRIES),
-        "collision geometry: proxies (point contact) or hydroelastic",
-        "contact.geometry, plant.contact_model",
-    ),
-    (
-        "--contact-approximation",
-        dict(choices=("sap", "lagged", "similar")),
-        "Drake's discrete contact approximation",
-        "plant.discrete_contact_approximation",
-    ),
-    ("--record", dict(type=Path), "write a self-contained Meshcat HTML recording", "recording.file"),
-    (
-        "--meshcat",
-        dict(action="store_true"),
-        "serve the run live in Meshcat, at real-time rate",
-        "visualization.serve",
-    ),
-    (
-        "--meshcat-host",
-        dict(),
-        "the interface Meshcat listens on; default localhost (this machine only). Another host lets "
-        "anyone who reaches it drive the device: it is announced loudly; prefer an SSH tunnel",
-        "visualization.host",
-    ),
-    (
-        "--force-cue",
-        dict(choices=("on", "off")),
-        "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
-        "visualization.force_cue",
-    ),
-    (
-        "--tether",
-        dict(type=float),
-        "relative and live devices: re-index the target after each sample to stay within this "
-        "distance (m) of the god-object; inf: off",
-        "device.tether_m",
-    ),
-    (
-        "--tether-angle",
-        dict(type=float),
-        "relative and live devices: ... and within this angle (rad); inf: off",
-        "device.tether_angle_rad",
-    ),
-    (
-        "--cd-ratio",
-        dict(type=float),
-        "relative and live devices: the control/display ratio at the force cap; an increment pushing the "
-        "target away from a blocked god-object is divided by a ratio growing from 1 to this; 1: off",
-        "device.cd_ratio",
-    ),
-    (
-        "--cd-onset",
-        dict(type=float),
-        "relative and live devices: the stretch (m) where the control/display ratio starts to grow",
-        "device.cd_onset_m",
-    ),
-    (
-        "--sleep",
-        dict(choices=("on", "off")),
-        "lock free bodies that rest and that nothing can reach, so they cost nothing; off: all awake",
-        "sleep.enabled",
-    ),
-    ("--bricks", dict(type=int), "the brick scene's brick count: 8, and more on a grid in layers", "bricks"),
-    ("--metrics", dict(type=Path), "write the metrics JSON here", "metrics.file"),
-    ("--no-progress", dict(action="store_true"), "no progress bar", None),
-)
-HAPTIC_FLAGS = (
-    (
-        "--haptic",
-        dict(choices=sc.HAPTIC_MODES),
-        "none: the device's pose is the target; impedance: a simulated 3-axis haptic device held by a "
-        "simulated hand; admittance: a simulated admittance device",
-        "haptic.mode",
-    ),
-    ("--haptic-rate", dict(type=float), "haptic servo rate (Hz)", "haptic.rate_hz"),
-    ("--kd", dict(type=float), "feedback stiffness kd (N/m)", "feedback.kd"),
-    ("--gamma-d", dict(type=float), "feedback damping γd (N·s/m)", "feedback.gamma_d"),
-    (
-        "--passivity-damping",
-        dict(type=float),
-        "a passivity observer/controller on the impedance device's feedback, its damping capped at this "
-        "(N·s/m); 0: off",
-        "haptic.passivity_damping",
-    ),
-)
-# One flag for both kinds' couplings (argparse takes a flag once); each kind's check refuses the other's.
-COUPLING_FLAG = (
-    "--coupling",
-    dict(choices=(*sc.RIGID_COUPLINGS, *sc.ARTICULATED_COUPLINGS)),
-    f"coupling of the tool: rigid {'|'.join(sc.RIGID_COUPLINGS)}; "
-    f"articulated {'|'.join(sc.ARTICULATED_COUPLINGS)}",
-    "god_object.coupling",
-)
-# The god-object kinds' own flags, by scenario config (a kind without flags needs no entry).
-KIND_FLAGS = {
-    sc.Rigid: (COUPLING_FLAG, *HAPTIC_FLAGS),
-    sc.Articulated: (
-        COUPLING_FLAG,
-        ("--jaws", dict(choices=("imposed", "simulated")),
-         "imposed: the scenario's imposed joints (the paper's jaws); simulated: couple them like the rest",
-         "god_object.imposed_joints"),
-    ),
-    sc.Deformable: (
-        *HAPTIC_FLAGS,
-        ("--shell", dict(choices=SHELL_MODELS), "shell model", "god_object.shell"),
-        ("--youngs-modulus", dict(type=float), "shell's Young's modulus E (Pa)",
-         "god_object.spec.youngs_modulus_pa"),
-        ("--nodes", dict(type=int), "mass_spring: surface nodes", "god_object.spec.nodes"),
-        ("--fem-resolution", dict(type=float),
-         "fem: Drake's meshing hint (m); 0.03 / 0.02 / 0.01 give 25 / 129 / 833 vertices",
-         "god_object.spec.fem_resolution_m"),
-    ),
-}  # fmt: skip
+    Flag("--mode", "simulation.mode",
+         "god_object: the PD coupling; position: impose the device pose (the baseline)",
+         choices=sc.SIMULATION_MODES),
+    Flag("--duration", "simulation.duration_s", "simulated time (s)", type=float),
+    Flag("--time-step", "plant.time_step", "plant step h (s)", type=float),
+    Flag("--device", "device", device_help, choices=device_names),
+    Flag("--lcm-url", "device.url",
+         "a device read over LCM: Drake's LCM URL (default Drake's: UDP multicast; memq:// stays in the "
+         "process)"),
+    Flag("--device-log", "device.log",
+         "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
+         "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)", type=Path,
+         value=lambda given, s: str(given.resolve())),
+    Flag("--device-rate", "device.rate_hz", "device rate (Hz)", type=float),
+    Flag("--device-latency", "device.latency_s", "device latency (s)", type=float),
+    Flag("--device-interpolation", "device.interpolation",
+         "between device samples: hold, or linear (smooth, one period late)", choices=INTERPOLATIONS),
+    Flag("--max-device-speed", "device.guard.max_speed_m_s",
+         "a sample farther than this speed (m/s) could go is held back as a glitch; inf: off", type=float),
+    Flag("--device-noise", "device.noise_m",
+         "std. dev. of Gaussian noise on each device position sample (m), seeded by --seed", type=float),
+    Flag("--seed", "random_seed", "seed of every random draw", type=int),
+    Flag("--omega-n", "god_object.gains.omega_n", "coupling bandwidth ωn (rad/s); without --omega-n-rot "
+         "the rotation keeps the scenario's ratio to it", type=float, also=_keep_rotation_ratio),
+    Flag("--zeta", "god_object.gains.zeta", "coupling damping ratio ζ", type=float),
+    Flag("--omega-n-rot", "god_object.gains.omega_n_rot", "rotational bandwidth (rad/s)", type=float),
+    Flag("--contact", "contact.geometry", "collision geometry: proxies (point contact) or hydroelastic "
+         "(sets plant.contact_model too)", choices=sc.CONTACT_GEOMETRIES, also=_contact_model),
+    Flag("--contact-approximation", "plant.discrete_contact_approximation",
+         "Drake's discrete contact approximation", choices=("sap", "lagged", "similar")),
+    Flag("--haptic", "haptic.mode", "none: the device's pose is the target; impedance: a simulated 3-axis "
+         "haptic device held by a simulated hand; admittance: a simulated admittance device",
+         choices=sc.HAPTIC_MODES),
+    Flag("--haptic-rate", "haptic.rate_hz", "haptic servo rate (Hz)", type=float),
+    Flag("--kd", "feedback.kd", "feedback stiffness kd (N/m)", type=float),
+    Flag("--gamma-d", "feedback.gamma_d", "feedback damping γd (N·s/m)", type=float),
+    Flag("--passivity-damping", "haptic.passivity_damping",
+         "a passivity observer/controller on the impedance device's feedback, its damping capped at this "
+         "(N·s/m); 0: off", type=float),
+    Flag("--record", "recording.file", "write a self-contained Meshcat HTML recording", type=Path,
+         value=_as_str),
+    Flag("--meshcat", "visualization.serve", "serve the run live in Meshcat, at real-time rate",
+         action="store_true"),
+    Flag("--meshcat-host", "visualization.host",
+         "the interface Meshcat listens on; default localhost (this machine only). Another host lets "
+         "anyone who reaches it drive the device: it is announced loudly; prefer an SSH tunnel"),
+    Flag("--force-cue", "visualization.force_cue",
+         "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
+         choices=("on", "off"), value=on_off),
+    Flag("--tether", "device.tether_m", "relative and live devices: re-index the target after each sample "
+         "to stay within this distance (m) of the god-object; inf: off", type=float),
+    Flag("--tether-angle", "device.tether_angle_rad",
+         "relative and live devices: ... and within this angle (rad); inf: off", type=float),
+    Flag("--cd-ratio", "device.cd_ratio", "relative and live devices: the control/display ratio at the "
+         "force cap; an increment pushing the target away from a blocked god-object is divided by a ratio "
+         "growing from 1 to this; 1: off", type=float),
+    Flag("--cd-onset", "device.cd_onset_m",
+         "relative and live devices: the stretch (m) where the control/display ratio starts to grow",
+         type=float),
+    Flag("--sleep", "sleep.enabled",
+         "lock free bodies that rest and that nothing can reach, so they cost nothing; off: all awake",
+         choices=("on", "off"), value=on_off),
+    Flag("--bricks", "bricks", "the brick scene's brick count: 8, and more on a grid in layers", type=int),
+    Flag("--metrics", "metrics.file", "write the metrics JSON here", type=Path, value=_as_str),
+    Flag("--no-progress", None, "no progress bar", action="store_true"),
+)  # fmt: skip
 
 
-# The kind-specific flags, and the god-object kinds each applies to.
-FLAG_KINDS = {
-    flag: [kind for kind, flags in KIND_FLAGS.items() if any(f[0] == flag for f in flags)]
-    for flags in KIND_FLAGS.values()
-    for flag, *_ in flags
-}
+def all_flags() -> tuple[Flag, ...]:
+    """The common flags, then each registered tool kind's own (a flag two kinds share, once)."""
+    seen, out = set(), []
+    for flag in (*COMMON_FLAGS, *(f for config in TOOL_CONFIGS for f in getattr(config, "FLAGS", ()))):
+        if flag.name not in seen:
+            seen.add(flag.name)
+            out.append(flag)
+    return tuple(out)
 
 
 # Flags of a run that ``analyze`` has no use for: it writes no recording or metrics file, serves
@@ -254,19 +170,21 @@ RUN_ONLY_FLAGS = frozenset({
 })  # fmt: skip
 
 
-def add_arguments(parser: argparse.ArgumentParser, kinds=None, exclude=frozenset()) -> None:
-    """The flags: the common ones, and those of the god-object ``kinds`` (scenario config classes;
-    None: every kind's), but those in ``exclude``; each help names its field. Then ``--set``,
-    ``-v`` and ``-q``."""
-    seen = set(exclude)
-    for flags in (COMMON_FLAGS, *(KIND_FLAGS.get(k, ()) for k in (kinds or KIND_FLAGS))):
-        for flag, options, text, field in flags:
-            if flag not in seen:
-                seen.add(flag)
-                if callable(options.get("choices")):  # the device kinds, read from the registry now
-                    options = {**options, "choices": options["choices"]()}
-                text = text() if callable(text) else text
-                parser.add_argument(flag, help=f"{text} [{field}]" if field else text, **options)
+def add_arguments(parser: argparse.ArgumentParser, exclude=frozenset()) -> None:
+    """The flags (:func:`all_flags`) but those in ``exclude``, each help naming its field; then
+    ``--set``, ``-v`` and ``-q``."""
+    for flag in all_flags():
+        if flag.name in exclude:
+            continue
+        options = {"dest": flag.dest}
+        if flag.action:
+            options["action"] = flag.action
+        if flag.type:
+            options["type"] = flag.type
+        if flag.choices:
+            options["choices"] = flag.choices() if callable(flag.choices) else flag.choices
+        text = flag.help() if callable(flag.help) else flag.help
+        parser.add_argument(flag.name, help=f"{text} [{flag.field}]" if flag.field else text, **options)
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", dest="set_fields",
         help="set any scenario field, e.g. --set simulation.duration_s=2 or --set 'feedback={kd: 50}' "
@@ -374,121 +292,75 @@ def plain(text: str | None) -> str | None:
     return text.replace("``", "")
 
 
-def _given(args, name):
-    return getattr(args, name, None) is not None
+def flags_given(args: argparse.Namespace) -> list[Flag]:
+    """The flags given on the command line, in the table's order (a switch only when set)."""
+    return [
+        f
+        for f in all_flags()
+        if getattr(args, f.dest, None) is not None and getattr(args, f.dest) is not False
+    ]
 
 
 def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scenario:
-    """A copy of ``scenario`` with every given flag applied (raises ``ScenarioError`` naming the flag)."""
+    """A copy of ``scenario`` with every given flag applied: each sets its field (``--set FIELD=VALUE``),
+    ``--device`` first (it changes the device's kind, keeping its sampling). A flag whose field the
+    scenario's kinds do not have is refused naming the kinds that have it; a value the scenario's
+    checks refuse names the flag (raises ``ScenarioError``)."""
+    given = flags_given(args)
+    names = {f.name for f in given}
     s = copy.deepcopy(scenario)
-    kind = s.kind
-
-    def refuse(flag, why):
-        raise sc.ScenarioError(f"{flag}: {why}")
-
-    if _given(args, "mode"):
-        s.simulation.mode = args.mode
-    if _given(args, "duration"):
-        s.simulation.duration_s = args.duration
-    if _given(args, "time_step"):
-        s.plant.time_step = args.time_step
-    if _given(args, "seed"):
-        s.random_seed = args.seed
-    if _given(args, "device"):
-        s.device = switch_device(s, args.device, args.device_log)
-    elif _given(args, "device_log"):
-        refuse("--device-log", "give --device replay or --device relative with it")
-    device = s.device
-    pose = kind_of(device).space == "pose"
-    if _given(args, "lcm_url"):
-        if not hasattr(device, "url"):
-            refuse("--lcm-url", "give --device lcm with it")
-        device.url = args.lcm_url
-    if _given(args, "device_rate"):
-        if not (math.isfinite(args.device_rate) and args.device_rate > 0):
-            refuse("--device-rate", f"{args.device_rate!r} Hz must be > 0")
-        device.rate_hz = args.device_rate
-    if _given(args, "device_latency"):
-        device.latency_s = args.device_latency
-    for flag, name, field in (
-        ("--device-interpolation", "device_interpolation", "interpolation"),
-        ("--device-noise", "device_noise", "noise_m"),
-    ):
-        if _given(args, name):
-            if not pose:
-                refuse(flag, f"the scenario's joint-space device has no {field}; it is for pose devices")
-            setattr(device, field, getattr(args, name))
-    if _given(args, "max_device_speed"):
-        if not pose:
-            refuse("--max-device-speed", "the scenario's joint-space device has no sample guard")
-        device.guard = dataclasses.replace(device.guard, max_speed_m_s=args.max_device_speed)
-    for flag, field in (("--tether", "tether_m"), ("--tether-angle", "tether_angle_rad"),
-                        ("--cd-ratio", "cd_ratio"), ("--cd-onset", "cd_onset_m")):  # fmt: skip
-        if _given(args, flag[2:].replace("-", "_")):
-            if not kind_of(device).increments:
-                name = kind_of(device).name
-                refuse(
-                    flag,
-                    f"re-indexes a device's increments; the scenario's {name} device reports absolute "
-                    f"{'poses' if pose else 'joint values'}, which cannot be re-indexed (the target would "
-                    "leave the device). Use --device relative or --device meshcat",
-                )
-            setattr(device, field, getattr(args, flag[2:].replace("-", "_")))
-    gains = s.god_object.gains
-    if _given(args, "omega_n"):
-        ratio = gains.omega_r / gains.omega_n
-        gains.omega_n = args.omega_n
-        if gains.omega_n_rot is not None and not _given(args, "omega_n_rot"):
-            gains.omega_n_rot = ratio * args.omega_n
-    if _given(args, "zeta"):
-        gains.zeta = args.zeta
-    if _given(args, "omega_n_rot"):
-        gains.omega_n_rot = args.omega_n_rot
-    if _given(args, "record"):
-        s.recording.file = str(args.record)
-    if _given(args, "metrics"):
-        s.metrics.file = str(args.metrics)
-    if getattr(args, "meshcat", False):
-        s.visualization.serve = True
-    if _given(args, "meshcat_host"):
-        s.visualization.host = args.meshcat_host
-    if _given(args, "sleep"):
-        s.sleep.enabled = args.sleep == "on"
-    if _given(args, "bricks"):
-        s.bricks = args.bricks
-    if _given(args, "force_cue"):
-        s.visualization.force_cue = args.force_cue == "on"
-    for name, path in (
-        ("haptic", "mode"),
-        ("haptic_rate", "rate_hz"),
-        ("passivity_damping", "passivity_damping"),
-    ):
-        if _given(args, name):
-            setattr(s.haptic, path, getattr(args, name))
-    for name, field in (("kd", "kd"), ("gamma_d", "gamma_d")):
-        if _given(args, name):
-            setattr(s.feedback, field, getattr(args, name))
-    for flag, owners in FLAG_KINDS.items():
-        if _given(args, flag[2:].replace("-", "_")) and type(s.god_object) not in owners:
-            names = " and ".join(o.__name__.lower() for o in owners)
-            refuse(flag, f"applies to {names} god-objects; this scenario's is {kind}")
-    if _given(args, "contact"):
-        s.contact.geometry = args.contact
-        s.plant.contact_model = "point" if args.contact == "proxies" else "hydroelastic_with_fallback"
-    if _given(args, "contact_approximation"):
-        s.plant.discrete_contact_approximation = args.contact_approximation
-    if _given(args, "coupling"):
-        s.god_object.coupling = args.coupling
-    if _given(args, "jaws") and args.jaws == "simulated":
-        s.god_object.imposed_joints = []
-    if _given(args, "shell"):
-        s.god_object.shell = args.shell
-    for name, field in (("youngs_modulus", "youngs_modulus_pa"), ("nodes", "nodes"),
-                        ("fem_resolution", "fem_resolution_m")):  # fmt: skip
-        if _given(args, name):
-            setattr(s.god_object.spec, field, getattr(args, name))
-    sc.check_scenario(s, where="flags")
+    if "--device" in names:
+        s.device = switch_device(s, args.device, getattr(args, "device_log", None))
+    elif "--device-log" in names:
+        raise sc.ScenarioError("--device-log: give --device replay or --device relative with it")
+    fields: dict[str, tuple[str, object]] = {}
+    for flag in given:
+        if flag.field is None or flag.name in ("--device", "--device-log"):
+            continue
+        _check_field(s, flag)
+        raw = getattr(args, flag.dest)
+        fields[flag.field] = (flag.name, flag.value(raw, s) if flag.value else raw)
+        for field, value in (flag.also(raw, s, names) if flag.also else {}).items():
+            fields[field] = (flag.name, value)
+    s = sc.replace(s, **{field: value for field, (_, value) in fields.items()})
+    try:
+        sc.check_scenario(s, where="flags")
+    except sc.ScenarioError as e:
+        said = str(e).removeprefix("flags: ")
+        flag = next((name for field, (name, _) in fields.items() if said.startswith(field)), None)
+        raise sc.ScenarioError(f"{flag}: {said}" if flag else str(e)) from None
     return s
+
+
+def _check_field(s: sc.Scenario, flag: Flag) -> None:
+    """Refuse ``flag`` when the scenario's tool or device has no such field, naming the kinds that do."""
+    *parents, last = flag.field.split(".")
+    target = s
+    for name in parents:
+        target = getattr(target, name, None)
+    if target is not None and hasattr(target, last):
+        return
+    part = parents[0] if parents else last
+    kinds = TOOL_CONFIGS if part == "god_object" else list(DEVICE_KINDS) if part == "device" else []
+    having = [k for k in kinds if _has_field(k, flag.field.split(".", 1)[1])]
+    owner = getattr(s, part)
+    raise sc.ScenarioError(
+        f"{flag.name}: sets {flag.field}, which the scenario's !{type(owner).__name__} {part} has not; "
+        + (f"it is for {', '.join('!' + k.__name__ for k in having)}" if having else "no kind has it")
+    )
+
+
+def _has_field(config_type: type, path: str) -> bool:
+    """Whether a config type has the dotted field ``path`` (its defaults walked)."""
+    try:
+        target = config_type()
+    except TypeError:  # a kind of one's own without defaults
+        return False
+    for name in path.split("."):
+        if not hasattr(target, name):
+            return False
+        target = getattr(target, name)
+    return True
 
 
 def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:

@@ -255,7 +255,10 @@ def test_lag_quantiles_equal_numpy_to_a_bin():
 
 
 def test_lcm_flags_are_checked():
-    with pytest.raises(ScenarioError, match=r"--lcm-url: give --device lcm with it"):
+    with pytest.raises(
+        ScenarioError,
+        match=r"--lcm-url: sets device.url, which the scenario's !Scripted device has not; it is for !Lcm",
+    ):
         build_scene("lego", "--lcm-url", "memq://")
     with pytest.raises(ScenarioError, match=r"haptic.mode.*'impedance'.*set haptic.mode: none"):
         build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--haptic", "impedance")

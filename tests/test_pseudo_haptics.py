@@ -310,12 +310,13 @@ SCRIPTED_WITH_RATIO = (
 REFUSALS = {  # what is refused: (call, error, the value, the limit, the fix), as regular expressions
     "tether on a scripted device": (
         lambda: scenario("lego", "--tether", "0.002"), ScenarioError, r"--tether",
-        r"scripted device reports absolute poses, which cannot be re-indexed",
-        r"--device relative or --device meshcat",
+        r"!Scripted reports absolute poses, which cannot be re-indexed",
+        r"--device relative or meshcat",
     ),
     "ratio on a joint device": (
         lambda: scenario("laparoscopy", "--cd-ratio", "4"), ScenarioError, r"--cd-ratio",
-        r"absolute joint values", r"--device relative",
+        r"sets device.cd_ratio, which the scenario's !ScriptedJoints device has not",
+        r"it is for !Scripted, !Replay, !Relative",
     ),
     "ratio below 1": (
         lambda: scenario("lego", *RELATIVE, "--cd-ratio", "0.5"), ScenarioError, r"cd_ratio=0\.5",

@@ -26,6 +26,7 @@ from godobject_drake.config.scenario import (
 from godobject_drake.metrics import METRIC_KEYS
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station, make_meshcat
+from godobject_drake.station.loop import make_device
 
 # Keys every run's metrics have, whatever the scene (README "Metrics JSON").
 COMMON_KEYS = (
@@ -181,12 +182,16 @@ def test_a_scenario_from_text_runs_like_the_file(tmp_path):
 
 
 def test_flags_override_fields_and_keep_the_rotation_ratio():
+    log = REPO / "models" / "lego" / "push_and_return.csv"  # a real increment log (the paper's mouse)
     s = scenario("lego", "--omega-n", "20", "--time-step", "0.002", "--device", "relative",
-                 "--device-log", str(REPO / "diagrams" / "lego.yaml"))  # fmt: skip
+                 "--device-log", str(log))  # fmt: skip
     assert (s.god_object.gains.omega_n, s.god_object.gains.omega_n_rot) == (20.0, 60.0)  # 3x, as 40/120
     assert s.plant.time_step == 0.002 and type(s.device).__name__ == "Relative"
     np.testing.assert_allclose(s.device.start_xyz, [-0.10, 0.0, 0.0048])  # where the path starts
-    assert s.device.rate_hz == 60.0 and s.device.log.endswith("lego.yaml")
+    assert s.device.rate_hz == 60.0 and s.device.log == str(log)
+    device = make_device(s.device)  # the switched device reads the log: its first sample is the start
+    p0, _, _ = device.samples(0.0)[0][1]
+    np.testing.assert_allclose(p0, [-0.10, 0.0, 0.0048], atol=1e-12)
     # --coupling takes both kinds' couplings; each kind's check refuses the other's
     with pytest.raises(
         ScenarioError, match=r"god_object.coupling: 'joint_pd'; choose one of \('explicit', 'implicit'\)"
@@ -194,7 +199,11 @@ def test_flags_override_fields_and_keep_the_rotation_ratio():
         scenario("lego", "--coupling", "joint_pd")
     with pytest.raises(ScenarioError, match=r"god_object.coupling: 'implicit'; choose one of \('cartesian'"):
         scenario("laparoscopy", "--coupling", "implicit")
-    with pytest.raises(ScenarioError, match=r"--device-noise: the scenario's joint-space device"):
+    with pytest.raises(
+        ScenarioError,
+        match=r"--device-noise: sets device.noise_m, which the scenario's "
+        r"!ScriptedJoints device has not; it is for !Scripted, !Replay",
+    ):
         scenario("laparoscopy", "--device-noise", "0.001")
 
 

@@ -32,6 +32,7 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
 from pydrake.multibody.plant import MultibodyPlantConfig
 
+from godobject_drake.config import tools
 from godobject_drake.config.device_files import JointWaypoint, SampleGuard, Waypoint  # noqa: F401
 
 # The scenario's parts, re-exported: ``from godobject_drake.config import scenario as sc`` gives
@@ -75,10 +76,12 @@ from godobject_drake.config.tools import (  # noqa: F401
     ARTICULATED_COUPLINGS,
     RIGID_COUPLINGS,
     SHELL_MODELS,
+    TOOL_CONFIGS,
     Articulated,
     Deformable,
     Rigid,
     ShellSpec,
+    tool_union,
 )
 
 
@@ -142,7 +145,7 @@ class Scenario:
     plant: MultibodyPlantConfig = dataclasses.field(default_factory=default_plant_config)
     directives: list[ModelDirective] = dataclasses.field(default_factory=list)
     contact: Contact = dataclasses.field(default_factory=Contact)
-    god_object: Rigid | Articulated | Deformable = dataclasses.field(default_factory=Rigid)
+    god_object: tool_union() = dataclasses.field(default_factory=Rigid)
     device: device_union() = dataclasses.field(default_factory=Scripted)
     workspace: Workspace = dataclasses.field(default_factory=Workspace)
     feedback: FeedbackGains = dataclasses.field(default_factory=FeedbackGains)
@@ -171,7 +174,13 @@ def _retype_device() -> None:
     Scenario.__dataclass_fields__["device"].type = device_union()
 
 
+def _retype_tool() -> None:
+    """A tool kind registered after this module was imported: the ``god_object`` field takes its tag."""
+    Scenario.__dataclass_fields__["god_object"].type = tool_union()
+
+
 on_register(_retype_device)
+tools.on_register(_retype_tool)
 
 # The installed package godobject_models (the clone's models/ folder in an editable install): the
 # models a scenario names as package://godobject_models/...

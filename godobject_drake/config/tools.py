@@ -8,15 +8,27 @@ field types at run time.
 """
 
 import dataclasses
+import functools
 import math
+import operator
 from typing import TYPE_CHECKING, ClassVar
 
+from godobject_drake.config.flags import Flag
 from godobject_drake.config.gains import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
 
 if TYPE_CHECKING:
     from godobject_drake.config.scenario import Scenario
 
 SHELL_MODELS = ("fem", "mass_spring")
+RIGID_COUPLINGS = ("explicit", "implicit")
+ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
+
+# One --coupling for the kinds that have a coupling field; each kind's check refuses the other's.
+COUPLING_FLAG = Flag(
+    "--coupling", "god_object.coupling",
+    f"coupling of the tool: rigid {'|'.join(RIGID_COUPLINGS)}; articulated {'|'.join(ARTICULATED_COUPLINGS)}",
+    choices=(*RIGID_COUPLINGS, *ARTICULATED_COUPLINGS),
+)  # fmt: skip
 
 
 class ShellSpecError(ValueError):
@@ -147,6 +159,7 @@ class Rigid:
     coupling: str = "explicit"
 
     DEVICE_SPACE: ClassVar[str] = "pose"
+    FLAGS: ClassVar[tuple[Flag, ...]] = (COUPLING_FLAG,)
 
     def check(self, scenario: "Scenario") -> None:
         """Its coupling kind against the scene (the builder checks the gains against the step)."""
@@ -169,12 +182,6 @@ class Rigid:
             raise ValueError(
                 f"god_object.coupling: implicit with {why}. Or set god_object.coupling: explicit"
             )
-
-
-RIGID_COUPLINGS = ("explicit", "implicit")
-
-
-ARTICULATED_COUPLINGS = ("cartesian", "joint_pd", "joint_pd_sap")
 
 
 @dataclasses.dataclass
@@ -218,6 +225,14 @@ class Articulated:
     pivot_body: str = ""
 
     DEVICE_SPACE: ClassVar[str] = "joint"
+    FLAGS: ClassVar[tuple[Flag, ...]] = (
+        COUPLING_FLAG,
+        Flag("--jaws", "god_object.imposed_joints",
+             "imposed: the scenario's imposed joints (the paper's jaws); simulated: couple them like the "
+             "rest",
+             choices=("imposed", "simulated"),
+             value=lambda given, s: [] if given == "simulated" else list(s.god_object.imposed_joints)),
+    )  # fmt: skip
 
     def check(self, scenario: "Scenario") -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"`` (fields from the scenario's top)."""
@@ -261,8 +276,46 @@ class Deformable:
     gains: CouplingGains = dataclasses.field(default_factory=CouplingGains)
 
     DEVICE_SPACE: ClassVar[str] = "pose"
+    FLAGS: ClassVar[tuple[Flag, ...]] = (
+        Flag("--shell", "god_object.shell", "shell model", choices=SHELL_MODELS),
+        Flag("--youngs-modulus", "god_object.spec.youngs_modulus_pa", "shell's Young's modulus E (Pa)",
+             type=float),
+        Flag("--nodes", "god_object.spec.nodes", "mass_spring: surface nodes", type=int),
+        Flag("--fem-resolution", "god_object.spec.fem_resolution_m",
+             "fem: Drake's meshing hint (m); 0.03 / 0.02 / 0.01 give 25 / 129 / 833 vertices", type=float),
+    )  # fmt: skip
 
     def check(self, scenario: "Scenario") -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
         if self.shell not in SHELL_MODELS:
             raise ValueError(f"god_object.shell: {self.shell!r}; choose one of {SHELL_MODELS}")
+
+
+# -- the registry of tool configs ----------------------------------------------------------------------------
+
+TOOL_CONFIGS: list[type] = [Rigid, Articulated, Deformable]  # the first is an untagged mapping's kind
+_ON_REGISTER: list = []
+
+
+def register_tool_config(config_type: type) -> None:
+    """Make ``config_type`` a kind the scenario's ``god_object`` field takes (its YAML tag ``!Name``);
+    :func:`godobject_drake.station.kinds.tool_kind` calls it with the kind's builder."""
+    if config_type in TOOL_CONFIGS:
+        return
+    if not dataclasses.is_dataclass(config_type):
+        raise TypeError(f"tool kind {config_type.__name__} must be a dataclass")
+    if any(c.__name__ == config_type.__name__ for c in TOOL_CONFIGS):
+        raise ValueError(f"tool kind: the YAML tag !{config_type.__name__} is taken")
+    TOOL_CONFIGS.append(config_type)
+    for callback in _ON_REGISTER:
+        callback()
+
+
+def on_register(callback) -> None:
+    """Call ``callback()`` after each tool config registered from now on."""
+    _ON_REGISTER.append(callback)
+
+
+def tool_union():
+    """Every registered tool config as one union: the type of the scenario's ``god_object``."""
+    return functools.reduce(operator.or_, TOOL_CONFIGS)

@@ -17,6 +17,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder, System
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
+from godobject_drake.config.tools import register_tool_config
 from godobject_drake.station.haptic_chain import HapticChain
 
 if TYPE_CHECKING:
@@ -33,6 +34,7 @@ def tool_kind(config_type: type):
     scenario ``god_object`` config: :mod:`godobject_drake.config.tools`)."""
 
     def register(cls):
+        register_tool_config(config_type)  # the scenario's god_object field takes its tag
         other = TOOL_KINDS.get(config_type)
         if other is not None and other is not cls:
             raise ValueError(f"tool kind !{config_type.__name__} is registered already, as {other.__name__}")
