@@ -19,9 +19,9 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
 from pydrake.multibody.plant import MultibodyPlant
 
+from godobject_drake.config.scene import is_proxy
 from godobject_drake.outputs import dumps_metrics, write_atomically
 from godobject_drake.spatial import quats_to_rotations
-from godobject_drake.station.plant import is_proxy
 from godobject_drake.systems.coupling import GraspableBody, graspable_bodies
 
 

@@ -148,165 +148,188 @@ def simulate(
     it ran, its metrics marked ``partial``; Ctrl-C does too, then raises :class:`RunInterrupted`
     carrying the result.
     """
-    scenario = station.scenario
-    sim = scenario.simulation
-    duration = sim.duration_s if duration_s is None else float(duration_s)
-    if not (duration > 0 and np.isfinite(duration)):
-        raise ValueError(f"duration_s={duration!r} s must be > 0")
-    if duration > sim.duration_s and kind_of(scenario.device).needs_log:
-        raise ValueError(
-            f"duration_s={duration!r} s is past the scenario's simulation.duration_s={sim.duration_s!r} s, "
-            "and its device's log was read only that far: build the station with the longer duration"
-        )
-    record = record or scenario.recording.file or None
-    meshcat = station.meshcat
-    if record and meshcat is None:
-        raise ValueError(
-            f"record={str(record)!r}: the station has no Meshcat; build it with recording.file set "
-            "or pass build_station(..., meshcat=start_meshcat(port=0))"
-        )
-    live = station.live or scenario.visualization.serve
-    on_wall_clock = live or kind_of(scenario.device).real_time
-    rate = 1.0 if on_wall_clock else (sim.realtime_rate if realtime_rate is None else realtime_rate)
-    plant, god = station.plant, station.god_object
-    h = plant.time_step()
+    run = _Run(station, duration_s, record, realtime_rate, keep_logs)
+    run.loop(progress, checkpoint, checkpoint_period_s)
+    return run.finish()
 
-    simulator = Simulator(station.diagram)
-    root = simulator.get_mutable_context()
-    god.prepare(plant.GetMyMutableContextFromRoot(root))
-    simulator.set_target_realtime_rate(rate)
-    before_step = god.before_step(plant)
-    lag = None
-    if rate > 0:  # at real time: how late each plant step comes, against the wall clock
-        lag = RealtimeLag(rate, late_s=getattr(station.device, "period_s", h))
-        before_step = lag.wrap(before_step)
-    guard = install_safeguards(
-        simulator, plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
-        meshcat=meshcat if live else None, before_step=before_step, mode=god.mode, sleeper=station.sleeper,
-        wiring_checked=True,  # when the station was built (station.build.finish)
-        watch=god.diverged_part,
-    )  # fmt: skip
-    recording_steps = None
-    if record:
-        # Before Initialize: what the drawing sets at t = 0 (which ghost shows, its cue's colour)
-        # is a keyframe. Started after it, those went to the scene only, and the first keyframe of
-        # a later change (a release hiding the ghost) held for the whole recording before it.
-        meshcat.StartRecording(
-            frames_per_second=scenario.recording.frames_per_second, set_visualizations_while_recording=live
+
+class _Run:
+    """One run of :func:`simulate`: its setup (the constructor), its :meth:`loop` and its
+    :meth:`finish`, sharing what they measure as attributes."""
+
+    def __init__(self, station: Station, duration_s, record, realtime_rate, keep_logs: bool):
+        scenario = self.scenario = station.scenario
+        sim = scenario.simulation
+        duration = sim.duration_s if duration_s is None else float(duration_s)
+        if not (duration > 0 and np.isfinite(duration)):
+            raise ValueError(f"duration_s={duration!r} s must be > 0")
+        if duration > sim.duration_s and kind_of(scenario.device).needs_log:
+            raise ValueError(
+                f"duration_s={duration!r} s is past the scenario's simulation.duration_s={sim.duration_s!r} "
+                "s, and its device's log was read only that far: build the station with the longer duration"
+            )
+        self.record = record or scenario.recording.file or None
+        self.meshcat = meshcat = station.meshcat
+        if self.record and meshcat is None:
+            raise ValueError(
+                f"record={str(self.record)!r}: the station has no Meshcat; build it with recording.file set "
+                "or pass build_station(..., meshcat=start_meshcat(port=0))"
+            )
+        live = station.live or scenario.visualization.serve
+        on_wall_clock = live or kind_of(scenario.device).real_time
+        rate = 1.0 if on_wall_clock else (sim.realtime_rate if realtime_rate is None else realtime_rate)
+        self.station, self.plant, self.god = station, station.plant, station.god_object
+        self.h = h = self.plant.time_step()
+        self.simulator = Simulator(station.diagram)
+        self.root = root = self.simulator.get_mutable_context()
+        self.god.prepare(self.plant.GetMyMutableContextFromRoot(root))
+        self.simulator.set_target_realtime_rate(rate)
+        before_step = self.god.before_step(self.plant)
+        self.lag = None
+        if rate > 0:  # at real time: how late each plant step comes, against the wall clock
+            self.lag = RealtimeLag(rate, late_s=getattr(station.device, "period_s", h))
+            before_step = self.lag.wrap(before_step)
+        self.guard = install_safeguards(
+            self.simulator, self.plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
+            meshcat=meshcat if live else None, before_step=before_step, mode=self.god.mode,
+            sleeper=station.sleeper, wiring_checked=True,  # when the station was built (station.build.finish)
+            watch=self.god.diverged_part,
+        )  # fmt: skip
+        self.recording_steps = None
+        if self.record:
+            # Before Initialize: what the drawing sets at t = 0 (which ghost shows, its cue's colour)
+            # is a keyframe. Started after it, those went to the scene only, and the first keyframe of
+            # a later change (a release hiding the ghost) held for the whole recording before it.
+            meshcat.StartRecording(
+                frames_per_second=scenario.recording.frames_per_second,
+                set_visualizations_while_recording=live,
+            )
+            self.recording_steps = round(scenario.recording.max_duration_s / h)
+        self.simulator.Initialize()
+        self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,
+                               min(FALL_WATCH_S, duration))  # fmt: skip
+        self.logs = _Logs(station, root, keep_logs)
+        try:
+            self.measured, self.metrics_error = SceneMetrics(station), None
+        except Exception as e:  # a scene the metrics cannot measure still runs, and says why
+            self.measured, self.metrics_error = None, f"{type(e).__name__}: {e}"
+        self.n_steps = round(duration / h)
+        self.fold_every = max(
+            self.guard.every, round((REAL_TIME_FOLD_PERIOD_S if rate > 0 else FOLD_PERIOD_S) / h)
         )
-        recording_steps = round(scenario.recording.max_duration_s / h)
-    simulator.Initialize()
-    falls = FallWatch(plant, plant.GetMyContextFromRoot(root), god, min(FALL_WATCH_S, duration))
+        self.wall = self.folding = self.cpu = (
+            0.0  # cpu: the process's CPU time in the loop (load moves it less)
+        )
+        self.diagnosis, self.interrupted, self.zeroed = None, None, False
 
-    logs = _Logs(station, root, keep_logs)
-    try:
-        measured, metrics_error = SceneMetrics(station), None
-    except Exception as e:  # a scene the metrics cannot measure still runs, and says why
-        measured, metrics_error = None, f"{type(e).__name__}: {e}"
-
-    def fold():
-        nonlocal metrics_error
-        chunk = logs.drain()
-        if measured is not None and metrics_error is None:
+    def fold(self) -> None:
+        """The logs drained into the running metrics; a metric that fails is reported, never lost."""
+        chunk = self.logs.drain()
+        if self.measured is not None and self.metrics_error is None:
             try:
-                measured.update(chunk)
+                self.measured.update(chunk)
             except Exception as e:  # reported, never lost: the common metrics and the logs stand
-                metrics_error = f"{type(e).__name__}: {e}"
+                self.metrics_error = f"{type(e).__name__}: {e}"
 
-    def common(wall: float, folding: float, diagnosis: str | None, partial: bool) -> dict:
-        sim_time = root.get_time()
+    def common(self, partial: bool) -> dict:
+        """The metrics every scene has: what ran, how long it took, whether it diverged."""
+        sim_time, station = self.root.get_time(), self.station
         return {
-            "scene": scenario.name,
-            "mode": god.mode,
-            "time_step_s": h,
+            "scene": self.scenario.name,
+            "mode": self.god.mode,
+            "time_step_s": self.h,
             "sim_time_s": sim_time,
-            "wall_time_s": wall,
-            "cpu_time_s": cpu[0],
-            "real_time_factor": sim_time / wall if wall > 0 else None,
-            "step_cost_us": 1e6 * wall / max(round(sim_time / h), 1),
-            "metrics_time_s": folding,
-            "diverged": diagnosis is not None,
-            "diagnosis": diagnosis,
+            "wall_time_s": self.wall,
+            "cpu_time_s": self.cpu,
+            "real_time_factor": sim_time / self.wall if self.wall > 0 else None,
+            "step_cost_us": 1e6 * self.wall / max(round(sim_time / self.h), 1),
+            "metrics_time_s": self.folding,
+            "diverged": self.diagnosis is not None,
+            "diagnosis": self.diagnosis,
             "partial": partial,
             "predicted_static_penetration_m": station.predicted_penetration_m,
-            **configuration(scenario, station),
+            **configuration(self.scenario, station),
             **(station.sleeper.result() if station.sleeper is not None else {}),
         }
 
-    diagnosis, interrupted = None, None
-    n_steps = round(duration / h)
-    fold_every = max(guard.every, round((REAL_TIME_FOLD_PERIOD_S if rate > 0 else FOLD_PERIOD_S) / h))
-    bar = _progress(n_steps, progress)
-    wall, folding = 0.0, 0.0
-    cpu = [0.0]  # the process's CPU time in the loop: less sensitive than the wall to a loaded machine
-    k, next_fold = 0, fold_every
-    last_checkpoint = time.perf_counter()
-    try:
-        while k < n_steps and not guard.stopped:
-            k_next = min(k + guard.every, n_steps)
-            t0, c0 = time.perf_counter(), time.process_time()
-            simulator.AdvanceTo(k_next * h)
-            wall += time.perf_counter() - t0
-            cpu[0] += time.process_time() - c0
-            bar.update(k_next - k)
-            k = k_next
-            if recording_steps is not None and k >= recording_steps:
-                meshcat.StopRecording()  # the cap: the rest of the run is not recorded
-                recording_steps = None
-            if falls.pending and k * h >= falls.at_s - 0.5 * h:
-                falls.check(plant.GetMyContextFromRoot(root), root)
-            if k >= next_fold:
-                t0 = time.perf_counter()
-                fold()
-                folding += time.perf_counter() - t0
-                next_fold = k + fold_every
-            if checkpoint is not None and time.perf_counter() - last_checkpoint >= checkpoint_period_s:
-                checkpoint({**common(wall, folding, None, True), **_measured(measured, metrics_error)})
-                last_checkpoint = time.perf_counter()
-        guard.check()
-    except DivergenceError:
-        diagnosis = guard.diagnosis
-    except RuntimeError as e:
-        diagnosis = f"Drake stopped at t={root.get_time():.4f} s: {e}"
-        found = god.diverged_part(root, guard.max_speed)  # the likely cause, when it is ours
-        if found is not None:
-            diagnosis = f"{found[0]} diverged: {found[1]}. {diagnosis}"
-    except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM through the command line's handler
-        interrupted = e
-    finally:
-        bar.close()
-        zeroed = god.source.zero_feedback(root.get_time())  # never left pushing, whatever stopped it
-
-    partial = interrupted is not None or root.get_time() < n_steps * h - 0.5 * h
-    metrics = common(wall, folding, diagnosis, partial)
-    if lag is not None:
-        metrics.update(lag.result())
-    if guard.stopped:
-        metrics["stopped_by_user"] = True
-    if interrupted is not None:
-        metrics["interrupted"] = True
-    if zeroed:
-        metrics["feedback_zeroed_at_s"] = root.get_time()
-    if falls.fallen:
-        metrics["unsupported_bodies"] = falls.fallen
-    if record:  # before the last metrics: a metric that fails must not lose the recording
+    def loop(self, progress: bool, checkpoint, checkpoint_period_s: float) -> None:
+        """Advance to the end, a safeguard check period at a time, folding the logs as it goes; a
+        divergence, a Drake error or Ctrl-C ends it with its diagnosis, the device's feedback
+        zeroed whatever stopped it."""
+        h, guard, root = self.h, self.guard, self.root
+        bar = _progress(self.n_steps, progress)
+        k, next_fold = 0, self.fold_every
+        last_checkpoint = time.perf_counter()
         try:
-            metrics["recording_bytes"] = save_recording(meshcat, record)
-            metrics["recording_s"] = min(root.get_time(), scenario.recording.max_duration_s)
-        except OSError as e:  # outputs.OutputError names the file and keeps the last complete one
-            metrics["recording_error"] = str(e)
-    t0 = time.perf_counter()
-    fold()
-    metrics["metrics_time_s"] = folding + time.perf_counter() - t0
-    metrics.update(_measured(measured, metrics_error))
-    try:
-        metrics.update(god.device_metrics(root))
-    except Exception as e:
-        metrics.setdefault("metrics_error", f"{type(e).__name__}: {e}")
-    result = RunResult(metrics, station, simulator, guard, logs.kept())
-    if interrupted is not None:
-        raise RunInterrupted(result) from interrupted
-    return result
+            while k < self.n_steps and not guard.stopped:
+                k_next = min(k + guard.every, self.n_steps)
+                t0, c0 = time.perf_counter(), time.process_time()
+                self.simulator.AdvanceTo(k_next * h)
+                self.wall += time.perf_counter() - t0
+                self.cpu += time.process_time() - c0
+                bar.update(k_next - k)
+                k = k_next
+                if self.recording_steps is not None and k >= self.recording_steps:
+                    self.meshcat.StopRecording()  # the cap: the rest of the run is not recorded
+                    self.recording_steps = None
+                if self.falls.pending and k * h >= self.falls.at_s - 0.5 * h:
+                    self.falls.check(self.plant.GetMyContextFromRoot(root), root)
+                if k >= next_fold:
+                    t0 = time.perf_counter()
+                    self.fold()
+                    self.folding += time.perf_counter() - t0
+                    next_fold = k + self.fold_every
+                if checkpoint is not None and time.perf_counter() - last_checkpoint >= checkpoint_period_s:
+                    checkpoint({**self.common(True), **_measured(self.measured, self.metrics_error)})
+                    last_checkpoint = time.perf_counter()
+            guard.check()
+        except DivergenceError:
+            self.diagnosis = guard.diagnosis
+        except RuntimeError as e:
+            self.diagnosis = f"Drake stopped at t={root.get_time():.4f} s: {e}"
+            found = self.god.diverged_part(root, guard.max_speed)  # the likely cause, when it is ours
+            if found is not None:
+                self.diagnosis = f"{found[0]} diverged: {found[1]}. {self.diagnosis}"
+        except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM through the command line's handler
+            self.interrupted = e
+        finally:
+            bar.close()
+            self.zeroed = self.god.source.zero_feedback(root.get_time())  # never left pushing
+
+    def finish(self) -> RunResult:
+        """The metrics of what ran (the recording saved first: a metric that fails must not lose
+        it), the result; Ctrl-C raises :class:`RunInterrupted` carrying it."""
+        root = self.root
+        partial = self.interrupted is not None or root.get_time() < self.n_steps * self.h - 0.5 * self.h
+        metrics = self.common(partial)
+        if self.lag is not None:
+            metrics.update(self.lag.result())
+        if self.guard.stopped:
+            metrics["stopped_by_user"] = True
+        if self.interrupted is not None:
+            metrics["interrupted"] = True
+        if self.zeroed:
+            metrics["feedback_zeroed_at_s"] = root.get_time()
+        if self.falls.fallen:
+            metrics["unsupported_bodies"] = self.falls.fallen
+        if self.record:
+            try:
+                metrics["recording_bytes"] = save_recording(self.meshcat, self.record)
+                metrics["recording_s"] = min(root.get_time(), self.scenario.recording.max_duration_s)
+            except OSError as e:  # outputs.OutputError names the file and keeps the last complete one
+                metrics["recording_error"] = str(e)
+        t0 = time.perf_counter()
+        self.fold()
+        metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
+        metrics.update(_measured(self.measured, self.metrics_error))
+        try:
+            metrics.update(self.god.device_metrics(root))
+        except Exception as e:
+            metrics.setdefault("metrics_error", f"{type(e).__name__}: {e}")
+        result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
+        if self.interrupted is not None:
+            raise RunInterrupted(result) from self.interrupted
+        return result
 
 
 FALL_WATCH_S = 1.0  # a free body that drops this early on its own was left unsupported

@@ -7,7 +7,8 @@ import pytest
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.systems.haptic import HapticDevice, zoh_mass_damper
+from godobject_drake.limits import zoh_mass_damper
+from godobject_drake.systems.haptic import HapticDevice
 
 
 def test_zoh_closed_form_matches_matrix_exponential():

@@ -17,7 +17,8 @@ from conftest import (
 
 from godobject_drake.config.device_files import write_joint_log
 from godobject_drake.config.gains import CouplingGainError
-from godobject_drake.systems.articulated import device_targets, joint_space_loop, linear_response
+from godobject_drake.studies.joint_space import device_targets, linear_response
+from godobject_drake.systems.articulated import joint_space_loop
 
 
 def run(*flags):

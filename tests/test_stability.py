@@ -6,8 +6,8 @@ import control as ct
 import numpy as np
 import pytest
 
+from godobject_drake.limits import zoh_mass_damper
 from godobject_drake.studies import stability as st
-from godobject_drake.systems.haptic import zoh_mass_damper
 
 # -- the simulated body ----------------------------------------------------------------------------------
 

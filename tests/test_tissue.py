@@ -14,15 +14,12 @@ from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.studies.indentation import IndentationSetup, hertz_force, indent, layer_correction
 from godobject_drake.studies.stability import BodyLoop, coupled_body_matrices
-from godobject_drake.systems.tissue import (
-    ellipsoid_tet_mesh,
-    grid_tet_mesh,
+from godobject_drake.studies.tissue_stiffness import (
     linear_stiffness_matrix,
     ray_surface_hit,
     static_compliance,
-    surface_triangles,
-    tet_volumes,
 )
+from godobject_drake.systems.tissue import ellipsoid_tet_mesh, grid_tet_mesh, surface_triangles, tet_volumes
 
 RADII = (0.045, 0.03, 0.025)  # the uterus's semi-axes (models/laparoscopy/organs.sdf)
 DEEP_PATH = REPO / "models" / "laparoscopy" / "deep_press_path.yaml"

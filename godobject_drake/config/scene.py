@@ -22,6 +22,22 @@ def default_plant_config() -> MultibodyPlantConfig:
 CONTACT_GEOMETRIES = ("proxies", "hydroelastic")
 
 
+# Geometry names the contact settings go by (``Contact.geometry: proxies``).
+PROXY_PREFIX = "proxy_"
+CORNER_PREFIX = "proxy_corner_"  # a proxy at a vertex of its body's convex true shape
+FLAT_PREFIX = "flat_"  # a welded geometry only ever touched on one flat face (a floor, a baseplate)
+
+
+def local_name(name: str) -> str:
+    """A geometry's own name, without its model's scope (``brick_0::proxy_3`` → ``proxy_3``)."""
+    return name.rsplit("/", 1)[-1].rsplit("::", 1)[-1]
+
+
+def is_proxy(name: str) -> bool:
+    """True for a contact-proxy geometry name (scoped or not)."""
+    return local_name(name).startswith(PROXY_PREFIX)
+
+
 @dataclasses.dataclass
 class Contact:
     """Which geometry touches, and SAP's contact compliance.

@@ -42,6 +42,7 @@ class ArticulatedGodObject(GodObject):
 
     kind: ClassVar[str] = "articulated"
     device_space: ClassVar[str] = "joint"
+    loop_model: ClassVar[str] = "joint"
     sleeps_others: ClassVar[bool] = False
     no_prediction_reason: ClassVar[str] = (
         "articulated tool: its coupling has no force cap, so no worst-case pull to predict from"
@@ -59,6 +60,19 @@ class ArticulatedGodObject(GodObject):
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
             feedback_gains=scenario.feedback,
         )  # fmt: skip
+
+    @classmethod
+    def describe(cls, scenario) -> list[str]:
+        return [scenario.god_object.coupling]
+
+    @classmethod
+    def study_config(cls, scenario) -> dict:
+        return {**super().study_config(scenario), "coupling": scenario.god_object.coupling}
+
+    @classmethod
+    def pose_body(cls, scenario, grasp_names) -> str:
+        """The tool's tip body."""
+        return scenario.god_object.tip_body
 
     def logged_ports(self, plant):
         ports = {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}

@@ -28,9 +28,6 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.config.devices import kind_of
 from godobject_drake.safeguards import check_wiring
 from godobject_drake.sleeping import SleepManager
-
-# The tool kinds register themselves with kinds.tool_kind when their module is imported.
-from godobject_drake.station import articulated_tool, deformable_tool, rigid_tool  # noqa: F401
 from godobject_drake.station.kinds import GodObject, kind_for
 from godobject_drake.station.loop import add_device
 from godobject_drake.station.plant import SceneParts, add_plant

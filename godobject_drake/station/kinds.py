@@ -169,6 +169,36 @@ class GodObject:
         """What must happen before every plant step, or None."""
         return None
 
+    # -- what the studies ask of a kind (the speed-against-error benchmark, analyze) ------------------
+    compares_engines: ClassVar[bool] = False  # the brick scene's engine-neutral errors apply
+    # How the stability analysis models the loop: "body" (each held body's explicit spring,
+    # symplectic Euler), "implicit_body" (SAP's backward Euler on it) or "joint" (the articulated
+    # tool's joint-space loop). studies.analyze.LOOPS says what each is checked with.
+    loop_model: ClassVar[str] = "body"
+    tissue = None  # the FEM organ the tool presses (an articulated tool on organs.model fem)
+
+    @classmethod
+    def describe(cls, scenario) -> list[str]:
+        """The words of a run's label that say what this kind varies (after ``h=...``)."""
+        return []
+
+    @classmethod
+    def describe_tail(cls, scenario) -> list[str]:
+        """The words a run's label ends with (after the device rate and brick count)."""
+        return []
+
+    @classmethod
+    def study_config(cls, scenario) -> dict:
+        """What this kind varies, as report columns: ``contact``, ``approximation``, ``coupling``,
+        ``shell``, ``bricks``, ``sleep`` (None where it does not apply)."""
+        return dict.fromkeys(("contact", "approximation", "coupling", "shell", "bricks", "sleep"))
+
+    @classmethod
+    def pose_body(cls, scenario, grasp_names) -> str:
+        """The body whose pose is "the god-object's pose" in a study; ``grasp_names``: those the
+        device reports."""
+        raise NotImplementedError(f"{cls.__name__}.pose_body")
+
     def diverged_part(self, root_context, max_speed: float) -> tuple[str, str] | None:
         """``(part, what and likely cause)`` if a part outside the plant diverged (the haptic chain's
         simulated device). The safeguards ask at every check; a run Drake stopped asks it for the

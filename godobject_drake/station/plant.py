@@ -36,12 +36,9 @@ from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.scenario import MODELS_DIR
+from godobject_drake.config.scene import CORNER_PREFIX, FLAT_PREFIX, is_proxy, local_name
 from godobject_drake.systems.tissue import FemOrgan
 
-# The installed package godobject_models (the clone's models/ folder in an editable install).
-PROXY_PREFIX = "proxy_"
-CORNER_PREFIX = "proxy_corner_"  # a proxy at a vertex of its body's convex true shape
-FLAT_PREFIX = "flat_"  # a welded geometry only ever touched on one flat face (a floor, a baseplate)
 CONTACT_MODELS = ("proxies", "hydroelastic")
 # Drake's discrete contact approximations that work from Python on this scene kind (TAMSI is
 # deprecated in 1.51.1; a deformable body needs "sap").
@@ -56,15 +53,6 @@ def make_parser(plant: MultibodyPlant) -> Parser:
     if package_xml.is_file():
         parser.package_map().AddPackageXml(str(package_xml))
     return parser
-
-
-def _local(name: str) -> str:
-    return name.rsplit("/", 1)[-1].rsplit("::", 1)[-1]
-
-
-def is_proxy(name: str) -> bool:
-    """True for a contact-proxy geometry name (scoped or not)."""
-    return _local(name).startswith(PROXY_PREFIX)
 
 
 def set_contact_material(plant: MultibodyPlant, scene_graph: SceneGraph, **values: float) -> None:
@@ -123,9 +111,9 @@ def apply_contact_model(plant: MultibodyPlant, scene_graph: SceneGraph, contact:
     frames_with_proxies = {inspector.GetFrameId(g) for g in proxies}
     shapes_with_proxies = [g for g in true_shapes if inspector.GetFrameId(g) in frames_with_proxies]
     manager.Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(shapes_with_proxies)))
-    flat = [g for g in true_shapes if _local(inspector.GetName(g)).startswith(FLAT_PREFIX)]
+    flat = [g for g in true_shapes if local_name(inspector.GetName(g)).startswith(FLAT_PREFIX)]
     not_corners = shapes_with_proxies + [
-        g for g in proxies if not _local(inspector.GetName(g)).startswith(CORNER_PREFIX)
+        g for g in proxies if not local_name(inspector.GetName(g)).startswith(CORNER_PREFIX)
     ]
     if flat and not_corners:
         declaration = CollisionFilterDeclaration().ExcludeBetween(GeometrySet(flat), GeometrySet(not_corners))

@@ -23,6 +23,7 @@ import json
 import math
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import control as ct
@@ -58,10 +59,11 @@ from godobject_drake.studies.stability import (
     passivity_check,
     pipeline_impedance,
 )
+from godobject_drake.studies.tissue_stiffness import contact_stiffness, ray_surface_hit
 from godobject_drake.studies.validation import is_growing
 from godobject_drake.systems.articulated import joint_space_loop
 from godobject_drake.systems.coupling import graspable_bodies
-from godobject_drake.systems.tissue import contact_stiffness, ray_surface_hit, tool_capsules
+from godobject_drake.systems.tissue import tool_capsules
 
 WARN_FRACTION = 0.8  # a number past 80 % of its limit (less than 25 % margin) warns
 PUSH_IN_M = 0.05  # the verification holds the target this far inside the nearest obstacle
@@ -184,11 +186,6 @@ def _pose_tool_checks(station, out: dict) -> list[Check]:
 
 
 IMPLICIT_RATE_FLOOR = 0.8  # the implicit step response's decay rate, as a fraction of ωn, to pass
-
-
-def _is_implicit(station) -> bool:
-    """The scene's rigid god-object runs the implicit coupling (SAP's springs, docs/theory.md §7)."""
-    return getattr(station.scenario.god_object, "coupling", "explicit") == "implicit"
 
 
 def implicit_rate(omega: float, zeta: float, h: float) -> float:
@@ -388,7 +385,7 @@ def _tissue_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     """The FEM organ's stiffness where the tool presses it (from the FEM model, not a point
     stiffness), the indentation and force it gives under the device's deepest push, and the
     joint-space explicit limit with the tissue in the loop (docs/theory.md §8)."""
-    if getattr(station.god_object, "tissue", None) is None:
+    if station.god_object.tissue is None:
         return []
     press = _tissue_press(station, scenario.simulation.duration_s)
     out["_tissue_press"] = press
@@ -570,7 +567,7 @@ def _device_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     tau = scenario.contact.relaxation_time_s or h
     g = coupling.gains
     # The implicit coupling's spring is backward Euler like the contact (docs/theory.md §7).
-    scheme = "implicit_euler" if _is_implicit(station) else "drake"
+    scheme = "implicit_euler" if station.god_object.loop_model == "implicit_body" else "drake"
     loop = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, k_w=k_w, b_w=k_w * tau, scheme=scheme)
     dev = DeviceParams(haptic.device_mass_kg, haptic.device_damping, T, 0)
     pipe = Pipeline(loop, fb.kd, fb.gamma_d, T)
@@ -777,7 +774,7 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
     """Bisect a scale ``c`` on both bandwidths (``omega_n``, ``omega_n_rot``) in the user's
     scene: the held body is grasped at its start, pulled 3 cm away from the nearest obstacle
     and turned by 10°; stable if its error decays. Predicted: the smallest ``limit/(ω h)``."""
-    if station.god_object.device_space == "joint" or not out.get("explicit"):
+    if not out.get("explicit"):
         return None
     body = _held_body(station)
     rows = [r for r in out["explicit"] if r["body"] == body.name]
@@ -932,7 +929,7 @@ def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> C
     """The articulated tool's explicit limit in Drake: the device holds the worst configuration
     of the check, then steps every channel by 0.02; a scale ``c`` on both bandwidths is stable
     if the tool's joint speeds decay. Predicted: the joint-space model's largest scale."""
-    if station.god_object.device_space != "joint" or not out.get("explicit"):
+    if not out.get("explicit"):
         return None
     row = out["explicit"][0]
     predicted = row["bandwidth_scale_max"]
@@ -983,7 +980,7 @@ def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> C
         f"trust Drake's boundary: omega_n ≤ {_le(gains.omega_n * simulated)}, omega_n_rot ≤ "
         f"{_le(gains.omega_r * simulated)} rad/s"
     )  # fmt: skip
-    organ = getattr(station.god_object, "tissue", None)
+    organ = station.god_object.tissue
     if err > 0.02 and organ is not None and organ.spec.relaxation_time_s > h:
         tau = organ.spec.relaxation_time_s
         fix += (f"; the tissue's contact relaxation time ({tau:g} s) may set it: on the 8-cell organ "
@@ -1118,31 +1115,14 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
         "quick": quick,
         "verify": verify,
     }
-    joint_space = station.god_object.device_space == "joint"
-    if joint_space:
-        cfg = s.god_object
-        out["coupling"] = cfg.coupling
-        checks = _articulated_checks(station, out, s.simulation.duration_s, cfg.check_every)
-    else:
-        g = station.coupling.gains
-        out["gains"] = {"omega_n": g.omega_n, "zeta": g.zeta, "omega_n_rot": g.omega_r, "zeta_rot": g.zeta_r}
-        checks = (
-            _implicit_pose_checks(station, out) if _is_implicit(station) else _pose_tool_checks(station, out)
-        )
-        if _is_implicit(station):
-            out["coupling"] = "implicit"
+    loop = LOOPS[station.god_object.loop_model]
+    checks = loop.checks(station, out)
     checks += _contact_checks(station, s, out)
     checks += _tissue_checks(station, s, out)
-    if not joint_space:
-        checks += _device_checks(station, s, out)
-    else:
-        checks.append(Check("device", "haptic loop", "device", "info", None, None, "",
-                            "joint-space devices here are not haptic"))  # fmt: skip
+    checks += loop.device_checks(station, s, out)
     if verify:
         tol = 0.02 if quick else 0.005
-        for row in (_verify_penetration(station, s, out), _verify_explicit_limit(station, s, out, tol),
-                    _verify_implicit_rate(station, s, out),
-                    _verify_joint_space_limit(station, s, out, tol),
+        for row in (_verify_penetration(station, s, out), loop.verify(station, s, out, tol),
                     _verify_device_boundary(station, s, out, tol)):  # fmt: skip
             if row is not None:
                 checks.append(row)
@@ -1153,6 +1133,57 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     out["verdict"] = max((c.verdict for c in checks), key=order.__getitem__, default="ok")
     out["elapsed_s"] = time.perf_counter() - start
     return out
+
+
+def _body_checks(station, out: dict) -> list[Check]:
+    """A rigid or deformable tool's per-body explicit limits (symplectic Euler on its spring)."""
+    _gains_row(station, out)
+    return _pose_tool_checks(station, out)
+
+
+def _implicit_body_checks(station, out: dict) -> list[Check]:
+    """The implicit coupling's per-body decay rate and SAP regime (backward Euler on its spring)."""
+    _gains_row(station, out)
+    out["coupling"] = "implicit"
+    return _implicit_pose_checks(station, out)
+
+
+def _joint_checks(station, out: dict) -> list[Check]:
+    """The articulated tool's joint-space loop at every ``check_every``-th device sample."""
+    cfg = station.scenario.god_object
+    out["coupling"] = cfg.coupling
+    return _articulated_checks(station, out, station.scenario.simulation.duration_s, cfg.check_every)
+
+
+def _gains_row(station, out: dict) -> None:
+    g = station.coupling.gains
+    out["gains"] = {"omega_n": g.omega_n, "zeta": g.zeta, "omega_n_rot": g.omega_r, "zeta_rot": g.zeta_r}
+
+
+def _no_haptic_device(station, scenario, out: dict) -> list[Check]:
+    return [Check("device", "haptic loop", "device", "info", None, None, "",
+                  "joint-space devices here are not haptic")]  # fmt: skip
+
+
+def _verify_implicit(station, scenario, out: dict, rel_tol: float) -> Check | None:
+    return _verify_implicit_rate(station, scenario, out)
+
+
+@dataclasses.dataclass(frozen=True)
+class Loop:
+    """How ``analyze`` checks a loop model (a tool kind's ``loop_model``): its own rows, its haptic
+    device's rows, and the prediction it simulates in Drake with ``--verify``."""
+
+    checks: Callable
+    device_checks: Callable
+    verify: Callable
+
+
+LOOPS = {
+    "body": Loop(_body_checks, _device_checks, _verify_explicit_limit),
+    "implicit_body": Loop(_implicit_body_checks, _device_checks, _verify_implicit),
+    "joint": Loop(_joint_checks, _no_haptic_device, _verify_joint_space_limit),
+}
 
 
 # -- the report -------------------------------------------------------------------------------------------

@@ -19,13 +19,13 @@ import time
 
 import numpy as np
 
-from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.scenario import Scenario, scenario_from_yaml, scenario_to_yaml, shipped_scenario
 from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
 from godobject_drake.simulation import simulate
 from godobject_drake.spatial import quat_to_rotation
 from godobject_drake.station.build import build_station
+from godobject_drake.station.kinds import kind_for
 from godobject_drake.station.loop import make_device
 from godobject_drake.station.plant import add_plant
 from godobject_drake.systems.coupling import GodObjectCoupling, graspable_bodies
@@ -91,52 +91,39 @@ def make_case(scenario: Scenario, label: str | None = None, repeats: int = 3, en
 
 
 def describe(scenario: Scenario, short: bool = False) -> str:
-    """``h=1ms proxies sap``, ``h=1ms cartesian``, ``h=10ms fem``, with ``dev=250Hz`` off 60 Hz."""
+    """``h=1ms proxies sap``, ``h=1ms cartesian``, ``h=10ms fem``, with ``dev=250Hz`` off 60 Hz: the
+    tool kind says what it varies (:meth:`~godobject_drake.station.kinds.GodObject.describe`)."""
+    kind = kind_for(scenario.god_object)
     parts = [f"h={scenario.time_step * 1e3:g}ms"]
     if not short:
-        god = scenario.god_object
-        if isinstance(god, sc.Articulated):
-            parts.append(god.coupling)
-        elif isinstance(god, sc.Deformable):
-            parts.append(god.shell)
-        else:
-            parts += [scenario.contact.geometry, scenario.plant.discrete_contact_approximation]
-            if god.coupling != "explicit":  # the explicit coupling's labels stay as they were
-                parts.append(god.coupling)
+        parts += kind.describe(scenario)
     if scenario.device.rate_hz != 60.0:
         parts.append(f"dev={scenario.device.rate_hz:g}Hz")
     if scenario.bricks:
         parts.append(f"bricks={scenario.bricks}")
-    if not scenario.sleep.enabled and isinstance(scenario.god_object, sc.Rigid):
-        parts.append("awake")
-    return " ".join(parts)
+    return " ".join(parts + kind.describe_tail(scenario))
 
 
 def case_config(scenario: Scenario, case: Case) -> dict:
     """What a case varies, as a flat dict for reports: scene, time_step, duration, device_rate,
-    and per kind contact and approximation (rigid), coupling (rigid: explicit or implicit;
-    articulated; the MuJoCo mode for a MuJoCo case), shell (deformable), engine, repeats; None
-    where it does not apply."""
-    god = scenario.god_object
+    what the tool kind varies (:meth:`~godobject_drake.station.kinds.GodObject.study_config`:
+    contact and approximation, coupling, shell, bricks, sleep; None where it does not apply),
+    engine, repeats. A MuJoCo case (the brick scene's peer) has its mode as the coupling, its
+    sleeping islands as sleep, and no Drake contact settings."""
+    config = kind_for(scenario.god_object).study_config(scenario)
     mujoco = case.engine == "mujoco"
-    bricks = isinstance(god, sc.Rigid)  # the brick scene: contact settings, brick count, sleep
-    rigid = bricks and not mujoco
-    coupling = (
-        case.mujoco_mode if mujoco else (god.coupling if isinstance(god, sc.Articulated | sc.Rigid) else None)
-    )
+    if mujoco:
+        config.update(contact=None, approximation=None, coupling=case.mujoco_mode, sleep=case.mujoco_sleep)
     return {
         "scene": scenario.name,
         "time_step": scenario.time_step,
         "duration": scenario.simulation.duration_s,
         "device_rate": scenario.device.rate_hz,
-        "contact": scenario.contact.geometry if rigid else None,
-        "approximation": scenario.plant.discrete_contact_approximation if rigid else None,
-        "coupling": coupling,
-        "shell": god.shell if isinstance(god, sc.Deformable) else None,
+        **{k: config[k] for k in ("contact", "approximation", "coupling", "shell")},
         "engine": case.engine,
         "repeats": case.repeats,
-        "bricks": max(scenario.bricks, 8) if bricks else None,
-        "sleep": None if not bricks else (case.mujoco_sleep if mujoco else scenario.sleep.enabled),
+        "bricks": config["bricks"],
+        "sleep": config["sleep"],
         "mujoco_timeconst_s": case.mujoco_timeconst_s if mujoco else None,
         "mujoco_cone": case.mujoco_cone if mujoco else None,
     }
@@ -165,17 +152,10 @@ def machine() -> str:
 
 
 def god_object_body(scenario: Scenario) -> str:
-    """The body whose pose is "the god-object's pose": the first body a rigid scene's device
-    grasps, an articulated tool's tip body, a deformable probe's core."""
-
-    if isinstance(scenario.god_object, sc.Articulated):
-        return scenario.god_object.tip_body
-    if isinstance(scenario.god_object, sc.Deformable):
-        return scenario.god_object.name
-    names = sorted(make_device(scenario.device).grasp_names())
-    if not names:
-        raise ValueError("the scenario's device grasps no body: no god-object pose to compare")
-    return names[0]
+    """The body whose pose is "the god-object's pose" (the tool kind says which: the first body a
+    rigid scene's device grasps, an articulated tool's tip body, a deformable probe's core)."""
+    kind = kind_for(scenario.god_object)
+    return kind.pose_body(scenario, make_device(scenario.device).grasp_names())
 
 
 def run_case(case: Case) -> dict:
@@ -227,7 +207,7 @@ def run_case(case: Case) -> dict:
         q_WG=q,
         energy_j=energy,
     )
-    if isinstance(scenario.god_object, sc.Rigid):
+    if kind_for(scenario.god_object).compares_engines:
         # Every stride-th step: at h = 4 ms that is every 8 ms, not every 10.
         stride = max(1, round(SAMPLE_DT_S / scenario.time_step))
         out.update(engine_neutral_errors(scenario, first.states[::stride], stride * scenario.time_step))

@@ -127,9 +127,9 @@ except ImportError as e:  # an optional extra, never a runtime dependency of god
     ) from e
 
 from godobject_drake.config.device_files import load_device_path
+from godobject_drake.config.scenario import MODELS_DIR
 from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.spatial import quat_conjugate, quat_multiply, quat_to_rotation
-from godobject_drake.station.plant import MODELS_DIR
 
 MODES = ("weld", "perturb")
 

@@ -164,7 +164,14 @@ class ArticulatedTool:
         )
         self.coupled = [j for j in self.joints if not j.imposed]
         self.imposed = [j for j in self.joints if j.imposed]
+        self._find_bodies(device_joints)
+        self._context = plant.CreateDefaultContext()
+        self._body_objs = [plant.get_body(BodyIndex(b.index)) for b in self.bodies]
 
+    def _find_bodies(self, device_joints) -> None:
+        """The coupled bodies (:attr:`bodies`), their parents among them, and their order from the
+        leaves in (:attr:`leaves_first`)."""
+        plant = self.plant
         # Bodies whose path to the world runs through device joints and welds only.
         device_set = {j.index for j in self.joints}
         inboard = {}
@@ -221,8 +228,6 @@ class ArticulatedTool:
                 d, p = d + 1, self.bodies[p].parent
             depth.append(d)
         self.leaves_first = sorted(range(len(self.bodies)), key=lambda k: -depth[k])
-        self._context = plant.CreateDefaultContext()
-        self._body_objs = [plant.get_body(BodyIndex(b.index)) for b in self.bodies]
 
     # -- kinematics of the device (the kinematic copy) --------------------------------
     def set_device_state(self, q_device: np.ndarray, qdot_device: np.ndarray | None = None, x=None):
@@ -345,47 +350,6 @@ def joint_space_loop(tool: ArticulatedTool, coupling: str, gains: CouplingGains,
     return JointSpaceLoop(M, K, D, time_step, radius, float(math.sqrt(max(lam.max(initial=0.0), 0.0))))
 
 
-def device_targets(device, time_step: float, n_steps: int, coupling_offset: float = 0.5):
-    """The joint targets ``(q_T, qdot_T)`` in effect during each plant step, as the coupling holds them.
-
-    The device samples at ``kT``; the coupling copies the sample at
-    ``kT + ½h``, so plant step n (from ``nh``) uses sample
-    ``k = ⌊(n − ½) h / T⌋`` (the reference before the first), with the
-    backward-difference rate ``(q_k − q_{k−1}) / T``.
-    """
-    T = device.period_s
-    q_T, v_T = [], []
-    for n in range(n_steps):
-        k = max(math.floor(((n - coupling_offset) * time_step) / T + 1e-9), 0)
-        q_k = device.sample(k * T)
-        q_T.append(q_k)
-        v_T.append((q_k - device.sample((k - 1) * T)) / T if k > 0 else np.zeros_like(q_k))
-    return np.array(q_T), np.array(v_T)
-
-
-def linear_response(loop: JointSpaceLoop, q0, q_T, v_T, implicit: bool) -> np.ndarray:
-    """Joint positions of the linearized coupled tool, step by step (no contact, gravity compensated).
-
-    Explicit (Drake's applied forces): ``v⁺ = v + h M⁻¹(K (q_T − q) + D (v_T − v))``;
-    implicit (SAP's PD actuators): the same with ``q + h v⁺`` and ``v⁺`` in
-    the force. ``q_T``, ``v_T``: (N, n) targets per step, on the coupled
-    joints. Returns (N + 1, n) positions, ``q0`` first.
-    """
-    M, K, D, h = loop.M, loop.K, loop.D, loop.time_step
-    q = np.array(q0, dtype=float)
-    v = np.zeros_like(q)
-    A = M + h * D + h * h * K
-    out = [q.copy()]
-    for qt, vt in zip(q_T, v_T, strict=True):
-        if implicit:
-            v = np.linalg.solve(A, M @ v + h * (K @ (qt - q) + D @ vt))
-        else:
-            v = v + h * np.linalg.solve(M, K @ (qt - q) + D @ (vt - v))
-        q = q + h * v
-        out.append(q.copy())
-    return np.array(out)
-
-
 class ArticulatedCoupling(LeafSystem):
     """Couples an articulated tool to a joint-space device (paper Eq. 6 or joint PD).
 
@@ -457,20 +421,7 @@ class ArticulatedCoupling(LeafSystem):
         self.joint_inertia = tool.joint_inertia(q_reference)
         self.K = gains.omega_n**2 * self.joint_inertia
         self.D = 2.0 * gains.zeta * gains.omega_n * self.joint_inertia
-        self.loops = []
-        if coupling != "joint_pd_sap" and check_gains and h > 0:
-            for q in [q_reference] if q_check is None else q_check:
-                loop = joint_space_loop(tool, coupling, gains, np.asarray(q, float), h)
-                self.loops.append(loop)
-                if loop.radius >= 1.0:
-                    raise CouplingGainError(
-                        f"coupling={coupling!r} with omega_n={gains.omega_n:g}, omega_n_rot="
-                        f"{gains.omega_r:g} rad/s at time_step={h:g} s is unstable at the device "
-                        f"configuration q={np.round(q, 4).tolist()}: the explicit (symplectic Euler) "
-                        f"joint-space loop has spectral radius {loop.radius:.4f} ≥ 1 (fastest mode "
-                        f"{loop.omega_max:.4g} rad/s, ω·h = {loop.omega_max * h:.3g}). Lower the "
-                        f"bandwidths or time_step, or use coupling='joint_pd_sap' (implicit)."
-                    )
+        self.loops = self._check_loops(q_reference, q_check) if check_gains and h > 0 else []
         if coupling == "joint_pd_sap":
             self._setup_actuators()
 
@@ -534,6 +485,27 @@ class ArticulatedCoupling(LeafSystem):
         self.DeclareVectorOutputPort("q_target", tool.nq_device, self._calc_q_target, {self.xd_ticket()})
 
     # -- setup -------------------------------------------------------------------
+    def _check_loops(self, q_reference, q_check) -> list[JointSpaceLoop]:
+        """The explicit modes' joint-space loop at each device configuration to check (the
+        reference by default); gains whose loop has spectral radius ≥ 1 somewhere are refused."""
+        if self.coupling == "joint_pd_sap":
+            return []
+        tool, coupling, gains, h = self.tool, self.coupling, self.gains, self.tool.plant.time_step()
+        loops = []
+        for q in [q_reference] if q_check is None else q_check:
+            loop = joint_space_loop(tool, coupling, gains, np.asarray(q, float), h)
+            loops.append(loop)
+            if loop.radius >= 1.0:
+                raise CouplingGainError(
+                    f"coupling={coupling!r} with omega_n={gains.omega_n:g}, omega_n_rot="
+                    f"{gains.omega_r:g} rad/s at time_step={h:g} s is unstable at the device "
+                    f"configuration q={np.round(q, 4).tolist()}: the explicit (symplectic Euler) "
+                    f"joint-space loop has spectral radius {loop.radius:.4f} ≥ 1 (fastest mode "
+                    f"{loop.omega_max:.4g} rad/s, ω·h = {loop.omega_max * h:.3g}). Lower the "
+                    f"bandwidths or time_step, or use coupling='joint_pd_sap' (implicit)."
+                )
+        return loops
+
     def _device_slice(self, joint: ToolJoint) -> slice:
         start = 0
         for j in self.tool.joints:
@@ -822,9 +794,7 @@ __all__ = [
     "JointSpaceLoop",
     "ToolBody",
     "ToolJoint",
-    "device_targets",
     "generalized_forces",
     "joint_space_loop",
-    "linear_response",
     "propagate_to_parents",
 ]
