@@ -272,13 +272,6 @@ class RigidMetrics:
         }
 
 
-def compute_metrics(shapes: TrueShapeMetrics, states: np.ndarray, held: np.ndarray, p_WT: np.ndarray) -> dict:
-    """:class:`RigidMetrics` of whole logs at once."""
-    acc = RigidMetrics(shapes)
-    acc.update(states, held, p_WT)
-    return acc.result()
-
-
 def _cm_positions(body: GraspableBody, states: np.ndarray) -> np.ndarray:
     R = _rotations(states[:, body.q_start : body.q_start + 4])
     return states[:, body.q_start + 4 : body.q_start + 7] + R @ body.p_BoBcm_B
@@ -448,13 +441,6 @@ class ToolMetrics:
         return out
 
 
-def tool_metrics(diagram, plant, scene_graph, tool, states, q_device, tip_body: str, pivot_body=None) -> dict:
-    """:class:`ToolMetrics` of whole logs at once."""
-    acc = ToolMetrics(diagram, plant, scene_graph, tool, tip_body, pivot_body)
-    acc.update(states, q_device)
-    return acc.result()
-
-
 class ShellMetrics:
     """Deformation and penetration of a deformable god-object, folded in chunk by chunk.
 
@@ -523,13 +509,6 @@ class ShellMetrics:
             "rms_tracking_error_m": math.sqrt(self.sq_err / self.n_free) if self.n_free else None,
             "free_space_samples": self.n_free,
         }
-
-
-def shell_metrics(diagram, plant, shell, obstacles, states, vertices, rest, pose_WC, pose_WT) -> dict:
-    """:class:`ShellMetrics` of whole logs at once."""
-    acc = ShellMetrics(diagram, plant, shell, obstacles)
-    acc.update(states, vertices, rest, pose_WC, pose_WT)
-    return acc.result()
 
 
 REVERSAL_MOVE_M = 1e-3  # the god-object has answered a reversal once it moved this far back
@@ -631,12 +610,6 @@ class SeparationMetrics:
         return out
 
 
-def device_reversals(device, min_travel_m: float = 2 * REVERSAL_MOVE_M) -> list[tuple[float, np.ndarray]]:
-    """Where an increment device turns back
-    (:meth:`~godobject_drake.devices.sources.RelativeDevice.reversals`)."""
-    return device.reversals(min_travel_m)
-
-
 class SceneMetrics:
     """A station's metrics (by god-object kind), folded in from its logs chunk by chunk.
 
@@ -670,10 +643,3 @@ class SceneMetrics:
 
     def result(self) -> dict:
         return {**self._acc.result(), **self._sep.result()}
-
-
-def scene_metrics(station, data: dict) -> dict:
-    """:class:`SceneMetrics` of whole logs at once."""
-    acc = SceneMetrics(station)
-    acc.update(data)
-    return acc.result()

@@ -10,6 +10,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import theory
 from conftest import REPO, build_scene, lego_run, scenario, shared_run
 
 from godobject_drake.config.device_files import IncrementLog, load_device_path, write_increment_log
@@ -123,7 +124,7 @@ def test_passivity_controller_stops_the_active_loop_giving_energy():
 @pytest.mark.parametrize("cap", [20.0, 100.0])
 def test_passivity_controller_stabilizes_a_stiffness_past_the_limit(cap):
     sc = va.HapticScenario(DEVICE, **STIFF)
-    sc = dataclasses.replace(sc, kd=1.5 * va.predicted_device_k_max(sc))
+    sc = dataclasses.replace(sc, kd=1.5 * theory.predicted_device_k_max(sc))
     off = va.simulate_haptic(sc, 0.4, v0_device=1e-3)
     on = va.simulate_haptic(dataclasses.replace(sc, passivity_max_damping=cap), 0.4, v0_device=1e-3)
     assert va.is_growing(off.x_device)

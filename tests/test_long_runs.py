@@ -16,9 +16,9 @@ import time
 
 import msgpack
 import pytest
+import theory
 from conftest import REPO, build_scene, meshcat_commands, run_scene, shared_run
 
-from godobject_drake.metrics import scene_metrics
 from godobject_drake.simulation import simulate
 
 # One 2x4 brick on the brick scene's baseplate, lifted and held: a cheap scene (one free body)
@@ -47,7 +47,7 @@ def test_streamed_metrics_equal_the_whole_log_ones(name):
     """The default path, folded every simulated second, against the same logs measured at once
     (the run test_lego, test_laparoscopy, test_deformable and test_sleeping read too)."""
     result = shared_run(name)
-    streamed, whole = result.metrics, scene_metrics(result.station, result.data)
+    streamed, whole = result.metrics, theory.scene_metrics(result.station, result.data)
     for key, value in whole.items():
         if isinstance(value, float):
             assert streamed[key] == pytest.approx(value, rel=1e-12, abs=1e-15), key  # sums, chunk by chunk

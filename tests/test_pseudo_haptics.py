@@ -30,7 +30,7 @@ from godobject_drake.config.device_files import (
 from godobject_drake.config.scenario import ScenarioError, scenario_from_yaml
 from godobject_drake.devices.live import GRASP_BUTTON
 from godobject_drake.devices.sources import DeviceSource, RelativeDevice, ScriptedDevice
-from godobject_drake.metrics import SeparationMetrics, device_reversals
+from godobject_drake.metrics import REVERSAL_MOVE_M, SeparationMetrics
 from godobject_drake.spatial import rotation_error
 from godobject_drake.systems.coupling import TERMS_LAYOUT, graspable_bodies
 
@@ -89,7 +89,7 @@ def test_the_shipped_increments_are_the_push_and_return_path():
     np.testing.assert_array_equal(shipped.dp, again.dp)
     assert shipped.grasp == again.grasp and not shipped.clutch.any()
     # one turning back, at the first sample after 2.25 s, straight back along −x
-    ((t, d),) = device_reversals(RelativeDevice(shipped))
+    ((t, d),) = RelativeDevice(shipped).reversals(2 * REVERSAL_MOVE_M)
     assert t == pytest.approx(136 / 60) and d == pytest.approx([-1, 0, 0])
 
 
@@ -227,7 +227,7 @@ def test_reversal_latency_with_and_without_the_tether(runs):
     untethered it is the overshoot's travel time back."""
     rise = model_latency(0.0)
     assert rise == pytest.approx(0.0158, abs=2e-4)
-    ((t_rev, _),) = device_reversals(runs["none"].station.device)
+    ((t_rev, _),) = runs["none"].station.device.reversals(2 * REVERSAL_MOVE_M)
     k = math.ceil(t_rev / H - 1e-9)
     latency = {name: run.metrics["reversal_latency_max_s"] for name, run in runs.items()}
     s_rev = {name: separation(run)[k] for name, run in runs.items()}
@@ -261,7 +261,7 @@ def test_a_jitter_is_not_a_reversal():
     dp = np.array([[1e-3, 0, 0]] * 5 + [[-1e-4, 0, 0]] + [[1e-3, 0, 0]] * 5 + [[-1e-3, 0, 0]] * 3)
     n = len(dp)
     log = IncrementLog(np.arange(1, n + 1) / 60, dp, np.zeros((n, 3)), np.zeros(n, bool), [""] * n)
-    ((t, d),) = device_reversals(RelativeDevice(log))
+    ((t, d),) = RelativeDevice(log).reversals(2 * REVERSAL_MOVE_M)
     assert t == pytest.approx(12 / 60) and d == pytest.approx([-1, 0, 0])
 
 

@@ -5,6 +5,7 @@ import math
 import control as ct
 import numpy as np
 import pytest
+import theory
 
 from godobject_drake.limits import zoh_mass_damper
 from godobject_drake.studies import stability as st
@@ -17,7 +18,7 @@ def test_roots_agree_with_jury_conditions(scheme):
     # Grid offset so no point sits exactly on a boundary.
     K, B = np.meshgrid(np.linspace(-0.4913, 6.1, 157), np.linspace(-0.4877, 4.2, 113))
     by_roots = st.spectral_radius(K, B, scheme) < 1.0
-    assert np.array_equal(by_roots, st.stable_by_table(K, B, scheme))
+    assert np.array_equal(by_roots, theory.stable_by_table(K, B, scheme))
 
 
 def test_symplectic_euler_needs_positive_damping():
@@ -51,14 +52,16 @@ def test_drake_scheme_is_symplectic_in_free_space_and_implicit_in_the_wall():
 @pytest.mark.parametrize("h", [1e-3, 1e-2])
 @pytest.mark.parametrize("mass", [1.0, 0.0023])
 def test_k_crit_closed_form_matches_pole_bisection(mass, zeta, h):
-    assert st.k_crit_from_poles(mass, zeta, h) == pytest.approx(st.explicit_k_crit(mass, zeta, h), rel=1e-5)
+    assert theory.k_crit_from_poles(mass, zeta, h) == pytest.approx(
+        theory.explicit_k_crit(mass, zeta, h), rel=1e-5
+    )
 
 
 def test_explicit_limit_by_hand():
     # ζ = 1: 2(√2 − 1) = 0.828427... (the coupling module's limit, reused here)
     assert st.explicit_limit_omega_h(1.0) == pytest.approx(0.8284271247, rel=1e-9)
     # 1 kg, ζ = 1, h = 1 ms: k_crit = (828.43 rad/s)² kg = 686 291 N/m.
-    assert st.explicit_k_crit(1.0, 1.0, 1e-3) == pytest.approx(686291.5, rel=1e-6)
+    assert theory.explicit_k_crit(1.0, 1.0, 1e-3) == pytest.approx(686291.5, rel=1e-6)
 
 
 def test_h_max_and_min_mass_are_the_boundary():
@@ -73,11 +76,13 @@ def test_first_order_coupling_breaks_on_stiff_walls_first():
     # 1 kg, ωn = 40, ζ = 1, h = 1 ms: first order needs k + k_w < 2γ/h = 160 000 N/m;
     # symplectic Euler survives k + k_w < (4 − 2γh/m) m/h² = 3.84e6 N/m.
     k, g, h = 1600.0, 80.0, 1e-3
-    assert st.max_explicit_wall_stiffness("first_order", 1.0, k, g, h) == pytest.approx(160000 - k, rel=1e-5)
-    assert st.max_explicit_wall_stiffness("symplectic_euler", 1.0, k, g, h) == pytest.approx(
+    assert theory.max_explicit_wall_stiffness("first_order", 1.0, k, g, h) == pytest.approx(
+        160000 - k, rel=1e-5
+    )
+    assert theory.max_explicit_wall_stiffness("symplectic_euler", 1.0, k, g, h) == pytest.approx(
         3.84e6 - k, rel=1e-5
     )
-    assert st.max_explicit_wall_stiffness("implicit_euler", 1.0, k, g, h) == math.inf
+    assert theory.max_explicit_wall_stiffness("implicit_euler", 1.0, k, g, h) == math.inf
 
 
 def test_recommended_gains_respect_their_rule():
@@ -123,7 +128,7 @@ def test_stiffness_limit_near_theory_approximation(damping, delay):
     # docs/theory.md's 2b/T and b/(T(d+½)) hold to ~1 % while bT/m is small (here 0.005–0.02).
     dev = st.DeviceParams(0.1, damping, 1e-3, delay)
     k_max = st.device_stiffness_limit(dev, lambda K: st.wall_impedance(K, 0.0, 1e-3, delay))
-    assert k_max == pytest.approx(st.stiffness_limit_approx(dev, 0.0), rel=0.01)
+    assert k_max == pytest.approx(theory.stiffness_limit_approx(dev, 0.0), rel=0.01)
 
 
 def test_gain_margin_equals_stiffness_limit():
@@ -163,9 +168,9 @@ def test_llewellyn_eta_min_off_proportional():
 def test_rendered_impedance_is_active_below_the_tissue_frequency_with_gamma_d_zero():
     m, k, g, kw, kd = 1.0, 1600.0, 80.0, 2000.0, 100.0
     w = np.geomspace(1.0, 1e3, 50)
-    Z = st.rendered_impedance(m, k, g, kw, 0.0, kd, 0.0)
+    Z = theory.rendered_impedance(m, k, g, kw, 0.0, kd, 0.0)
     np.testing.assert_allclose(
-        Z(1j * w).real, st.re_rendered_impedance_gamma_d0(m, k, g, kw, kd, w), rtol=1e-9, atol=1e-12
+        Z(1j * w).real, theory.re_rendered_impedance_gamma_d0(m, k, g, kw, kd, w), rtol=1e-9, atol=1e-12
     )
     assert np.all(Z(1j * w[w < math.sqrt(kw / m)]).real < 0)
     assert np.all(Z(1j * w[w > math.sqrt(kw / m)]).real > 0)

@@ -5,6 +5,7 @@ import dataclasses
 import control as ct
 import numpy as np
 import pytest
+import theory
 
 from godobject_drake.studies import stability as st
 from godobject_drake.studies import validation as va
@@ -19,7 +20,7 @@ SOFT = {"k_w": 2000.0, "tau_w": 1e-3}
     ("mass", "zeta", "h"), [(1.0, 0.7, 1e-2), (BRICK_MASS, 1.0, 1e-3)], ids=["1kg", "brick"]
 )
 def test_drake_explicit_limit_within_one_percent_of_prediction(mass, zeta, h):
-    k_crit = st.explicit_k_crit(mass, zeta, h)
+    k_crit = theory.explicit_k_crit(mass, zeta, h)
 
     def growing(k):
         return va.is_growing(va.free_body_error(mass, zeta, np.sqrt(k / mass), h))
@@ -63,7 +64,7 @@ def test_feedback_reads_the_plants_post_step_state():
 def test_device_boundary_within_two_percent(delay):
     dev = dataclasses.replace(DEVICE, delay=delay)
     sc = va.HapticScenario(dev, **STIFF)
-    k_max = va.predicted_device_k_max(sc)
+    k_max = theory.predicted_device_k_max(sc)
     runs = {
         f: va.simulate_haptic(dataclasses.replace(sc, kd=f * k_max), 0.4, v0_device=1e-3)
         for f in (0.98, 1.02)
@@ -71,7 +72,7 @@ def test_device_boundary_within_two_percent(delay):
     assert not va.is_growing(runs[0.98].x_device)
     assert va.is_growing(runs[1.02].x_device)
     # far below the rigid-wall estimate: the probe is not a rigid wall (see the report)
-    assert k_max < 0.75 * st.stiffness_limit_approx(dev, 0.0)
+    assert k_max < 0.75 * theory.stiffness_limit_approx(dev, 0.0)
 
 
 def test_passive_gains_never_give_the_user_energy():
@@ -95,7 +96,7 @@ def test_gamma_d_zero_on_soft_tissue_is_active_and_grows():
     colgate = st.colgate_required_damping(H, DEVICE.period_s)
     # Continuous: Re Z_env → −kd γ k_w/(k+k_w)² = −12.35 N·s/m as ω → 0; the sampled requirement peaks there
     # too (12.57 N·s/m: the wall damping and the hold shift it), six times the device's b_d = 2.
-    assert st.re_rendered_impedance_gamma_d0(1.0, 1600.0, 80.0, 2000.0, 1000.0, 1e-3) == pytest.approx(
+    assert theory.re_rendered_impedance_gamma_d0(1.0, 1600.0, 80.0, 2000.0, 1000.0, 1e-3) == pytest.approx(
         -12.345679
     )
     assert colgate.required_b > 6 * DEVICE.damping and colgate.omega_at_max < 1.0

@@ -91,28 +91,6 @@ def spectral_radius(kappa, beta, scheme: str) -> np.ndarray:
     return np.maximum(np.abs(r1), np.abs(r2))
 
 
-def stable_by_table(kappa, beta, scheme: str) -> np.ndarray:
-    """Jury's conditions for each scheme, in closed form (a second method to the roots).
-
-    docs/theory.md §1's table. Symplectic Euler needs ``β > 0`` as well as ``β < 2``
-    (``|1 − β| < 1``): negative damping makes the root product ``1 − β`` exceed 1.
-    """
-    k, b = np.broadcast_arrays(np.asarray(kappa, float), np.asarray(beta, float))
-    if scheme == "symplectic_euler":
-        return (k > 0) & (b > 0) & (b < 2) & (k + 2 * b < 4)
-    if scheme == "symplectic_implicit_damping":
-        return (k > 0) & (b > 0) & (k < 4 + 2 * b)
-    if scheme == "implicit_euler":
-        return (k > 0) & (k + b > 0)
-    if scheme == "explicit_euler":
-        return (k > 0) & (k < b) & (b < 2 + k / 2)
-    if scheme == "first_order":
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = k / b
-        return (ratio > 0) & (ratio < 2)
-    raise ValueError(f"unknown scheme {scheme!r}; choose one of {sorted(SCHEMES)}")
-
-
 def explicit_h_max(mass: float, K: float, B: float) -> float:
     """Largest step (s) for symplectic Euler with explicit ``(K, B)``: ``(√(B² + 4mK) − B)/K``.
 
@@ -129,12 +107,6 @@ def explicit_min_mass(K: float, B: float, time_step: float) -> float:
     ``m > (K h² + 2 B h)/4`` (from ``κ + 2β < 4``; ``β < 2`` then holds too).
     """
     return (K * time_step**2 + 2 * B * time_step) / 4.0
-
-
-def explicit_k_crit(mass: float, zeta: float, time_step: float) -> float:
-    """Coupling stiffness (N/m) at the explicit limit for gains by bandwidth ``k = m ωn², γ = 2ζ m ωn``."""
-    _positive(mass=mass, time_step=time_step)
-    return mass * (explicit_limit_omega_h(zeta) / time_step) ** 2
 
 
 def _positive(**values: float) -> None:
@@ -246,17 +218,6 @@ def bisect(is_stable: Callable[[float], bool], lo: float, hi: float, rel_tol: fl
         else:
             hi = mid
     return 0.5 * (lo + hi)
-
-
-def k_crit_from_poles(mass: float, zeta: float, time_step: float, rel_tol: float = 1e-6) -> float:
-    """The explicit stiffness limit found by bisection on the ``"drake"`` model's poles (free space)."""
-
-    def stable(k: float) -> bool:
-        omega = math.sqrt(k / mass)
-        return body_spectral_radius(BodyLoop.by_bandwidth(mass, omega, zeta, time_step)) < 1.0
-
-    guess = explicit_k_crit(mass, zeta, time_step)
-    return bisect(stable, 0.5 * guess, 2.0 * guess, rel_tol)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -467,13 +428,6 @@ def device_stiffness_limit(
     return bisect(lambda k: closed_loop_radius(dev, H_of_k(k)) < 1.0, 1e-9 * k_hi, k_hi, rel_tol)
 
 
-def stiffness_limit_approx(dev: DeviceParams, B: float) -> float:
-    """docs/theory.md's approximations: ``2(b_d+B)/T`` (no delay), ``(b_d+B)/(T(d+½))`` (delay d)."""
-    if dev.delay == 0:
-        return 2 * (dev.damping + B) / dev.period_s
-    return (dev.damping + B) / (dev.period_s * (dev.delay + 0.5))
-
-
 @dataclasses.dataclass(frozen=True)
 class ColgateResult:
     """Required device damping over frequency (Colgate & Schenkel 1997)."""
@@ -531,11 +485,6 @@ def colgate_required_damping(H, T: float, n: int = 4000, refine: bool = True) ->
         if -r.fun > b_best:
             th_best, b_best = float(r.x), float(-r.fun)
     return ColgateResult(theta / T, curve, float(b_best), float(th_best / T))
-
-
-def colgate_wall_closed_form(K: float, B: float, T: float) -> float:
-    """``K T/2 + |B|``: the required damping of a wall without delay."""
-    return K * T / 2 + abs(B)
 
 
 def human_port_admittance(dev: DeviceParams, H) -> ct.StateSpace:
@@ -633,48 +582,3 @@ def llewellyn_eta(tp: TwoPort, omega: np.ndarray | None = None) -> LlewellynResu
     return LlewellynResult(
         omega, eta, float(eta[i]), float(omega[i]), float(h11.real.min()), float(h22.real.min())
     )
-
-
-def rendered_impedance(
-    mass: float, k: float, gamma: float, k_w: float, b_w: float, kd: float, gamma_d: float
-):
-    """Continuous impedance the device feels, god-object in contact: ``Zd (m s + Zw)/(m s + Zc + Zw)``.
-
-    ``Zw = b_w + k_w/s``. Returned as a python-control transfer function
-    (velocity → force); it has a pole at ``s = 0`` (the feedback spring).
-    """
-    s = ct.tf("s")
-    Zd = (gamma_d * s + kd) / s
-    return ct.minreal(
-        Zd * (mass * s * s + b_w * s + k_w) / (mass * s * s + (gamma + b_w) * s + k + k_w), verbose=False
-    )
-
-
-def re_rendered_impedance_gamma_d0(mass, k, gamma, k_w, kd, omega) -> np.ndarray:
-    """docs/theory.md's closed form of ``Re Z_env(jω)`` for ``γd = 0``, ``b_w = 0``."""
-    w2 = np.asarray(omega, float) ** 2
-    return -kd * gamma * (k_w - mass * w2) / (gamma**2 * w2 + (k + k_w - mass * w2) ** 2)
-
-
-def max_explicit_wall_stiffness(scheme: str, mass: float, k: float, gamma: float, time_step: float) -> float:
-    """Stiffest wall (N/m) the coupled body survives when the wall is integrated like the coupling.
-
-    ``inf`` when no wall stiffness destabilises the scheme (implicit Euler;
-    Drake's SAP, where contact is implicit). Found by bisection on
-    :func:`spectral_radius` with ``K = k + k_w``, ``B = γ``.
-    """
-    m, h = mass, time_step
-
-    def stable(k_w: float) -> bool:
-        return bool(spectral_radius((k + k_w) * h * h / m, gamma * h / m, scheme) < 1.0)
-
-    if scheme in ("implicit_euler", "drake"):
-        return math.inf
-    if not stable(0.0):
-        return 0.0
-    hi = 1.0
-    while stable(hi):
-        hi *= 10.0
-        if hi > 1e15:
-            return math.inf
-    return bisect(stable, 0.0, hi, 1e-6)

@@ -35,8 +35,6 @@ from godobject_drake.studies.stability import (
     DeviceParams,
     Pipeline,
     bisect,
-    device_stiffness_limit,
-    pipeline_impedance,
 )
 from godobject_drake.systems.coupling import GodObjectCoupling
 from godobject_drake.systems.feedback import FeedbackPort
@@ -171,13 +169,6 @@ class HapticScenario:
             mass, self.omega_n, self.zeta, self.time_step, k_w=self.k_w, b_w=self.k_w * self.tau_w
         )
         return Pipeline(body, self.kd, self.gamma_d, self.device.period_s, self.device.delay)
-
-
-def predicted_device_k_max(sc: HapticScenario, probe_mass: float = 1.0) -> float:
-    """The analysis' largest stable ``kd`` (N/m) for ``sc`` (bisection on the pipeline model's poles)."""
-    return device_stiffness_limit(
-        sc.device, lambda kd: pipeline_impedance(dataclasses.replace(sc, kd=kd).pipeline(probe_mass))
-    )
 
 
 def set_point_contact(scene: SceneParts, stiffness: float, relaxation_time: float) -> None:
@@ -323,15 +314,3 @@ def drake_device_k_max(
         )
 
     return bisect(stable, 0.7 * guess, 1.4 * guess, rel_tol)
-
-
-def drake_k_crit_case(case: tuple) -> float:
-    """:func:`drake_k_crit` of one ``(mass, zeta, time_step, guess)`` tuple, for
-    :func:`godobject_drake.studies.sweep.run_tasks`."""
-    return drake_k_crit(*case)
-
-
-def drake_device_k_max_case(case: tuple) -> float:
-    """:func:`drake_device_k_max` of one ``(scenario, guess, duration)`` tuple, for
-    :func:`godobject_drake.studies.sweep.run_tasks`."""
-    return drake_device_k_max(*case)
