@@ -489,6 +489,7 @@ def world_box(lower, upper, X_WDev, scale: float) -> tuple[list[float], list[flo
 
 
 def _calibrate(args) -> int:
+    # calibrate reads and writes a scenario; loaded here so the device's loop (run) never loads it
     from godobject_drake.config import scenario as sc
 
     if not args.seconds > 0:
