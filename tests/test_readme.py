@@ -38,3 +38,12 @@ def test_the_own_scene_example_is_the_file_wherever_it_is_shown():
         assert blocks == [(EXAMPLES / "cube_post.yaml").read_text()], page
     sdf = re.findall(r"```xml\n(.*?)```", (REPO / "docs" / "guide" / "own_scene.md").read_text(), flags=re.S)
     assert sdf == [(EXAMPLES / "cube_post.sdf").read_text()]
+
+
+def test_the_composed_diagram_is_the_example_file():
+    """docs/guide/own_scene.md's "Compose your own diagram" block is examples/compose_diagram.py's
+    code (its docstring aside), which tests/test_examples.py runs."""
+    page = (REPO / "docs" / "guide" / "own_scene.md").read_text()
+    (block,) = re.findall(r"```python\n(from pydrake.systems.analysis.*?)```", page, flags=re.S)
+    code = (EXAMPLES / "compose_diagram.py").read_text()
+    assert block == code[code.index("from pydrake.systems.analysis") :]
