@@ -11,13 +11,10 @@ import dataclasses
 import functools
 import math
 import operator
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 from godobject_drake.config.flags import Flag
 from godobject_drake.config.gains import DEFAULT_MAX_STRETCH_M, DEFAULT_MAX_TWIST_RAD, CouplingGains
-
-if TYPE_CHECKING:
-    from godobject_drake.config.scenario import Scenario
 
 SHELL_MODELS = ("fem", "mass_spring")
 RIGID_COUPLINGS = ("explicit", "implicit")
@@ -161,7 +158,7 @@ class Rigid:
     DEVICE_SPACE: ClassVar[str] = "pose"
     FLAGS: ClassVar[tuple[Flag, ...]] = (COUPLING_FLAG,)
 
-    def check(self, scenario: "Scenario") -> None:
+    def check(self, scenario) -> None:
         """Its coupling kind against the scene (the builder checks the gains against the step)."""
         if self.coupling not in RIGID_COUPLINGS:
             raise ValueError(
@@ -234,7 +231,7 @@ class Articulated:
              value=lambda given, s: [] if given == "simulated" else list(s.god_object.imposed_joints)),
     )  # fmt: skip
 
-    def check(self, scenario: "Scenario") -> None:
+    def check(self, scenario) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"`` (fields from the scenario's top)."""
         if scenario.haptic.mode != "none":
             raise ValueError(
@@ -285,7 +282,7 @@ class Deformable:
              "fem: Drake's meshing hint (m); 0.03 / 0.02 / 0.01 give 25 / 129 / 833 vertices", type=float),
     )  # fmt: skip
 
-    def check(self, scenario: "Scenario") -> None:
+    def check(self, scenario) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
         if self.shell not in SHELL_MODELS:
             raise ValueError(f"god_object.shell: {self.shell!r}; choose one of {SHELL_MODELS}")

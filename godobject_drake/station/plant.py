@@ -130,7 +130,7 @@ class SceneParts:
     tissue: object = None  # a godobject_drake.systems.tissue.FemOrgan with organs.model fem
 
 
-def add_scene_plant(
+def add_directives_plant(
     builder: DiagramBuilder,
     config: MultibodyPlantConfig,
     directives,
@@ -251,7 +251,7 @@ def add_scene_from_directives(
     if "://" not in url:
         url = "file://" + str(Path(url).resolve())
     directive = ModelDirective(add_directives=AddDirectives(file=url))
-    return add_scene_plant(builder, config, [directive], contact, relaxation_time, before_finalize)
+    return add_directives_plant(builder, config, [directive], contact, relaxation_time, before_finalize)
 
 
 def exclude_self_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, model: str) -> None:
@@ -284,7 +284,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
 
     with _DrakeWarnings() as drake_warnings:
         try:
-            scene = add_scene_plant(
+            scene = add_directives_plant(
                 builder,
                 scenario.plant,
                 scenario.directives,
