@@ -284,9 +284,20 @@ def _cm_velocities(body: GraspableBody, states: np.ndarray) -> np.ndarray:
 
 
 def format_table(rows: list[dict]) -> str:
-    """A plain-text table of metrics, one column per run."""
-    keys = [k for k in METRIC_KEYS if any(k in r for r in rows)]
-    keys += sorted({k for r in rows for k in r} - set(keys))
+    """A plain-text table of metrics, one column per run; a run of several tools gives the scene's
+    column and one per tool (its ``tools``)."""
+    columns, headers, split = [], [], []  # split: a key the column lacks is the other part's, left blank
+    for i, r in enumerate(rows):
+        tools = r.get("tools") if isinstance(r.get("tools"), dict) else None
+        columns.append({k: v for k, v in r.items() if k != "tools"})
+        headers.append(str(r.get("mode", f"run {i}")) if tools is None else "scene")
+        split.append(tools is not None)
+        for name, m in (tools or {}).items():
+            columns.append(m)
+            headers.append(name)
+            split.append(True)
+    keys = [k for k in METRIC_KEYS if any(k in c for c in columns)]
+    keys += sorted({k for c in columns for k in c} - set(keys))
 
     def fmt(v):
         if isinstance(v, bool) or v is None or isinstance(v, str):
@@ -297,10 +308,11 @@ def format_table(rows: list[dict]) -> str:
             return ",".join(fmt(x) for x in v) or "[]"
         return f"{v:.4g}"
 
-    cells = [["metric"] + [str(r.get("mode", f"run {i}")) for i, r in enumerate(rows)]]
-    cells += [[k] + [fmt(r.get(k)) for r in rows] for k in keys]
+    cells = [["metric", *headers]]
+    cells += [[k] + [fmt(c.get(k)) if k in c or not s else "" for c, s in zip(columns, split, strict=True)]
+              for k in keys]  # fmt: skip
     widths = [max(len(c[i]) for c in cells) for i in range(len(cells[0]))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in cells]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in cells]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)
 

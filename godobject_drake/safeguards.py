@@ -35,10 +35,11 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.plant import ExternallyAppliedSpatialForceMultiplexer, MultibodyPlant
 from pydrake.multibody.tree import JointIndex
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, EventStatus
+from pydrake.systems.primitives import Adder
 
 from godobject_drake.devices.live import add_stop_button, stop_requested
 from godobject_drake.systems.coupling import GodObjectCoupling
@@ -310,6 +311,8 @@ def install_safeguards(
 
 MODES = ("god_object", "position")
 _FORCE_PORTS = {"generalized_force": "applied_generalized_force", "spatial_forces": "applied_spatial_force"}
+# What joins several tools' forces into one plant input (station.loop.ForceBus).
+_JOINS = (Adder, ExternallyAppliedSpatialForceMultiplexer)
 
 
 def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
@@ -330,10 +333,12 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
 
     for sub in [diagram, *(s for s in _all_systems(diagram) if isinstance(s, Diagram))]:
         children = set(sub.GetSystems())
-        wires = {
-            (src, src.get_output_port(o).get_name()): (dst, dst.get_input_port(i).get_name())
-            for (dst, i), (src, o) in sub.connection_map().items()
-        }
+        wires: dict = {}
+        for (dst, i), (src, o) in sub.connection_map().items():
+            wires.setdefault((src, src.get_output_port(o).get_name()), []).append(
+                (dst, dst.get_input_port(i).get_name())
+            )
+
         for coupling in (s for s in children if isinstance(s, GodObjectCoupling)):
             plant = coupling.plant
             if plant not in children:
@@ -342,7 +347,7 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
             into_plant = [
                 port
                 for port, plant_port in _FORCE_PORTS.items()
-                if wires.get((coupling, port)) == (plant, plant_port)
+                if (plant, plant_port) in _reaches(wires, (coupling, port))
             ]
             fix = (
                 f"builder.Connect({name}.GetOutputPort('generalized_force'), "
@@ -365,12 +370,24 @@ def check_wiring(diagram: Diagram, mode: str = "god_object") -> None:
                     f"mode=position imposes the held body's pose, but coupling {name!r} also drives "
                     f"{into_plant} into the plant; leave its force outputs unconnected in this mode"
                 )
-            state_from = [src for (src, _), dst in wires.items() if dst == (coupling, "plant_state")]
+            state_from = [src for (src, _), dsts in wires.items() if (coupling, "plant_state") in dsts]
             if state_from and state_from[0] is not plant:
                 raise WiringError(
                     f"coupling {name!r} reads 'plant_state' from {state_from[0].get_name()!r}; connect "
                     "plant.get_state_output_port() to it"
                 )
-            for (src, _), dst in wires.items():
-                if dst == (coupling, "grasp") and hasattr(src, "grasp_names"):
+            for (src, _), dsts in wires.items():
+                if (coupling, "grasp") in dsts and hasattr(src, "grasp_names"):
                     coupling.validate_grasp_names(src.grasp_names())
+
+
+def _reaches(wires: dict, source) -> list:
+    """Where ``source`` (a system and its output port's name) ends: through the adders and
+    multiplexers that join several tools' forces into one of the plant's inputs."""
+    ends = []
+    for dst, port in wires.get(source, []):
+        if isinstance(dst, _JOINS):
+            ends += _reaches(wires, (dst, dst.get_output_port(0).get_name()))
+        else:
+            ends.append((dst, port))
+    return ends

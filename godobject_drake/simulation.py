@@ -176,9 +176,10 @@ class _Run:
                 "or pass build_station(..., meshcat=start_meshcat(port=0))"
             )
         live = station.live or scenario.visualization.serve
-        on_wall_clock = live or kind_of(scenario.device).real_time
+        views = scenario.per_tool()
+        on_wall_clock = live or any(kind_of(view.device).real_time for view in views.values())
         rate = 1.0 if on_wall_clock else (sim.realtime_rate if realtime_rate is None else realtime_rate)
-        self.station, self.plant, self.god = station, station.plant, station.god_object
+        self.station, self.plant, self.god = station, station.plant, _AllTools(station)
         self.h = h = self.plant.time_step()
         self.simulator = Simulator(station.diagram)
         self.root = root = self.simulator.get_mutable_context()
@@ -187,7 +188,8 @@ class _Run:
         before_step = self.god.before_step(self.plant)
         self.lag = None
         if rate > 0:  # at real time: how late each plant step comes, against the wall clock
-            self.lag = RealtimeLag(rate, late_s=getattr(station.device, "period_s", h))
+            periods = [getattr(tool.source, "period_s", h) for tool in station.tools.values()]
+            self.lag = RealtimeLag(rate, late_s=min(periods))
             before_step = self.lag.wrap(before_step)
         self.guard = install_safeguards(
             self.simulator, self.plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
@@ -209,8 +211,9 @@ class _Run:
         self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,
                                min(FALL_WATCH_S, duration))  # fmt: skip
         self.logs = _Logs(station, root, keep_logs)
-        try:
-            self.measured, self.metrics_error = SceneMetrics(station), None
+        try:  # each tool's metrics, on its own view of the station
+            self.measured = {name: SceneMetrics(station.for_tool(name)) for name in station.tools}
+            self.metrics_error = None
         except Exception as e:  # a scene the metrics cannot measure still runs, and says why
             self.measured, self.metrics_error = None, f"{type(e).__name__}: {e}"
         self.n_steps = round(duration / h)
@@ -223,11 +226,13 @@ class _Run:
         self.diagnosis, self.interrupted, self.zeroed = None, None, False
 
     def fold(self) -> None:
-        """The logs drained into the running metrics; a metric that fails is reported, never lost."""
-        chunk = self.logs.drain()
+        """The logs drained into each tool's running metrics; a metric that fails is reported,
+        never lost."""
+        chunks = self.logs.drain()
         if self.measured is not None and self.metrics_error is None:
             try:
-                self.measured.update(chunk)
+                for name, chunk in chunks.items():
+                    self.measured[name].update(chunk)
             except Exception as e:  # reported, never lost: the common metrics and the logs stand
                 self.metrics_error = f"{type(e).__name__}: {e}"
 
@@ -248,7 +253,7 @@ class _Run:
             "diagnosis": self.diagnosis,
             "partial": partial,
             "predicted_static_penetration_m": station.predicted_penetration_m,
-            **configuration(self.scenario, station),
+            **(configuration(self.scenario, station) if len(station.tools) == 1 else scene_keys(station)),
             **(station.sleeper.result() if station.sleeper is not None else {}),
         }
 
@@ -280,7 +285,7 @@ class _Run:
                     self.folding += time.perf_counter() - t0
                     next_fold = k + self.fold_every
                 if checkpoint is not None and time.perf_counter() - last_checkpoint >= checkpoint_period_s:
-                    checkpoint({**self.common(True), **_measured(self.measured, self.metrics_error)})
+                    checkpoint({**self.common(True), **self.tool_metrics(with_devices=False)})
                     last_checkpoint = time.perf_counter()
             guard.check()
         except DivergenceError:
@@ -294,7 +299,33 @@ class _Run:
             self.interrupted = e
         finally:
             bar.close()
-            self.zeroed = self.god.source.zero_feedback(root.get_time())  # never left pushing
+            self.zeroed = self.god.zero_feedback(root.get_time())  # never left pushing
+
+    def tool_metrics(self, with_devices: bool) -> dict:
+        """Each tool's metrics (and its device's counts at the end): flat in a scene of one tool;
+        in a scene of several, under ``tools: {NAME: {...}}``, each tool's configuration with them,
+        and the scene's worst beside (:data:`~godobject_drake.metrics.METRIC_KEYS`)."""
+        if self.metrics_error is not None:
+            return {"metrics_error": self.metrics_error}
+        out, errors = {}, []
+        for name, tool in self.station.tools.items():
+            own = self.measured[name].result()
+            if with_devices:
+                try:
+                    own.update(tool.device_metrics(self.root))
+                except Exception as e:
+                    errors.append(f"{name + ': ' if name else ''}{type(e).__name__}: {e}")
+            out[name] = own
+        if len(out) == 1:
+            flat = dict(out[""] if "" in out else next(iter(out.values())))
+        else:
+            for name in out:
+                view = self.station.for_tool(name)
+                out[name] = {**configuration(view.scenario, view), **out[name]}
+            flat = {**worst_of(out), "tools": out}
+        if errors:
+            flat["metrics_error"] = "; ".join(errors)
+        return flat
 
     def finish(self) -> RunResult:
         """The metrics of what ran (the recording saved first: a metric that fails must not lose
@@ -321,11 +352,7 @@ class _Run:
         t0 = time.perf_counter()
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
-        metrics.update(_measured(self.measured, self.metrics_error))
-        try:
-            metrics.update(self.god.device_metrics(root))
-        except Exception as e:
-            metrics.setdefault("metrics_error", f"{type(e).__name__}: {e}")
+        metrics.update(self.tool_metrics(with_devices=True))
         result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
@@ -425,23 +452,19 @@ class RealtimeLag:
         }
 
 
-def _measured(measured, metrics_error) -> dict:
-    if metrics_error is not None:
-        return {"metrics_error": metrics_error}
-    return measured.result()
-
-
 class _Logs:
-    """The station's loggers, emptied into chunks (one row per plant step); optionally all kept."""
+    """The station's loggers, emptied into each tool's chunk (one row per plant step, the tool's own
+    logger names, with what its kind computes from them after the run); optionally all kept."""
 
     def __init__(self, station: Station, root_context, keep: bool):
         self._logs = {name: logger.FindMutableLog(root_context) for name, logger in station.loggers.items()}
-        self._complete = station.god_object.complete_logs
+        self._tools = station.tools
+        self._names = station.tool_loggers
         self._pending = {name: None for name in self._logs}
         self._keep = [] if keep else None
 
     def drain(self) -> dict:
-        """The rows logged since the last drain, the same number from every logger."""
+        """Each tool's rows logged since the last drain, the same number from every logger."""
         rows = {}
         for name, log in self._logs.items():
             new = log.data().T.copy()
@@ -450,15 +473,82 @@ class _Logs:
             rows[name] = new if pending is None else np.concatenate([pending, new])
         n = min(len(r) for r in rows.values())
         self._pending = {name: (r[n:] if len(r) > n else None) for name, r in rows.items()}
-        chunk = self._complete({name: r[:n] for name, r in rows.items()})
-        if self._keep is not None:
-            self._keep.append(chunk)
-        return chunk
+        chunks = {
+            tool: self._tools[tool].complete_logs({own: rows[full][:n] for own, full in names.items()})
+            for tool, names in self._names.items()
+        }
+        if self._keep is not None:  # by the station's logger names (a tool's computed rows with its name)
+            kept = {}
+            for tool, chunk in chunks.items():
+                kept.update({(k if k == "state" or not tool else f"{tool}/{k}"): v for k, v in chunk.items()})
+            self._keep.append(kept)
+        return chunks
 
     def kept(self) -> dict:
         if not self._keep:
             return {}
         return {name: np.concatenate([c[name] for c in self._keep]) for name in self._keep[0]}
+
+
+class _AllTools:
+    """The station's tools, as one for what the run asks of every tool alike: before the run, before
+    each plant step, whether a part diverged, what is held, the feedback zeroed at the end."""
+
+    def __init__(self, station: Station):
+        self.tools = station.tools
+        self.mode = next(iter(self.tools.values())).mode  # the scene's simulation.mode, every tool's
+
+    def prepare(self, plant_context) -> None:
+        for tool in self.tools.values():
+            tool.prepare(plant_context)
+
+    def before_step(self, plant):
+        hooks = [hook for tool in self.tools.values() if (hook := tool.before_step(plant)) is not None]
+        if len(hooks) <= 1:
+            return hooks[0] if hooks else None
+
+        def every(plant_context, root_context):
+            for hook in hooks:
+                hook(plant_context, root_context)
+
+        return every
+
+    def diverged_part(self, root_context, max_speed: float):
+        for name, tool in self.tools.items():
+            found = tool.diverged_part(root_context, max_speed)
+            if found is not None:
+                return (f"{name}: {found[0]}" if name else found[0]), found[1]
+        return None
+
+    def held_bodies(self, root_context) -> set[int]:
+        return set().union(*(tool.held_bodies(root_context) for tool in self.tools.values()))
+
+    def zero_feedback(self, t: float) -> bool:
+        return any([tool.source.zero_feedback(t) for tool in self.tools.values()])  # every one, not the first
+
+
+def worst_of(tools: dict[str, dict]) -> dict:
+    """The scene's figures from its tools': the deepest penetration, the worst tracking, the fastest
+    other body, the free-space samples of all (a tool that does not measure one: left out)."""
+    out = {}
+    for key, pick in (("max_penetration_m", max), ("rms_tracking_error_m", max),
+                      ("max_other_body_speed_mps", max), ("free_space_samples", sum)):  # fmt: skip
+        values = [m[key] for m in tools.values() if m.get(key) is not None]
+        out[key] = pick(values) if values else None
+    return out
+
+
+def scene_keys(station: Station) -> dict:
+    """The configuration keys of a scene of several tools (each tool's own are under its name)."""
+    scenario = station.scenario
+    return {
+        "contact": scenario.contact.geometry,
+        "contact_approximation": scenario.plant.discrete_contact_approximation,
+        "seed": scenario.random_seed,
+        "sleep": station.sleeper is not None,
+        "free_bodies": len(station.plant.GetFloatingBaseBodies()),
+        "tool_names": list(station.tools),
+    }
 
 
 def configuration(scenario: Scenario, station: Station) -> dict:
@@ -476,7 +566,7 @@ def configuration(scenario: Scenario, station: Station) -> dict:
         "sleep": station.sleeper is not None,
         "free_bodies": len(station.plant.GetFloatingBaseBodies()),
     }
-    out.update(station.god_object.configuration(scenario, station))  # the kind's own keys
+    out.update(next(iter(station.tools.values())).configuration(scenario, station))  # the kind's own keys
     return out
 
 

@@ -34,7 +34,8 @@ class Caught(BaseException):
 
 @pytest.fixture
 def catch(monkeypatch):
-    def finish(builder, scenario, scene, god, meshcat=None):
+    def finish(builder, scenario, scene, tools, meshcat=None):
+        (god,) = tools.values()  # a scene of one tool: its tool, by the name ""
         raise Caught(scenario, god)
 
     monkeypatch.setattr(build, "finish", finish)

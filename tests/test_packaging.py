@@ -48,9 +48,9 @@ def test_the_data_packages_are_found_with_importlib_resources():
     scenarios = Path(str(importlib.resources.files("godobject_scenarios")))
     for name in sc.SHIPPED:
         assert sc.shipped_scenario_file(name).parent == scenarios
-        s = sc.shipped_scenario(name)  # its device path resolves inside the installed models
-        assert Path(s.device.path).is_relative_to(scenes.MODELS_DIR)
-        assert Path(s.device.path).is_file()
+        for view in sc.shipped_scenario(name).per_tool().values():  # each tool's device path
+            assert Path(view.device.path).is_relative_to(scenes.MODELS_DIR)  # inside the installed models
+            assert Path(view.device.path).is_file()
     with pytest.raises(sc.ScenarioError, match="no shipped scene 'cube'; the shipped scenes are lego, "):
         sc.shipped_scenario_file("cube")
 

@@ -53,7 +53,7 @@ class OneBrickTool(RigidGodObject):
     kind: ClassVar[str] = "one_brick"
 
     @classmethod
-    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True, name="") -> dict:
         return {}  # nothing before Finalize (the rigid kind adds its implicit springs here)
 
     @classmethod

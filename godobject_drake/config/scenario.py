@@ -24,6 +24,7 @@ import copy
 import dataclasses
 import importlib.resources
 import math
+import re
 import typing
 from pathlib import Path
 
@@ -96,6 +97,38 @@ JOINT_DEVICES = tuple(k.config for k in DEVICE_KINDS.values() if k.space == "joi
 SPACE_NAMES = {"pose": "pose", "joint": "joint-space"}
 
 
+# The fields a tool of its own holds: in a scene of one tool they are the scenario's top-level ones.
+TOOL_FIELDS = ("god_object", "device", "feedback", "haptic", "workspace")
+TOOL_NAME = re.compile(r"[a-z][a-z0-9_]{0,31}")
+
+
+@dataclasses.dataclass
+class Tool:
+    """One tool of a scene of several (``tools: {NAME: {...}}``): what a one-tool scene gives at
+    the scenario's top level, for this tool alone.
+
+    Attributes
+    ----------
+    god_object : Rigid | Articulated | Deformable
+        The tool (YAML tag ``!Rigid``, ``!Articulated`` or ``!Deformable``); in a scene of several
+        tools, each tool's in ``tools`` instead.
+    device : a registered device kind
+        Its device (``!Scripted``, ``!Lcm``, ...), bound to this tool by the tool's name.
+    feedback : FeedbackGains
+        Its feedback port's gains (N/m, N·s/m, N·m/rad, N·m·s/rad).
+    haptic : Haptic
+        Its simulated haptic device, if any.
+    workspace : Workspace
+        Where its device may go (m).
+    """
+
+    god_object: tool_union() = dataclasses.field(default_factory=Rigid)
+    device: device_union() = dataclasses.field(default_factory=Scripted)
+    feedback: FeedbackGains = dataclasses.field(default_factory=FeedbackGains)
+    haptic: Haptic = dataclasses.field(default_factory=Haptic)
+    workspace: Workspace = dataclasses.field(default_factory=Workspace)
+
+
 @dataclasses.dataclass
 class Scenario:
     """A whole god-object scene (module docstring). Field by field, YAML keys of the same names.
@@ -138,6 +171,10 @@ class Scenario:
         :mod:`godobject_drake.systems.tissue`).
     haptic, simulation, visualization, recording, metrics :
         See their classes.
+    tools : dict[str, Tool]
+        A scene of several tools: each a name (lower case, digits, ``_``) and its own
+        ``god_object``, ``device``, ``feedback``, ``haptic`` and ``workspace``; the top-level ones
+        then stay unset. Empty (the default): one tool, the top-level fields.
     """
 
     name: str = "scene"
@@ -157,6 +194,22 @@ class Scenario:
     bricks: int = 0
     sleep: Sleep = dataclasses.field(default_factory=Sleep)
     organs: Organs = dataclasses.field(default_factory=Organs)
+    tools: dict[str, Tool] = dataclasses.field(default_factory=dict)
+
+    def per_tool(self) -> dict[str, "Scenario"]:
+        """Each tool's view of the scene, by name: the scenario itself under ``""`` for a scene of one
+        tool (its top-level ``god_object``, ``device``, ...); for ``tools``, a copy per tool whose
+        top-level tool fields are that tool's (everything else shared, ``tools`` empty)."""
+        if not self.tools:
+            return {"": self}
+        views = {}
+        for name, tool in self.tools.items():
+            view = copy.copy(self)
+            for field in TOOL_FIELDS:
+                setattr(view, field, getattr(tool, field))
+            view.tools = {}
+            views[name] = view
+        return views
 
     @property
     def kind(self) -> str:
@@ -170,13 +223,15 @@ class Scenario:
 
 
 def _retype_device() -> None:
-    """A device kind registered after this module was imported: the ``device`` field takes its tag."""
-    Scenario.__dataclass_fields__["device"].type = device_union()
+    """A device kind registered after this module was imported: the ``device`` fields take its tag."""
+    for holder in (Scenario, Tool):
+        holder.__dataclass_fields__["device"].type = device_union()
 
 
 def _retype_tool() -> None:
-    """A tool kind registered after this module was imported: the ``god_object`` field takes its tag."""
-    Scenario.__dataclass_fields__["god_object"].type = tool_union()
+    """A tool kind registered after this module was imported: the ``god_object`` fields take its tag."""
+    for holder in (Scenario, Tool):
+        holder.__dataclass_fields__["god_object"].type = tool_union()
 
 
 on_register(_retype_device)
@@ -187,7 +242,8 @@ tools.on_register(_retype_tool)
 MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 # The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
 SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
-SHIPPED = ("lego", "laparoscopy", "deformable_probe")  # the shipped scenes: diagrams/NAME.yaml
+# the shipped scenes: diagrams/NAME.yaml
+SHIPPED = ("lego", "laparoscopy", "deformable_probe", "lego_two_hands")
 
 
 def shipped_scenario_file(name: str) -> Path:
@@ -238,9 +294,20 @@ def _keep_kinds(scenario: Scenario, overrides: str) -> str:
         return overrides  # the loader names the error
     if not isinstance(root, yaml.MappingNode):
         return overrides
-    hints = typing.get_type_hints(Scenario)
+    changed = _tag_kinds(root, scenario, typing.get_type_hints(Scenario))
+    for key, value in root.value:  # each tool of a scene of several: its own kinds
+        if isinstance(key, yaml.ScalarNode) and key.value == "tools" and isinstance(value, yaml.MappingNode):
+            for name, tool in value.value:
+                existing = scenario.tools.get(name.value) if isinstance(name, yaml.ScalarNode) else None
+                if existing is not None and isinstance(tool, yaml.MappingNode):
+                    changed |= _tag_kinds(tool, existing, typing.get_type_hints(Tool))
+    return yaml.serialize(root) if changed else overrides
+
+
+def _tag_kinds(node, holder, hints) -> bool:
+    """Tag each untagged mapping of ``node`` given to a field of several kinds with ``holder``'s kind."""
     changed = False
-    for key, value in root.value:
+    for key, value in node.value:
         field = key.value if isinstance(key, yaml.ScalarNode) else None
         kinds = typing.get_args(hints.get(field)) if field in hints else ()
         untagged = (
@@ -248,9 +315,9 @@ def _keep_kinds(scenario: Scenario, overrides: str) -> str:
             and value.tag == yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG
         )
         if len(kinds) > 1 and untagged:
-            value.tag = "!" + type(getattr(scenario, field)).__name__
+            value.tag = "!" + type(getattr(holder, field)).__name__
             changed = True
-    return yaml.serialize(root) if changed else overrides
+    return changed
 
 
 def scenario_from_yaml(text: str, base_dir: str | Path = ".") -> Scenario:
@@ -351,19 +418,20 @@ def resolve_paths(scenario: Scenario, base: Path) -> None:
             directive.add_model.file = _resolve_url(directive.add_model.file, base)
         if directive.add_directives is not None:
             directive.add_directives.file = _resolve_url(directive.add_directives.file, base)
-    device = scenario.device
-    for attribute in ("path", "log"):
-        if hasattr(device, attribute):
-            setattr(device, attribute, _resolve(getattr(device, attribute), base))
+    for device in [scenario.device, *(tool.device for tool in scenario.tools.values())]:
+        for attribute in ("path", "log"):
+            if hasattr(device, attribute):
+                setattr(device, attribute, _resolve(getattr(device, attribute), base))
 
 
 def _fail(where: str, field: str, message: str):
     raise ScenarioError(f"{where}: {field}: {message}")
 
 
-# The scenario's parts that check themselves, in the order a user reads them.
-SELF_CHECKED = ("contact", "simulation", "haptic", "device", "god_object", "workspace", "visualization",
-                "recording", "metrics", "organs")  # fmt: skip
+# The scenario's parts that check themselves, in the order a user reads them: the scene's, then each
+# tool's (the top-level ones in a scene of one tool).
+SCENE_PARTS = ("contact", "simulation", "visualization", "recording", "metrics", "organs")
+TOOL_PARTS = ("haptic", "device", "god_object", "workspace")
 
 
 def check_scenario(s: Scenario, where: str = "scenario") -> None:
@@ -402,16 +470,11 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             default = getattr(MultibodyPlantConfig(), field)
             _fail(where, f"plant.{field}", f"{value!r} must be a finite number {'>' if strict else '≥'} 0 "
                   f"(Drake's default: {default:g})")  # fmt: skip
-    try:
-        device_kind = kind_of(s.device)
-    except ValueError as e:
-        raise ScenarioError(f"{where}: {e}") from None
-    for part in SELF_CHECKED:
+    for part in SCENE_PARTS:
         try:
-            getattr(s, part).check(s) if part == "god_object" else getattr(s, part).check()
+            getattr(s, part).check()
         except ValueError as e:
-            prefix = "" if part == "god_object" else f"{part}."  # a god-object names its own fields
-            raise ScenarioError(f"{where}: {prefix}{e}") from None
+            raise ScenarioError(f"{where}: {part}.{e}") from None
     try:
         s.sleep.check()
     except ValueError as e:
@@ -423,11 +486,54 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             f"{s.bricks!r}: give a whole number of bricks up to {MAX_BRICKS} (the grid's 54 places a layer; "
             "the scale study goes to 128), or 0 for the directives' own",
         )
-    _check_across(s, device_kind, where)
+    _check_scene(s, where)
+    if s.tools:
+        _check_tools(s, where)
+    for name, view in s.per_tool().items():
+        _check_tool(view, where, f"tools.{name}." if name else "")
 
 
-def _check_across(s: Scenario, device_kind, where: str) -> None:
-    """The rules between two parts: contact and plant, device and tool, device and haptic chain."""
+def _check_tool(s: Scenario, where: str, at: str) -> None:
+    """One tool's parts (its device, tool, haptic chain, workspace) and the rules between them;
+    ``at`` prefixes the field names (``tools.left.``) in a scene of several."""
+    try:
+        device_kind = kind_of(s.device)
+    except ValueError as e:
+        raise ScenarioError(f"{where}: {at}{e}") from None
+    for part in TOOL_PARTS:
+        try:
+            getattr(s, part).check(s) if part == "god_object" else getattr(s, part).check()
+        except ValueError as e:
+            prefix = "" if part == "god_object" else f"{part}."  # a god-object names its own fields
+            raise ScenarioError(f"{where}: {at}{prefix}{e}") from None
+    device, kind, space = s.device, s.kind, s.god_object.DEVICE_SPACE
+    if device_kind.space != space:
+        tags = ", ".join(k.tag for k in DEVICE_KINDS.values() if k.space == space)
+        _fail(
+            where,
+            f"{at}device",
+            f"a{'n' if kind[0] in 'aeiou' else ''} {kind} god-object needs a {SPACE_NAMES[space]} device "
+            f"({tags}); got !{type(device).__name__}",
+        )
+    if device_kind.space == "pose" and device.changed_aids() and s.haptic.mode != "none":
+        field = device.changed_aids()[0]
+        _fail(
+            where,
+            f"{at}device.{field}",
+            f"{getattr(device, field)!r} is for a device that cannot feel the god-object; with haptic.mode "
+            f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
+        )
+    if device_kind.renders_feedback and s.haptic.mode != "none":
+        _fail(
+            where,
+            f"{at}haptic.mode",
+            f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
+            "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
+        )
+
+
+def _check_scene(s: Scenario, where: str) -> None:
+    """The rules between the scene's own parts: contact and plant, organs and plant."""
     if s.contact.geometry == "hydroelastic" and s.plant.contact_model == "point":
         _fail(
             where,
@@ -441,30 +547,41 @@ def _check_across(s: Scenario, device_kind, where: str) -> None:
             f"fem needs plant.discrete_contact_approximation sap (Drake's deformable bodies are SAP only); "
             f"it is {s.plant.discrete_contact_approximation!r}: set it to sap, or organs.model: rigid",
         )
-    device, kind, space = s.device, s.kind, s.god_object.DEVICE_SPACE
-    if device_kind.space != space:
-        tags = ", ".join(k.tag for k in DEVICE_KINDS.values() if k.space == space)
-        _fail(
-            where,
-            "device",
-            f"a{'n' if kind[0] in 'aeiou' else ''} {kind} god-object needs a {SPACE_NAMES[space]} device "
-            f"({tags}); got !{type(device).__name__}",
-        )
-    if device_kind.space == "pose" and device.changed_aids() and s.haptic.mode != "none":
-        field = device.changed_aids()[0]
-        _fail(
-            where,
-            f"device.{field}",
-            f"{getattr(device, field)!r} is for a device that cannot feel the god-object; with haptic.mode "
-            f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
-        )
-    if device_kind.renders_feedback and s.haptic.mode != "none":
-        _fail(
-            where,
-            "haptic.mode",
-            f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
-            "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
-        )
+
+
+def _check_tools(s: Scenario, where: str) -> None:
+    """A scene of several tools: their names, the top-level tool fields left unset, and two devices
+    never on one LCM channel of one link."""
+    for name in s.tools:
+        if not (isinstance(name, str) and TOOL_NAME.fullmatch(name)):
+            _fail(where, "tools", f"{name!r}: a tool's name is lower case letters, digits and _, a letter "
+                  "first, at most 32 (e.g. left, right, grasper_2)")  # fmt: skip
+    default = Scenario()
+    for field in TOOL_FIELDS:
+        given, unset = (yaml_dump_typed(Tool(**{field: getattr(x, field)})) for x in (s, default))
+        if given != unset:
+            _fail(
+                where,
+                field,
+                f"this scene has tools ({', '.join(s.tools)}): give each tool its own {field} under "
+                f"tools.NAME.{field} and leave the top-level {field} out (a flag that sets it: use --set "
+                f"tools.NAME.{field}...=VALUE)",
+            )
+    links: dict[tuple, str] = {}
+    for name, tool in s.tools.items():
+        channel = getattr(tool.device, "channel", None)
+        if channel is None:
+            continue
+        key = (getattr(tool.device, "url", ""), channel)
+        if key in links:
+            _fail(
+                where,
+                f"tools.{name}.device.channel",
+                f"{channel!r} on {key[0] or 'the default LCM'} is tools.{links[key]}'s too: two devices on "
+                "one channel would read each other's samples; give each its own channel (or its own "
+                "udp:// link, one driver each)",
+            )
+        links[key] = name
 
 
 def replace(scenario: Scenario, **changes) -> Scenario:

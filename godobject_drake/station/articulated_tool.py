@@ -21,7 +21,7 @@ from godobject_drake.metrics import TissueMetrics, ToolMetrics
 from godobject_drake.station import loop
 from godobject_drake.station.kinds import GodObject, tool_kind
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
-from godobject_drake.systems.drawing import TissueVisualizer, ToolGhostVisualizer
+from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
 from godobject_drake.systems.tissue import tool_capsules
 
 
@@ -83,21 +83,15 @@ class ArticulatedGodObject(GodObject):
             ports["feedback_tau"] = self.feedback.GetOutputPort("tau_device")
         return ports
 
-    def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-
+    def add_drawing(self, builder, meshcat, scene, scenario, drawing: Drawing = ONE_TOOL) -> None:
+        """The device's tool as a wireframe ghost (the organ's tissue is the scene's to draw)."""
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
-            "device_tool_ghost", ToolGhostVisualizer(meshcat, self.tool, scene.scene_graph, period)
-        )
+            "device_tool_ghost",
+            ToolGhostVisualizer(meshcat, self.tool, scene.scene_graph, period,
+                                f"{drawing.prefix}/device_tool", rgb=drawing.ghost_rgb),
+        )  # fmt: skip
         builder.Connect(self.source.GetOutputPort("q_device"), ghost.GetInputPort("q_device"))
-        if self.tissue_observer is not None:
-            drawing = builder.AddNamedSystem(
-                "tissue_visualizer", TissueVisualizer(meshcat, self.tissue, period)
-            )
-            builder.Connect(
-                self.tissue_observer.GetOutputPort("surface_positions"),
-                drawing.GetInputPort("surface_positions"),
-            )
 
     def new_metrics(self, station):
         return _ToolFold(station, self)
@@ -219,7 +213,7 @@ def add_articulated(
         builder, plant, config.model, config.device_joints, coupling=config.coupling, gains=config.gains,
         device_period_s=device.period_s, q_reference=q_home, imposed_joints=tuple(config.imposed_joints),
         q_check=device.samples(duration_s)[:: config.check_every], connect_forces=connect_forces,
-        check_gains=check_gains,
+        check_gains=check_gains, bus=scene.forces,
     )  # fmt: skip
     tool = coupling.tool
     q = plant.GetDefaultPositions()

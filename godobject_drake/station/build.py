@@ -22,17 +22,22 @@ import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import VectorLogSink
+from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.devices import kind_of
 from godobject_drake.safeguards import check_wiring
 from godobject_drake.sleeping import SleepManager
 from godobject_drake.station.kinds import GodObject, kind_for
-from godobject_drake.station.loop import add_device
+from godobject_drake.station.loop import add_device, share_grasps
 from godobject_drake.station.plant import SceneParts, add_plant
 from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
-from godobject_drake.systems.drawing import add_meshcat_visualization, start_meshcat
+from godobject_drake.systems.drawing import (
+    Drawing,
+    TissueVisualizer,
+    add_meshcat_visualization,
+    start_meshcat,
+)
 
 
 def build_station(
@@ -41,43 +46,119 @@ def build_station(
     """Build any scenario into a diagram (module docstring); ``meshcat`` None makes the one
     the scenario asks for (:func:`make_meshcat`). ``check_gains=False`` builds gains past
     the explicit limit instead of refusing them: for stability analysis only
-    (:mod:`godobject_drake.studies.analyze` simulates them to find the limit)."""
+    (:mod:`godobject_drake.studies.analyze` simulates them to find the limit). A scene of several
+    tools builds each tool's loop alike on the one plant, its systems named ``NAME/...``."""
     sc.check_scenario(scenario)
     meshcat = meshcat or make_meshcat(scenario)
     builder = DiagramBuilder()
-    kind = kind_for(scenario.god_object)
-    device = add_device(builder, scenario, meshcat)
-    added = {}
+    views = scenario.per_tool()  # {"": scenario} for a scene of one tool
+    kinds = {name: kind_for(view.god_object) for name, view in views.items()}
+    devices = {
+        name: add_device(builder, view, meshcat, name=_named(name, "device")) for name, view in views.items()
+    }
+    added = {name: {} for name in views}
 
     def before_finalize(plant, scene_graph):
-        added.update(kind.add_to_plant(plant, scene_graph, scenario, device, check_gains=check_gains))
+        for name, view in views.items():
+            added[name].update(
+                kinds[name].add_to_plant(
+                    plant, scene_graph, view, devices[name], check_gains=check_gains, name=name
+                )
+            )
 
     scene = add_plant(builder, scenario, before_finalize)
-    god = kind.build(builder, scene, scenario, device, added, check_gains=check_gains)
-    return finish(builder, scenario, scene, god, meshcat)
+    tools = {}
+    for name, view in views.items():
+        before = set(builder.GetSystems())
+        tools[name] = kinds[name].build(
+            builder, scene, view, devices[name], added[name], check_gains=check_gains
+        )
+        for system in set(builder.GetSystems()) - before:
+            system.set_name(_named(name, system.get_name()))
+    check_grasps(tools)
+    share_grasps(builder, [tool.coupling for tool in tools.values() if tool.holds_free_bodies])
+    return finish(builder, scenario, scene, tools, meshcat)
+
+
+def _named(tool: str, name: str) -> str:
+    """A system's name in a tool's loop: ``NAME/name`` in a scene of several tools, ``name`` alone."""
+    return f"{tool}/{name}" if tool else name
+
+
+def check_grasps(tools: dict[str, GodObject]) -> None:
+    """Two tools whose devices grasp one body at the same time are refused, naming both, the body
+    and when (a body is held by one tool at a time); a grasp decided at run time (a live or real
+    device's ``*``) is arbitrated then: see :class:`~godobject_drake.systems.coupling.GraspingCoupling`."""
+    if len(tools) < 2:
+        return
+    spans = {name: tool.grasp_spans() for name, tool in tools.items()}
+    names = list(spans)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            for body, (a0, a1) in spans[a].items():
+                if body in spans[b]:
+                    b0, b1 = spans[b][body]
+                    if a0 <= b1 and b0 <= a1:
+                        raise sc.ScenarioError(
+                            f"tools.{a} and tools.{b} both grasp {body} from t = {max(a0, b0):g} s to "
+                            f"{min(a1, b1):g} s: a body is held by one tool at a time; change one device's "
+                            "path (its grasp) so they take turns, or let each hold its own body"
+                        )
 
 
 def finish(
     builder: DiagramBuilder,
     scenario: sc.Scenario,
     scene: SceneParts,
-    god: GodObject,
+    tools: "dict[str, GodObject] | GodObject",
     meshcat: Meshcat | None = None,
 ) -> "Station":
     """The loggers and the drawing added, the diagram built, its wiring and penetration budget
-    checked, resting bodies put to sleep where the tool allows: the :class:`Station`."""
-    loggers = god.add_loggers(builder, scene.plant)
+    checked, resting bodies put to sleep where the tools allow: the :class:`Station`. ``tools``:
+    the tools by name, or one tool (a diagram of one's own)."""
+    if isinstance(tools, GodObject):
+        tools = {"": tools}
+    if scene.forces is not None:
+        scene.forces.connect(builder)  # every tool's forces into the plant
+    loggers, tool_loggers = add_loggers(builder, scene.plant, tools)
     if meshcat is not None:
-        add_visualization(builder, meshcat, scene, god, scenario)
+        add_visualization(builder, meshcat, scene, tools, scenario)
     diagram = builder.Build()
-    check_wiring(diagram, mode=god.mode)
-    predicted = check_penetration_budget(god, scene, scenario)
+    views = scenario.per_tool() if set(tools) == set(scenario.per_tool()) else dict.fromkeys(tools, scenario)
+    predicted = []
+    for name, tool in tools.items():
+        check_wiring(diagram, mode=tool.mode)
+        depth = check_penetration_budget(tool, scene, views[name])
+        if depth is not None:
+            predicted.append(depth)
     sleeper = None
-    if scenario.sleep.enabled and god.sleeps_others:
-        sleeper = SleepManager(scene.plant, scene.scene_graph, scenario.sleep, god.coupling, meshcat)
+    if scenario.sleep.enabled and all(tool.sleeps_others for tool in tools.values()):
+        couplings = [tool.coupling for tool in tools.values()]
+        sleeper = (
+            SleepManager(scene.plant, scene.scene_graph, scenario.sleep, couplings[0], meshcat)
+            if len(couplings) == 1
+            else None
+        )
     return Station(
-        scenario, diagram, scene.plant, scene.scene_graph, god, loggers, meshcat, predicted, sleeper
-    )
+        scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
+        max(predicted) if predicted else None, sleeper, tool_loggers,
+    )  # fmt: skip
+
+
+def add_loggers(builder: DiagramBuilder, plant, tools: dict[str, GodObject]):
+    """Per-step logs of what the metrics read: each tool's (``logged_ports``), the plant's state
+    once. Returns ``(loggers by name, each tool's {its own name: the logger's name})``; in a scene
+    of one tool the names are the tool's own (``state``, ``terms``, ...)."""
+    loggers, tool_loggers = {}, {}
+    for name, tool in tools.items():
+        tool_loggers[name] = {}
+        for key, port in tool.logged_ports(plant).items():
+            full = key if key == "state" else _named(name, key)
+            if full not in loggers:
+                loggers[full] = LogVectorOutput(port, builder, plant.time_step())
+                loggers[full].set_name(f"{full}_log")  # named, so GetGraphvizString reads well
+            tool_loggers[name][key] = full
+    return loggers, tool_loggers
 
 
 def check_penetration_budget(god: GodObject, scene: SceneParts, scenario: sc.Scenario) -> float | None:
@@ -105,11 +186,28 @@ def check_penetration_budget(god: GodObject, scene: SceneParts, scenario: sc.Sce
 
 
 def add_visualization(
-    builder: DiagramBuilder, meshcat: Meshcat, scene: SceneParts, god: GodObject, scenario: sc.Scenario
+    builder: DiagramBuilder,
+    meshcat: Meshcat,
+    scene: SceneParts,
+    tools: dict[str, GodObject],
+    scenario: sc.Scenario,
 ) -> None:
-    """Drake's MeshcatVisualizer, the god-object kind's own drawing, and the scenario's camera."""
+    """Drake's MeshcatVisualizer, each tool kind's own drawing (in its own colour and Meshcat folder
+    in a scene of several), and the scenario's camera."""
     add_meshcat_visualization(builder, meshcat, scene.scene_graph, scenario.visualization.publish_period_s)
-    god.add_drawing(builder, meshcat, scene, scenario)
+    views = scenario.per_tool() if set(tools) == set(scenario.per_tool()) else dict.fromkeys(tools, scenario)
+    for k, (name, tool) in enumerate(tools.items()):
+        before = set(builder.GetSystems())
+        tool.add_drawing(builder, meshcat, scene, views[name], Drawing(name, k))
+        for system in set(builder.GetSystems()) - before:
+            system.set_name(_named(name, system.get_name()))
+    observers = [tool.tissue_observer for tool in tools.values() if getattr(tool, "tissue_observer", None)]
+    if scene.tissue is not None and observers:  # the organ once, whichever tool's observer reads it
+        period = scenario.visualization.publish_period_s
+        drawing = builder.AddNamedSystem("tissue_visualizer", TissueVisualizer(meshcat, scene.tissue, period))
+        builder.Connect(
+            observers[0].GetOutputPort("surface_positions"), drawing.GetInputPort("surface_positions")
+        )
     camera = scenario.visualization.camera
     if camera is not None:
         meshcat.SetCameraPose(np.asarray(camera.position_m, float), np.asarray(camera.target_m, float))
@@ -147,31 +245,59 @@ class Station:
     diagram : Diagram
     plant, scene_graph :
         Drake's MultibodyPlant and SceneGraph.
-    god_object : GodObject
-        The coupling, feedback port, device and haptic parts.
+    tools : dict[str, GodObject]
+        Each tool's coupling, feedback port, device and haptic chain, by name (``""`` for the one
+        tool of a scene of one; :attr:`god_object` is it).
     loggers : dict[str, VectorLogSink]
-        Per-step logs the metrics read: ``state`` always; ``terms`` (rigid),
+        Per-step logs the metrics read: ``state`` always; each tool's own, ``terms`` (rigid),
         ``q_device`` (articulated), ``pose_WT``, ``vertex_positions``, ``rest_positions``,
-        ``pose_WC`` (deformable). Add one's own before ``Build`` and read it from the
-        run's context.
+        ``pose_WC`` (deformable), named ``NAME/terms`` in a scene of several tools. Add one's
+        own before ``Build`` and read it from the run's context.
     meshcat : Meshcat | None
     predicted_penetration_m : float | None
-        Deepest static penetration the god-object's capped pull could cause (m), None where
-        it cannot be predicted (:func:`predict_penetration`).
+        Deepest static penetration a tool's capped pull could cause (m), None where it cannot
+        be predicted (:meth:`~godobject_drake.station.kinds.GodObject.predict_penetration`).
     sleeper : SleepManager | None
         Locks resting free bodies (``scenario.sleep``); rigid and deformable god-objects (an
         articulated tool's bodies are not free bodies it could watch).
+    tool_loggers : dict[str, dict[str, str]]
+        Each tool's logger names: its own name for a log (``terms``) to the station's
+        (``left/terms``).
     """
 
     scenario: sc.Scenario
     diagram: Diagram
     plant: MultibodyPlant
     scene_graph: object
-    god_object: GodObject
+    tools: dict[str, GodObject]
     loggers: dict[str, VectorLogSink]
     meshcat: Meshcat | None = None
     predicted_penetration_m: float | None = None
     sleeper: SleepManager | None = None
+    tool_loggers: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
+
+    @property
+    def god_object(self) -> GodObject:
+        """The tool of a scene of one tool (a scene of several: :attr:`tools`, or :meth:`for_tool`)."""
+        if len(self.tools) != 1:
+            raise AttributeError(
+                f"this station has {len(self.tools)} tools ({', '.join(self.tools)}): ask "
+                "station.tools[NAME] or station.for_tool(NAME)"
+            )
+        return next(iter(self.tools.values()))
+
+    def for_tool(self, name: str) -> "Station":
+        """The station as the tool ``name`` sees it: its scenario view (its own device, tool, gains),
+        itself as the one tool, its loggers under their own names (``state``, ``terms``): what the
+        metrics and the studies of one tool read."""
+        if name not in self.tools:
+            raise KeyError(f"no tool {name!r}; the tools are {', '.join(map(repr, self.tools))}")
+        if list(self.tools) == [name]:
+            return self
+        loggers = {key: self.loggers[full] for key, full in self.tool_loggers[name].items()}
+        view = self.scenario.per_tool()[name]
+        return dataclasses.replace(self, scenario=view, tools={name: self.tools[name]}, loggers=loggers,
+                                   tool_loggers={name: {k: k for k in loggers}})  # fmt: skip
 
     @property
     def device(self):
@@ -188,5 +314,5 @@ class Station:
 
     @property
     def live(self) -> bool:
-        """Driven from the browser (the device kind says so)."""
-        return kind_of(self.scenario.device).live
+        """Driven from the browser (some tool's device kind says so)."""
+        return any(kind_of(view.device).live for view in self.scenario.per_tool().values())

@@ -18,7 +18,7 @@ from godobject_drake.devices.sources import DeviceSource, first_pose
 from godobject_drake.metrics import ShellMetrics
 from godobject_drake.station.kinds import GodObject, tool_kind
 from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
-from godobject_drake.systems.drawing import ShellVisualizer
+from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ShellVisualizer
 from godobject_drake.systems.shell import add_deformable_god_object, obstacle_geometries
 
 if TYPE_CHECKING:
@@ -46,7 +46,7 @@ class DeformableGodObject(RigidGodObject):
     )
 
     @classmethod
-    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True, name="") -> dict:
         """The core and its shell, at the device's first pose (the gains checked before meshing)."""
         config = scenario.god_object
         if check_gains:
@@ -60,7 +60,7 @@ class DeformableGodObject(RigidGodObject):
         return add_deformable(
             builder, scene.plant, added["shell"], device, scenario.god_object.gains, scenario.feedback,
             haptic=scenario.haptic, connect_forces=scenario.simulation.mode == "god_object",
-            check_gains=check_gains,
+            check_gains=check_gains, forces=scene.forces,
         )  # fmt: skip
 
     compares_engines: ClassVar[bool] = False
@@ -88,15 +88,17 @@ class DeformableGodObject(RigidGodObject):
             ports[name] = self.observer.GetOutputPort(name)
         return ports
 
-    def add_drawing(self, builder, meshcat, scene, scenario) -> None:
-
+    def add_drawing(self, builder, meshcat, scene, scenario, drawing: Drawing = ONE_TOOL) -> None:
         period = scenario.visualization.publish_period_s
-        drawing = builder.AddNamedSystem("shell_visualizer", ShellVisualizer(meshcat, self.shell, period))
-        builder.Connect(
-            self.observer.GetOutputPort("vertex_positions"), drawing.GetInputPort("vertex_positions")
+        prefix = f"{drawing.prefix}/{self.shell.name}" if drawing.tool else None  # None: the probe's name
+        shell = builder.AddNamedSystem(
+            "shell_visualizer", ShellVisualizer(meshcat, self.shell, period, prefix)
         )
-        builder.Connect(self.observer.GetOutputPort("pose_WC"), drawing.GetInputPort("pose_WC"))
-        builder.Connect(self.coupling.GetOutputPort("pose_WT"), drawing.GetInputPort("pose_WT"))
+        builder.Connect(
+            self.observer.GetOutputPort("vertex_positions"), shell.GetInputPort("vertex_positions")
+        )
+        builder.Connect(self.observer.GetOutputPort("pose_WC"), shell.GetInputPort("pose_WC"))
+        builder.Connect(self.coupling.GetOutputPort("pose_WT"), shell.GetInputPort("pose_WT"))
 
     def new_metrics(self, station):
         return _ShellFold(station, self)
@@ -149,6 +151,7 @@ def add_deformable(
     haptic: "sc.Haptic | None" = None,
     connect_forces: bool = True,
     check_gains: bool = True,
+    forces=None,
 ) -> DeformableGodObject:
     """A deformable god-object: its shell's observer, and :func:`add_god_object` on its core,
     with gains and gravity compensation scaled by core + shell (``carried``).
@@ -159,7 +162,7 @@ def add_deformable(
     observer = shell.connect(builder, plant)
     god = add_god_object(
         builder, plant, device, gains, feedback_gains, haptic=haptic, connect_forces=connect_forces,
-        carried={shell.grasp_name: shell.shell_inertia()}, check_gains=check_gains,
+        carried={shell.grasp_name: shell.shell_inertia()}, check_gains=check_gains, forces=forces,
     )  # fmt: skip
     parts = {f.name: getattr(god, f.name) for f in dataclasses.fields(god)}
     return DeformableGodObject(**parts, shell=shell, observer=observer)

@@ -19,6 +19,7 @@ from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from godobject_drake.config.tools import register_tool_config
 from godobject_drake.station.haptic_chain import HapticChain
+from godobject_drake.systems.drawing import ONE_TOOL, Drawing
 
 if TYPE_CHECKING:
     from godobject_drake.devices.sources import DeviceSource, JointDevice
@@ -115,9 +116,12 @@ class GodObject:
     no_prediction_reason: ClassVar[str] = ""  # why not, for analyze's contact row
 
     @classmethod
-    def add_to_plant(cls, plant: MultibodyPlant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+    def add_to_plant(
+        cls, plant: MultibodyPlant, scene_graph, scenario, device, *, check_gains=True, name=""
+    ) -> dict:
         """What the kind adds to the plant before ``Finalize`` (nothing by default); the returned
-        dict is handed to :meth:`build`."""
+        dict is handed to :meth:`build`. ``name``: the tool's, in a scene of several (for the names
+        of what it adds to the plant)."""
         return {}
 
     @classmethod
@@ -143,8 +147,11 @@ class GodObject:
         them after the run rather than per step (nothing by default)."""
         return rows
 
-    def add_drawing(self, builder: DiagramBuilder, meshcat, scene, scenario) -> None:
-        """The kind's own drawing beside Drake's MeshcatVisualizer (nothing by default)."""
+    def add_drawing(
+        self, builder: DiagramBuilder, meshcat, scene, scenario, drawing: Drawing = ONE_TOOL
+    ) -> None:
+        """The kind's own drawing beside Drake's MeshcatVisualizer (nothing by default), under
+        ``drawing.prefix`` in ``drawing``'s colours (a tool of a scene of several)."""
 
     def new_metrics(self, station):
         """The kind's metrics accumulator: ``fold(rows, data, finite) -> (p_WT, p_WG)`` and ``result()``."""
@@ -161,6 +168,14 @@ class GodObject:
     def held_bodies(self, root_context) -> set[int]:
         """The BodyIndex values the coupling holds now (none by default)."""
         return set()
+
+    holds_free_bodies: ClassVar[bool] = False  # its coupling grasps the scene's free bodies by name
+
+    def grasp_spans(self) -> dict[str, tuple[float, float]]:
+        """The free bodies its device's path or log grasps by name, each with the first and last
+        time (s) it does: two tools may not hold one body at once (``station.build.check_grasps``).
+        None by default; a grasp decided at run time (``*``) is the couplings' to share."""
+        return {}
 
     def prepare(self, plant_context) -> None:
         """Before the simulator initializes (nothing by default)."""

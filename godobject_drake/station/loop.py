@@ -19,8 +19,9 @@ The articulated tool's loop has the same steps with joint-space parts (:func:`ad
 
 import math
 
-from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.plant import ExternallyAppliedSpatialForceMultiplexer, MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import Adder
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.devices import kind_of
@@ -29,7 +30,7 @@ from godobject_drake.devices import factory
 from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.station.haptic_chain import HapticChain
 from godobject_drake.systems.articulated import ArticulatedCoupling, ArticulatedFeedback, ArticulatedTool
-from godobject_drake.systems.coupling import GodObjectCoupling
+from godobject_drake.systems.coupling import GodObjectCoupling, GraspLedger
 from godobject_drake.systems.feedback import FeedbackPort
 from godobject_drake.systems.implicit import ImplicitCoupling, ImplicitCouplingError
 
@@ -70,6 +71,46 @@ def add_device(builder: DiagramBuilder, scenario: sc.Scenario, meshcat=None, *, 
         duration_s=scenario.simulation.duration_s,
     )  # fmt: skip
     return builder.AddNamedSystem(name, device)
+
+
+# -- the plant's force inputs, shared by every tool -------------------------------------------------------
+
+
+class ForceBus:
+    """The forces of every tool of a scene into the plant's two force inputs: one source is
+    connected straight, several through an ``Adder`` (generalized forces) or an
+    ``ExternallyAppliedSpatialForceMultiplexer`` (spatial forces), when the station is finished."""
+
+    def __init__(self, plant: MultibodyPlant):
+        self.plant = plant
+        self.generalized, self.spatial = [], []
+
+    def connect(self, builder: DiagramBuilder) -> None:
+        plant = self.plant
+        for ports, into, join in (
+            (self.generalized, plant.get_applied_generalized_force_input_port(),
+             lambda n: Adder(n, plant.num_velocities())),
+            (self.spatial, plant.get_applied_spatial_force_input_port(),
+             ExternallyAppliedSpatialForceMultiplexer),
+        ):  # fmt: skip
+            if len(ports) == 1:
+                builder.Connect(ports[0], into)
+            elif ports:
+                name = "generalized_forces" if ports is self.generalized else "spatial_forces"
+                sum_ = builder.AddNamedSystem(name, join(len(ports)))
+                for i, port in enumerate(ports):
+                    builder.Connect(port, sum_.get_input_port(i))
+                builder.Connect(sum_.get_output_port(0), into)
+
+
+def _drive(builder: DiagramBuilder, plant: MultibodyPlant, port, bus: ForceBus | None, spatial: bool) -> None:
+    """``port`` into the plant's spatial or generalized force input: now, or through ``bus``."""
+    if bus is not None:
+        (bus.spatial if spatial else bus.generalized).append(port)
+    elif spatial:
+        builder.Connect(port, plant.get_applied_spatial_force_input_port())
+    else:
+        builder.Connect(port, plant.get_applied_generalized_force_input_port())
 
 
 # -- coupling ----------------------------------------------------------------------------------------------
@@ -129,6 +170,7 @@ def add_joint_coupling(
     connect_forces: bool = True,
     check_gains: bool = True,
     name: str = "coupling",
+    bus: ForceBus | None = None,
 ) -> ArticulatedCoupling:
     """Make a tree model a god-object (paper Eq. 4–7): one call, after ``plant.Finalize()``.
 
@@ -155,11 +197,9 @@ def add_joint_coupling(
         plant.get_body_spatial_velocities_output_port(), system.GetInputPort("body_spatial_velocities")
     )
     if connect_forces:
-        builder.Connect(system.GetOutputPort("spatial_forces"), plant.get_applied_spatial_force_input_port())
+        _drive(builder, plant, system.GetOutputPort("spatial_forces"), bus, spatial=True)
         if coupling == "joint_pd":
-            builder.Connect(
-                system.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
-            )
+            _drive(builder, plant, system.GetOutputPort("generalized_force"), bus, spatial=False)
         if coupling == "joint_pd_sap":
             builder.Connect(
                 system.GetOutputPort("desired_state"), plant.get_desired_state_input_port(tool.model)
@@ -173,13 +213,25 @@ def connect_target(builder: DiagramBuilder, chain: HapticChain, coupling) -> Non
         builder.Connect(chain.target.GetOutputPort(port), coupling.GetInputPort(port))
 
 
-def connect_forces(builder: DiagramBuilder, plant: MultibodyPlant, coupling) -> None:
+def connect_forces(
+    builder: DiagramBuilder, plant: MultibodyPlant, coupling, bus: ForceBus | None = None
+) -> None:
     """The explicit coupling's wrench into the plant (an implicit coupling's springs are the
-    plant's own: nothing to connect)."""
+    plant's own: nothing to connect); through the station's ``bus`` when several tools share the
+    plant's input."""
     if not isinstance(coupling, ImplicitCoupling):
-        builder.Connect(
-            coupling.GetOutputPort("generalized_force"), plant.get_applied_generalized_force_input_port()
-        )
+        _drive(builder, plant, coupling.GetOutputPort("generalized_force"), bus, spatial=False)
+
+
+def share_grasps(builder: DiagramBuilder, couplings: list) -> None:
+    """A scene of several rigid tools: each coupling learns what the others hold (a
+    :class:`~godobject_drake.systems.coupling.GraspLedger`), so no two hold one body."""
+    if len(couplings) < 2:
+        return
+    ledger = builder.AddNamedSystem("grasp_ledger", GraspLedger(len(couplings)))
+    for i, coupling in enumerate(couplings):
+        builder.Connect(coupling.GetOutputPort("held_body"), ledger.GetInputPort(f"held_body_{i}"))
+        builder.Connect(ledger.GetOutputPort(f"held_elsewhere_{i}"), coupling.GetInputPort("held_elsewhere"))
 
 
 # -- feedback ----------------------------------------------------------------------------------------------

@@ -37,6 +37,7 @@ from pydrake.systems.framework import DiagramBuilder
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.scenario import MODELS_DIR
 from godobject_drake.config.scene import CORNER_PREFIX, FLAT_PREFIX, is_proxy, local_name
+from godobject_drake.station.loop import ForceBus
 from godobject_drake.systems.tissue import FemOrgan
 
 CONTACT_MODELS = ("proxies", "hydroelastic")
@@ -128,6 +129,7 @@ class SceneParts:
     scene_graph: SceneGraph
     contact: str
     tissue: object = None  # a godobject_drake.systems.tissue.FemOrgan with organs.model fem
+    forces: object = None  # the station's loop.ForceBus: every tool's forces into the plant
 
 
 def add_directives_plant(
@@ -307,6 +309,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
             )
     check_free_bodies(scene.plant)
     scene.tissue = tissue[0] if tissue else None
+    scene.forces = ForceBus(scene.plant)
     return scene
 
 

@@ -22,14 +22,14 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.config.gains import CouplingGains, FeedbackGains
+from godobject_drake.config.gains import GRASP_NEAREST, CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
 from godobject_drake.station import loop
 from godobject_drake.station.haptic_chain import add_haptic_chain, check_haptic_gains
 from godobject_drake.station.kinds import GodObject, tool_kind
 from godobject_drake.systems.coupling import TERMS_LAYOUT
-from godobject_drake.systems.drawing import GodObjectVisualizer
+from godobject_drake.systems.drawing import ONE_TOOL, Drawing, GodObjectVisualizer
 from godobject_drake.systems.implicit import ImplicitCouplingError, SpringHook, add_springs, implicit_terms
 
 
@@ -46,10 +46,10 @@ class RigidGodObject(GodObject):
     predicts_penetration: ClassVar[bool] = True
 
     @classmethod
-    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True) -> dict:
+    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True, name="") -> dict:
         """The implicit coupling's springs (SAP constraints, added before ``Finalize``)."""
         if scenario.god_object.coupling == "implicit":
-            return {"springs": add_springs(plant)}
+            return {"springs": add_springs(plant, name)}
         return {}
 
     @classmethod
@@ -58,7 +58,7 @@ class RigidGodObject(GodObject):
         return add_god_object(
             builder, scene.plant, device, config.gains, scenario.feedback, haptic=scenario.haptic,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
-            springs=added.get("springs"), **coupling_options(config),
+            springs=added.get("springs"), forces=scene.forces, **coupling_options(config),
         )  # fmt: skip
 
     def logged_ports(self, plant):
@@ -96,13 +96,14 @@ class RigidGodObject(GodObject):
             raise ValueError("the scenario's device grasps no body: no god-object pose to compare")
         return names[0]
 
-    def add_drawing(self, builder, meshcat, scene, scenario) -> None:
+    def add_drawing(self, builder, meshcat, scene, scenario, drawing: Drawing = ONE_TOOL) -> None:
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
             "god_object_visualizer",
             GodObjectVisualizer(
-                meshcat, scene.plant, scene.scene_graph, period,
+                meshcat, scene.plant, scene.scene_graph, period, drawing.prefix,
                 max_stretch_m=self.coupling.max_stretch_m if scenario.visualization.force_cue else None,
+                ghost_rgb=drawing.ghost_rgb, spring_rgb=drawing.spring_rgb,
             ),
         )  # fmt: skip
         for name in ("pose_WT", "pose_WG", "held_body"):
@@ -116,6 +117,19 @@ class RigidGodObject(GodObject):
 
     def configuration(self, scenario, station) -> dict:
         return {"haptic": scenario.haptic.mode}
+
+    holds_free_bodies: ClassVar[bool] = True
+
+    def grasp_spans(self) -> dict[str, tuple[float, float]]:
+        spans: dict[str, tuple[float, float]] = {}
+        for t, sample in self.source.samples(getattr(self.source, "end_time_s", 0.0)):
+            name = sample[2] if sample is not None else ""
+            if not name or name == GRASP_NEAREST:
+                continue
+            body = self.coupling.body_for_grasp(name).name
+            first, last = spans.get(body, (t, t))
+            spans[body] = (min(first, t), max(last, t))
+        return spans
 
     def held_bodies(self, root_context) -> set[int]:
         context = self.coupling.GetMyContextFromRoot(root_context)
@@ -205,6 +219,7 @@ def add_god_object(
     name: str = "coupling",
     check_gains: bool = True,
     springs=None,
+    forces: "loop.ForceBus | None" = None,
     **coupling_options,
 ) -> "RigidGodObject":
     """Make the plant's free bodies god-objects of ``device``: one call, after ``plant.Finalize()``.
@@ -220,7 +235,9 @@ def add_god_object(
     ``connect_forces=False`` leaves the plant's force inputs alone (the position baseline).
     ``check_gains=False`` builds gains past the explicit limit, and haptic gains past the
     device's (:func:`~godobject_drake.station.haptic_chain.check_haptic_gains`; stability analysis
-    only). ``coupling_options`` go to the coupling (``carried``, ``graspable``, ``max_stretch_m``,
+    only). ``forces``: the station's :class:`~godobject_drake.station.loop.ForceBus` when several
+    tools share the plant (None: connected now). ``coupling_options`` go to the coupling
+    (``carried``, ``graspable``, ``max_stretch_m``,
     ``max_twist_rad``, ``grasp_reach_m``, ``gravity_compensation``).
     """
     haptic = haptic or sc.Haptic()
@@ -238,7 +255,7 @@ def add_god_object(
     feedback = loop.add_feedback(builder, chain, coupling, feedback_gains)
     loop.connect_target(builder, chain, coupling)
     if connect_forces:
-        loop.connect_forces(builder, plant, coupling)
+        loop.connect_forces(builder, plant, coupling, forces)
     publisher = loop.render_feedback(builder, device, chain, feedback, coupling)
     god_class = ImplicitGodObject if springs is not None else RigidGodObject
     return god_class(coupling, feedback, source=device, chain=chain, publisher=publisher,

@@ -258,10 +258,13 @@ class GraspingCoupling:
         for name in names:
             self.body_for_grasp(name)
 
-    def nearest_body(self, p_WD: np.ndarray, x: np.ndarray) -> GraspableBody | None:
-        """The free body whose centre of mass is nearest ``p_WD``, if within ``grasp_reach_m``."""
+    def nearest_body(self, p_WD: np.ndarray, x: np.ndarray, taken=()) -> GraspableBody | None:
+        """The free body whose centre of mass is nearest ``p_WD``, if within ``grasp_reach_m``, but
+        those ``taken`` (BodyIndex values another tool holds)."""
         best, best_d = None, self.grasp_reach_m
         for body in self._by_index.values():
+            if body.index in taken:
+                continue
             d = float(np.linalg.norm(self._body_state(body, x)[1] - p_WD))
             if d <= best_d:
                 best, best_d = body, d
@@ -269,17 +272,33 @@ class GraspingCoupling:
 
     def _grasp_change(self, context, held: int) -> tuple[bool, "GraspableBody | None"]:
         """``(changed, body)``: whether the ``grasp`` input selects another body than ``held`` (a
-        BodyIndex or −1), and which (None: release). ``"*"`` keeps what it took."""
+        BodyIndex or −1), and which (None: release). ``"*"`` keeps what it took. A body another tool
+        holds (the ``held_elsewhere`` input, in a scene of several tools) is not taken: ``"*"``
+        passes it over, a grasp by name waits until it is let go (:attr:`refused_grasps` counts
+        the samples that waited)."""
         name = self._grasp_port.Eval(context)
+        taken = self._taken(context)
         if name == GRASP_NEAREST:
             if held >= 0:
                 return False, None  # keep what "*" took
             body = self.nearest_body(
-                pose_arrays(self._X_WD_port.Eval(context))[1], self._state_port.Eval(context)
+                pose_arrays(self._X_WD_port.Eval(context))[1], self._state_port.Eval(context), taken
             )
         else:
             body = self.body_for_grasp(name)
+            if body is not None and body.index in taken and body.index != held:
+                self.refused_grasps += 1
+                return False, None
         return (body.index if body else -1) != held, body
+
+    def _declare_held_elsewhere(self) -> None:
+        """The optional input of what the scene's other tools hold (a tuple of BodyIndex values)."""
+        self._elsewhere_port = self.DeclareAbstractInputPort("held_elsewhere", AbstractValue.Make(()))
+        self.refused_grasps = 0
+
+    def _taken(self, context) -> tuple:
+        port = self._elsewhere_port
+        return tuple(port.Eval(context)) if port.HasValue(context) else ()
 
     @staticmethod
     def _body_state(body: GraspableBody, x: np.ndarray):
@@ -406,6 +425,7 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
         self._X_WD_port = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
         self._V_WD_port = self.DeclareVectorInputPort("V_WD", 6)
         self._grasp_port = self.DeclareAbstractInputPort("grasp", AbstractValue.Make(""))
+        self._declare_held_elsewhere()
         self._F_device_port = self.DeclareVectorInputPort("F_device_W", 6)
 
         # [held BodyIndex or −1, q_DG (4), p_DoGo_D (3)]
@@ -591,3 +611,37 @@ class GodObjectCoupling(GraspingCoupling, LeafSystem):
             output.SetFromVector(self._terms.Eval(context)[sl])
 
         return calc
+
+
+class GraspLedger(LeafSystem):
+    """What each rigid tool of a scene of several may not grasp: what the others hold.
+
+    .. pydrake_system::
+
+        name: GraspLedger
+        input_ports:
+        - held_body_0
+        - ...
+        output_ports:
+        - held_elsewhere_0
+        - ...
+
+    Input ``held_body_i`` is tool i's coupling's ``held_body`` (−1: nothing); output
+    ``held_elsewhere_i`` the BodyIndex values every other tool holds, for tool i's coupling's
+    ``held_elsewhere`` (:meth:`GraspingCoupling._grasp_change`). The couplings' ``held_body`` is
+    their state, so the ledger closes no algebraic loop.
+    """
+
+    def __init__(self, n: int):
+        super().__init__()
+        self._held = [self.DeclareVectorInputPort(f"held_body_{i}", 1) for i in range(n)]
+        for i in range(n):
+            self.DeclareAbstractOutputPort(
+                f"held_elsewhere_{i}",
+                lambda: AbstractValue.Make(()),
+                lambda c, out, i=i: self._calc(c, out, i),
+            )
+
+    def _calc(self, context, output, i: int) -> None:
+        held = (int(port.Eval(context)[0]) for j, port in enumerate(self._held) if j != i)
+        output.set_value(tuple(index for index in held if index >= 0))

@@ -21,6 +21,7 @@ tool (its kinematic copy) as a wireframe under ``/godobject/device_tool``.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -62,6 +63,41 @@ CUE_CAP_RGBA = (1.0, 0.0, 0.0, 1.0)
 CUE_LEVELS = 8
 
 
+# Each tool of a scene of several draws its ghost and spring in its own colours (rgb; the opacity
+# stays the one above): the first as a scene of one tool does.
+PALETTE = (
+    ((0.3, 0.6, 1.0), (1.0, 0.8, 0.1)),  # blue ghost, yellow spring
+    ((0.2, 0.8, 0.35), (0.95, 0.35, 0.85)),  # green ghost, magenta spring
+    ((0.7, 0.45, 1.0), (0.2, 0.9, 0.9)),  # violet ghost, cyan spring
+    ((1.0, 0.55, 0.2), (0.55, 0.9, 0.2)),  # orange ghost, lime spring
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Drawing:
+    """Where a tool's own drawing goes and in which colours: ``/godobject`` and the first colours for
+    a scene of one tool (``tool`` empty); ``/godobject/NAME`` and the ``index``-th colours of
+    :data:`PALETTE` for the tool NAME of a scene of several."""
+
+    tool: str = ""
+    index: int = 0
+
+    @property
+    def prefix(self) -> str:
+        return f"/godobject/{self.tool}" if self.tool else "/godobject"
+
+    @property
+    def ghost_rgb(self) -> tuple:
+        return PALETTE[self.index % len(PALETTE)][0]
+
+    @property
+    def spring_rgb(self) -> tuple:
+        return PALETTE[self.index % len(PALETTE)][1]
+
+
+ONE_TOOL = Drawing()  # the drawing of a scene of one tool
+
+
 def cue_level(ratio: float) -> float:
     """How strongly the force cue shows a stretch ``ratio`` of the force cap: ``√ratio`` clipped
     to [0, 1]. The square root makes small pushes visible: a tenth of the cap shows at 0.32."""
@@ -96,10 +132,14 @@ class GodObjectVisualizer(LeafSystem):
         publish_period_s: float = 1.0 / DEFAULT_FPS,
         prefix: str = "/godobject",
         max_stretch_m: float | None = None,
+        ghost_rgb=GHOST_RGBA.rgba[:3],
+        spring_rgb=SPRING_RGBA.rgba[:3],
     ):
         super().__init__()
         self._meshcat = meshcat
         self._prefix = prefix
+        ghost = Rgba(*ghost_rgb, GHOST_RGBA.a())
+        cue_ghost, cue_spring = (*ghost_rgb, CUE_GHOST_RGBA[3]), (*spring_rgb, CUE_SPRING_RGBA[3])
         # The force cue: None (off) or the stretch at the coupling's force cap (m).
         self._cue_stretch = max_stretch_m if max_stretch_m and np.isfinite(max_stretch_m) else None
         self._cue_step: int | None = None
@@ -119,7 +159,7 @@ class GodObjectVisualizer(LeafSystem):
             levels = range(CUE_LEVELS) if self._cue_stretch is not None else [None]
             for k in levels:
                 level = f"{path}/cue_{k}" if k is not None else path
-                rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), CUE_GHOST_RGBA)) if k is not None else GHOST_RGBA
+                rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), cue_ghost)) if k is not None else ghost
                 for i, gid in enumerate(inspector.GetGeometries(frame, Role.kIllustration)):
                     meshcat.SetObject(f"{level}/{i}", inspector.GetShape(gid), rgba)
                     meshcat.SetTransform(f"{level}/{i}", inspector.GetPoseInFrame(gid))
@@ -128,13 +168,15 @@ class GodObjectVisualizer(LeafSystem):
             meshcat.SetProperty(path, "visible", False)
             self._ghosts[body.index] = (path, body.p_BoBcm_B)
         if self._cue_stretch is None:
-            meshcat.SetObject(f"{prefix}/spring/cylinder", Cylinder(0.0006, 1.0), SPRING_RGBA)
+            meshcat.SetObject(
+                f"{prefix}/spring/cylinder", Cylinder(0.0006, 1.0), Rgba(*spring_rgb, SPRING_RGBA.a())
+            )
         else:
             for k in range(CUE_LEVELS):
-                rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), CUE_SPRING_RGBA))
+                rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), cue_spring))
                 meshcat.SetObject(f"{prefix}/spring/cylinder/cue_{k}", Cylinder(0.0006, 1.0), rgba)
                 meshcat.SetProperty(f"{prefix}/spring/cylinder/cue_{k}", "visible", k == 0)
-        meshcat.SetObject(f"{prefix}/device", Sphere(0.003), GHOST_RGBA)
+        meshcat.SetObject(f"{prefix}/device", Sphere(0.003), ghost)
         self._shown: int | None = None
 
     def _publish(self, context):
@@ -236,9 +278,11 @@ class ToolGhostVisualizer(LeafSystem):
         scene_graph: SceneGraph,
         publish_period_s: float = 1.0 / DEFAULT_FPS,
         prefix: str = "/godobject/device_tool",
+        rgb=GHOST_RGBA.rgba[:3],
     ):
         super().__init__()
         self._meshcat, self._tool, self._prefix = meshcat, tool, prefix
+        wire = Rgba(*rgb, GHOST_RGBA.a())
         self._q = self.DeclareVectorInputPort("q_device", tool.nq_device)
         self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish)
@@ -254,7 +298,7 @@ class ToolGhostVisualizer(LeafSystem):
             path = f"{prefix}/{body.name()}"
             for i, gid in enumerate(gids):
                 V, F = wire_mesh(inspector.GetShape(gid))
-                meshcat.SetTriangleMesh(f"{path}/{i}", V, F, GHOST_RGBA, wireframe=True)
+                meshcat.SetTriangleMesh(f"{path}/{i}", V, F, wire, wireframe=True)
                 meshcat.SetTransform(f"{path}/{i}", inspector.GetPoseInFrame(gid))
             self._bodies.append((path, body))
 

@@ -98,8 +98,15 @@ class ImplicitCouplingError(ValueError):
     """A scene the implicit coupling cannot drive (admittance, position baseline, a carried shell)."""
 
 
-def add_springs(plant: MultibodyPlant) -> tuple:
+def anchor_name(tool: str = "") -> str:
+    """The springs' anchor body (and model instance) of a tool: :data:`ANCHOR_NAME`, suffixed by the
+    tool's name in a scene of several."""
+    return f"{ANCHOR_NAME}_{tool}" if tool else ANCHOR_NAME
+
+
+def add_springs(plant: MultibodyPlant, tool: str = "") -> tuple:
     """Add the implicit coupling's springs (:data:`N_SPRINGS`) to ``plant`` (before ``Finalize``); their ids.
+    ``tool``: the tool's name in a scene of several (each has its own anchor, :func:`anchor_name`).
 
     They join the world to the first body for now, and :meth:`ImplicitGodObject.prepare` switches
     them off; a grasp retargets them (:class:`SpringHook`).
@@ -115,8 +122,8 @@ def add_springs(plant: MultibodyPlant) -> tuple:
     # The springs' fixed ends are on a body welded to the world, not on the world body: Drake 1.51.1
     # and 1.58.0 end the process (a segmentation fault in the first SAP step) on an active distance
     # constraint whose body A is the world (tests/test_implicit.py keeps the minimal case).
-    instance = plant.AddModelInstance(ANCHOR_NAME)
-    anchor = plant.AddRigidBody(ANCHOR_NAME, instance, SpatialInertia.SolidSphereWithMass(1e-6, 1e-3))
+    instance = plant.AddModelInstance(anchor_name(tool))
+    anchor = plant.AddRigidBody(anchor_name(tool), instance, SpatialInertia.SolidSphereWithMass(1e-6, 1e-3))
     plant.WeldFrames(plant.world_frame(), anchor.body_frame())
     first = plant.get_body(free[0])
     return tuple(
@@ -242,6 +249,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
         self._X_WD_port = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
         self._V_WD_port = self.DeclareVectorInputPort("V_WD", 6)
         self._grasp_port = self.DeclareAbstractInputPort("grasp", AbstractValue.Make(""))
+        self._declare_held_elsewhere()
         s0 = np.zeros(_N_STATE)
         s0[_HELD] = -1.0
         s0[_QDG] = (1.0, 0.0, 0.0, 0.0)
@@ -364,7 +372,8 @@ class SpringHook:
 
     def __init__(self, plant: MultibodyPlant, coupling: ImplicitCoupling):
         self.plant, self.coupling = plant, coupling
-        self.anchor = plant.GetBodyByName(ANCHOR_NAME).index()  # welded at the world's origin
+        # the springs start on their anchor, welded at the world's origin (one per tool: add_springs)
+        self.anchor = plant.GetDefaultDistanceConstraintParams()[coupling.springs[0]].bodyA()
         h = plant.time_step()
         # the coupling's updates: at offset + j period (its DeclarePeriodicDiscreteUpdateEvent)
         self._offset, self._period, self._margin = 0.5 * h, coupling.period_s, 0.25 * h
