@@ -240,7 +240,8 @@ def _sets_from_here(items: list[str]) -> list[str]:
     for item in items:
         key, eq, value = item.partition("=")
         v = value.strip()
-        if eq and key.strip() in _PATH_KEYS and v and "://" not in v and not Path(v).is_absolute():
+        field = re.sub(r"^tools\.[^.]+\.", "", key.strip())  # a tool's own: tools.NAME.device.path
+        if eq and field in _PATH_KEYS and v and "://" not in v and not Path(v).is_absolute():
             item = f"{key.strip()}={Path(v).resolve()}"
         out.append(item)
     return out

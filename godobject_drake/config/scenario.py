@@ -25,6 +25,7 @@ import dataclasses
 import importlib.resources
 import math
 import re
+import types
 import typing
 from pathlib import Path
 
@@ -243,7 +244,7 @@ MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 # The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
 SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
 # the shipped scenes: diagrams/NAME.yaml
-SHIPPED = ("lego", "laparoscopy", "deformable_probe", "lego_two_hands")
+SHIPPED = ("lego", "laparoscopy", "deformable_probe", "lego_two_hands", "laparoscopy_bimanual")
 
 
 def shipped_scenario_file(name: str) -> Path:
@@ -309,7 +310,9 @@ def _tag_kinds(node, holder, hints) -> bool:
     changed = False
     for key, value in node.value:
         field = key.value if isinstance(key, yaml.ScalarNode) else None
-        kinds = typing.get_args(hints.get(field)) if field in hints else ()
+        hint = hints.get(field)
+        union = typing.get_origin(hint) in (typing.Union, types.UnionType)  # not dict[str, Tool]'s args
+        kinds = [k for k in typing.get_args(hint) if k is not type(None)] if union else []
         untagged = (
             isinstance(value, yaml.MappingNode)
             and value.tag == yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG

@@ -318,6 +318,13 @@ class Organs:
     relaxation_time_s : float
         SAP's relaxation time of the tissue's contact (s): its contact is a near-rigid
         constraint damped over this time; the tissue's own elasticity gives the force.
+    glued : list[str]
+        Free bodies of the directives the tissue is glued to (grasp sites: a patch of tissue a
+        grasper's jaws can hold, :class:`~godobject_drake.config.tools.JawGrasp`): with ``fem``,
+        the organ's vertices within a cube of ``glue_size_m`` about each body's start move with it;
+        with ``rigid`` organs, which cannot move, each is welded where it starts.
+    glue_size_m : float
+        The side of that cube (m).
     """
 
     model: str = "rigid"
@@ -331,6 +338,8 @@ class Organs:
     attached_below_m: float = 0.035
     friction: float = 0.2
     relaxation_time_s: float = 0.01
+    glued: list[str] = dataclasses.field(default_factory=list)
+    glue_size_m: float = 0.012
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
@@ -356,6 +365,8 @@ class Organs:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: {value!r} must be a finite number ≥ 0")
+        if not (isinstance(self.glue_size_m, int | float) and 0 < self.glue_size_m <= 0.05):
+            raise ValueError(f"glue_size_m: {self.glue_size_m!r} m must be in (0, 0.05] (e.g. 0.012)")
         if not (isinstance(self.cells, int) and 2 <= self.cells <= 24 and self.cells % 2 == 0):
             raise ValueError(
                 f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "

@@ -182,6 +182,52 @@ class Rigid:
 
 
 @dataclasses.dataclass
+class JawGrasp:
+    """What an articulated tool's jaws hold when they close on it (``god_object.grasp``).
+
+    Grasping soft tissue is a constraint here, as surgical simulators make it (SOFA's attach
+    constraints, iMSTK's grasping): while the jaws are closed, the free body nearest the grasp
+    point within ``reach_m`` (a grasp site: a patch of tissue glued to it, ``organs.glued``) is held
+    there by a ball constraint (SAP), and let go when they open.
+
+    Attributes
+    ----------
+    bodies : list[str]
+        The free bodies the jaws may hold (``model::body``); empty: none (no grasping).
+    jaw : str
+        The device joint whose value is the jaws' opening (rad).
+    closed_below_rad : float
+        The jaws are closed below this opening (rad).
+    reach_m : float
+        A body whose origin is within this of the grasp point is taken when the jaws close (m).
+    point_m : list[float]
+        The grasp point in the tip body's frame (m; the grasper's: between its jaws).
+    """
+
+    bodies: list[str] = dataclasses.field(default_factory=list)
+    jaw: str = "jaw_upper"
+    closed_below_rad: float = 0.1
+    reach_m: float = 0.008
+    point_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, -0.010])
+
+    def check(self, tool: "Articulated") -> None:
+        """Raise ``ValueError`` as ``"god_object.grasp.field: value, limit and fix"``."""
+        if not self.bodies:
+            return
+        if self.jaw not in tool.device_joints:
+            raise ValueError(
+                f"god_object.grasp.jaw: {self.jaw!r} is not one of the device joints {tool.device_joints}"
+            )
+        if not tool.tip_body:
+            raise ValueError("god_object.grasp: the grasp point is on tip_body; give god_object.tip_body")
+        for name, value in (("closed_below_rad", self.closed_below_rad), ("reach_m", self.reach_m)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"god_object.grasp.{name}: {value!r} must be a finite number > 0")
+        if len(self.point_m) != 3:
+            raise ValueError(f"god_object.grasp.point_m: {self.point_m!r}; give x, y, z in m")
+
+
+@dataclasses.dataclass
 class Articulated:
     """A tree model whose joints a joint-space device drives (paper Eq. 4–9).
 
@@ -209,6 +255,8 @@ class Articulated:
     pivot_body : str
         Metrics: a body welded at a pivot (a trocar); ``max_trocar_offset_m`` is its distance
         from the tip body's z axis. Empty: not measured.
+    grasp : JawGrasp
+        What the jaws hold when they close on it (nothing by default).
     """
 
     model: str = ""
@@ -220,6 +268,7 @@ class Articulated:
     check_every: int = 6
     tip_body: str = ""
     pivot_body: str = ""
+    grasp: JawGrasp = dataclasses.field(default_factory=JawGrasp)
 
     DEVICE_SPACE: ClassVar[str] = "joint"
     FLAGS: ClassVar[tuple[Flag, ...]] = (
@@ -244,6 +293,7 @@ class Articulated:
             raise ValueError(f"god_object.coupling: {self.coupling!r}; choose one of {ARTICULATED_COUPLINGS}")
         if not self.model or not self.device_joints:
             raise ValueError("god_object: an articulated god-object needs model and device_joints")
+        self.grasp.check(self)
         if not (isinstance(self.check_every, int) and self.check_every >= 1):
             raise ValueError(f"god_object.check_every: {self.check_every!r} must be an integer ≥ 1")
 

@@ -22,7 +22,7 @@ from godobject_drake.station import loop
 from godobject_drake.station.kinds import GodObject, tool_kind
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
-from godobject_drake.systems.tissue import tool_capsules
+from godobject_drake.systems.tissue import free_body, tool_capsules
 
 
 @tool_kind(sc.Articulated)
@@ -39,6 +39,7 @@ class ArticulatedGodObject(GodObject):
 
     tissue: object = None
     tissue_observer: object = None
+    grasp: "JawHold | None" = None
 
     kind: ClassVar[str] = "articulated"
     device_space: ClassVar[str] = "joint"
@@ -54,12 +55,38 @@ class ArticulatedGodObject(GodObject):
         return self.coupling.tool
 
     @classmethod
+    def add_to_plant(cls, plant, scene_graph, scenario, device, *, check_gains=True, name="") -> dict:
+        """A ball constraint from the grasp point to each body the jaws may hold (off until they do)."""
+        grasp = scenario.god_object.grasp
+        if not grasp.bodies:
+            return {}
+        model = plant.GetModelInstanceByName(scenario.god_object.model)
+        tip = plant.GetBodyByName(scenario.god_object.tip_body, model)
+        point = np.asarray(grasp.point_m, float)
+        constraints = {}
+        for scoped in grasp.bodies:
+            try:
+                body = free_body(plant, scoped, welded_ok=True)  # rigid organs weld their glued sites
+            except ValueError as e:
+                where = f"tools.{name}." if name else ""
+                raise sc.ScenarioError(f"{where}god_object.grasp.bodies: {e}") from None
+            constraints[body.scoped_name().get_full()] = (
+                plant.AddBallConstraint(tip, point, body, np.zeros(3)),
+                body.index(),
+            )
+        return {"grasp": JawHold(grasp, tip.index(), constraints)}
+
+    @classmethod
     def build(cls, builder, scene, scenario, device, added: dict, *, check_gains=True):
-        return add_articulated(
+        god = add_articulated(
             builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
             feedback_gains=scenario.feedback,
         )  # fmt: skip
+        god.grasp = added.get("grasp")
+        if god.grasp is not None:
+            god.grasp.jaw_index = list(scenario.god_object.device_joints).index(god.grasp.config.jaw)
+        return god
 
     @classmethod
     def describe(cls, scenario) -> list[str]:
@@ -113,20 +140,72 @@ class ArticulatedGodObject(GodObject):
         return out
 
     def prepare(self, plant_context) -> None:
-        """Lock the imposed joints (SAP then holds them where they are set)."""
+        """Lock the imposed joints (SAP then holds them where they are set); the jaws hold nothing."""
         self.coupling.lock_imposed(plant_context)
+        if self.grasp is not None:
+            self.grasp.release_all(self.coupling.tool.plant, plant_context)
 
     def before_step(self, plant: MultibodyPlant):
-        """The imposed joints are set to the device's values (all of them in position mode)."""
-        coupling = self.coupling
+        """The imposed joints are set to the device's values (all of them in position mode); the
+        jaws take or let go what they hold as they close and open."""
+        coupling, grasp, source = self.coupling, self.grasp, self.source
         everything = self.mode == "position"
-        if not (everything or coupling.tool.imposed):
+        impose = everything or bool(coupling.tool.imposed)
+        if not (impose or grasp is not None):
             return None
 
-        def impose_joints(plant_context, root_context):
-            coupling.impose(plant_context, coupling.GetMyContextFromRoot(root_context), everything)
+        def step(plant_context, root_context):
+            if impose:
+                coupling.impose(plant_context, coupling.GetMyContextFromRoot(root_context), everything)
+            if grasp is not None:
+                q = source.GetOutputPort("q_device").Eval(source.GetMyContextFromRoot(root_context))
+                grasp.update(plant, plant_context, float(q[grasp.jaw_index]))
 
-        return impose_joints
+        return step
+
+    def held_bodies(self, root_context) -> set[int]:
+        """What the jaws hold now."""
+        return set() if self.grasp is None else {int(index) for index in self.grasp.holding.values()}
+
+
+class JawHold:
+    """The jaws' grasp at run time (:class:`~godobject_drake.config.tools.JawGrasp`): which ball
+    constraint is on, switched before a plant step as the jaws close and open, and when."""
+
+    def __init__(self, config, tip_index, constraints: dict):
+        self.config, self.tip_index, self.constraints = config, tip_index, constraints
+        self.jaw_index = 0
+        self.holding: dict[str, object] = {}  # body name -> BodyIndex, while held
+        self.events: list[tuple[float, str, bool]] = []  # (t, body, taken or let go)
+
+    def release_all(self, plant, plant_context) -> None:
+        for cid, _ in self.constraints.values():
+            plant.SetConstraintActiveStatus(plant_context, cid, False)
+        self.holding, self.events = {}, []
+
+    def update(self, plant, plant_context, opening: float) -> None:
+        closed = opening < self.config.closed_below_rad
+        if closed and not self.holding:
+            X_WT = plant.EvalBodyPoseInWorld(plant_context, plant.get_body(self.tip_index))
+            p_WP = X_WT.multiply(np.asarray(self.config.point_m, float))
+            best, best_d = None, self.config.reach_m
+            for name, (_, index) in self.constraints.items():
+                d = float(
+                    np.linalg.norm(
+                        plant.EvalBodyPoseInWorld(plant_context, plant.get_body(index)).translation() - p_WP
+                    )
+                )
+                if d <= best_d:
+                    best, best_d = name, d
+            if best is not None:
+                plant.SetConstraintActiveStatus(plant_context, self.constraints[best][0], True)
+                self.holding[best] = self.constraints[best][1]
+                self.events.append((plant_context.get_time(), best, True))
+        elif not closed and self.holding:
+            for name in list(self.holding):
+                plant.SetConstraintActiveStatus(plant_context, self.constraints[name][0], False)
+                self.events.append((plant_context.get_time(), name, False))
+            self.holding = {}
 
 
 class _ToolFold:
@@ -141,6 +220,12 @@ class _ToolFold:
         self._tissue = None
         if god.tissue_observer is not None:
             self._tissue = TissueMetrics()
+        self._grasp, self._rise = god.grasp, {}
+        if god.grasp is not None:  # how far each body the jaws may hold rose above its start
+            for name, (_, index) in god.grasp.constraints.items():
+                body = plant.get_body(index)
+                if body.is_floating_base_body():
+                    self._rise[name] = [body.floating_positions_start() + 6, None, 0.0]  # z, z0, rise
         self._feedback = None
         if god.feedback.has_gains:
             self._root = next(i for i, b in enumerate(god.tool.bodies) if b.parent < 0)
@@ -151,6 +236,12 @@ class _ToolFold:
         self._acc.update(rows["state"], rows["q_device"])
         if self._tissue is not None:
             self._tissue.update(rows["tissue"])
+        states = np.asarray(rows["state"], float)
+        for rise in self._rise.values():
+            if len(states):
+                z = states[:, rise[0]]
+                rise[1] = z[0] if rise[1] is None else rise[1]
+                rise[2] = max(rise[2], float(np.max(z - rise[1])))
         if self._feedback is not None and len(rows["feedback_tau"]):
             # The root's Eq. 9 wrenches: every body's feedback moved to the root, what a device
             # holding the whole tool would feel; and the forces on the device's joints.
@@ -174,6 +265,13 @@ class _ToolFold:
         if self._feedback is not None:
             feedback = dict(self._feedback)
             feedback["max_feedback_tau_device"] = [float(v) for v in feedback["max_feedback_tau_device"]]
+        grasp = {}
+        if self._grasp is not None:  # when the jaws took and let go of what, and how high it rose
+            grasp["grasp_events"] = [
+                f"{t:.3f} s {'took' if taken else 'let go of'} {body}"
+                for t, body, taken in self._grasp.events
+            ]
+            grasp["grasped_max_rise_m"] = max((r[2] for r in self._rise.values()), default=0.0)
         return {
             "max_penetration_m": out["max_penetration_m"],
             "rms_tracking_error_m": out["tip_tracking_rms_m"],
@@ -181,6 +279,7 @@ class _ToolFold:
             **out,
             **tissue,
             **feedback,
+            **grasp,
         }
 
 
@@ -226,7 +325,11 @@ def add_articulated(
     god = ArticulatedGodObject(coupling, feedback, source=device, mode=mode)
     if scene.tissue is not None:
         god.tissue = scene.tissue
+        mine = None  # one tool: every contact with the tissue is its own
+        if len(scene.tool_names) > 1:  # several: each observer counts its own tool's contacts
+            mine = [g for b in plant.GetBodyIndices(tool.model)
+                    for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]  # fmt: skip
         god.tissue_observer = scene.tissue.connect(
-            builder, plant, tool_capsules(plant, scene.scene_graph, tool.model)
+            builder, plant, tool_capsules(plant, scene.scene_graph, tool.model), mine
         )
     return god

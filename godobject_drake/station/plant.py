@@ -38,7 +38,7 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.config.scenario import MODELS_DIR
 from godobject_drake.config.scene import CORNER_PREFIX, FLAT_PREFIX, is_proxy, local_name
 from godobject_drake.station.loop import ForceBus
-from godobject_drake.systems.tissue import FemOrgan
+from godobject_drake.systems.tissue import FemOrgan, weld_glued
 
 CONTACT_MODELS = ("proxies", "hydroelastic")
 # Drake's discrete contact approximations that work from Python on this scene kind (TAMSI is
@@ -130,6 +130,7 @@ class SceneParts:
     contact: str
     tissue: object = None  # a godobject_drake.systems.tissue.FemOrgan with organs.model fem
     forces: object = None  # the station's loop.ForceBus: every tool's forces into the plant
+    tool_names: tuple = ()  # the scenario's tools by name (empty: the one-tool form)
 
 
 def add_directives_plant(
@@ -271,11 +272,13 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
     tissue = []
 
     def before(plant, scene_graph):
-        if scenario.organs.model == "fem":
-            try:
+        try:
+            if scenario.organs.model == "fem":
                 tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
-            except ValueError as e:
-                raise sc.ScenarioError(str(e)) from None
+            else:
+                weld_glued(plant, scenario.organs)
+        except ValueError as e:
+            raise sc.ScenarioError(str(e)) from None
         if scenario.bricks:
             try:
                 add_bricks(plant, scenario.bricks)
@@ -310,6 +313,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
     check_free_bodies(scene.plant)
     scene.tissue = tissue[0] if tissue else None
     scene.forces = ForceBus(scene.plant)
+    scene.tool_names = tuple(scenario.tools)
     return scene
 
 

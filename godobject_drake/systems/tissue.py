@@ -38,6 +38,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
     AddContactMaterial,
+    Box,
     Capsule,
     GeometryConfigurationVector,
     GeometryInstance,
@@ -48,6 +49,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform
 from pydrake.multibody.fem import DeformableBodyConfig
 from pydrake.multibody.plant import ContactResults, CoulombFriction, MultibodyPlant
+from pydrake.multibody.tree import JointIndex
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.scene import Organs
@@ -212,14 +214,39 @@ class FemOrgan:
         if self.attached == 0:
             raise ValueError("organs.attached_below_m: no vertex is held; give a larger value")
         self.name = name
+        self.glued = {body: self._glue(plant, body) for body in spec.glued}
+
+    def _glue(self, plant: MultibodyPlant, scoped: str) -> int:
+        """Fix the organ's vertices within a cube of ``glue_size_m`` about the free body ``scoped``'s
+        start to that body (Drake's deformable fixed constraint); how many are fixed."""
+        try:
+            body = free_body(plant, scoped)
+        except ValueError as e:
+            raise ValueError(f"organs.glued: {e}") from None
+        X_WB = plant.GetDefaultFloatingBaseBodyPose(body)
+        size = self.spec.glue_size_m
+        inside = np.all(np.abs(self.rest_W - X_WB.translation()) <= 0.5 * size, axis=1)
+        if not inside.any():
+            raise ValueError(
+                f"organs.glued: {scoped} starts at {np.round(X_WB.translation(), 4).tolist()} m, no vertex "
+                f"of the organ within {size * 1e3:g} mm (glue_size_m): move it onto the organ's surface"
+            )
+        plant.mutable_deformable_model().AddFixedConstraint(
+            self.body_id, body, X_WB.inverse(), Box(size, size, size), RigidTransform()
+        )
+        return int(inside.sum())
 
     @property
     def vertex_count(self) -> int:
         return len(self.rest_W)
 
-    def connect(self, builder, plant, capsules=()) -> "TissueObserver":
-        """Add a :class:`TissueObserver` of the tool's ``capsules`` (:func:`tool_capsules`)."""
-        observer = builder.AddNamedSystem(f"{self.name}_tissue_observer", TissueObserver(self, capsules))
+    def connect(self, builder, plant, capsules=(), tool_geometries=None, name="") -> "TissueObserver":
+        """Add a :class:`TissueObserver` of the tool's ``capsules`` (:func:`tool_capsules`) and its
+        contact with the tissue (``tool_geometries``; ``None``: every contact); ``name`` prefixes
+        the system's name (one observer per tool)."""
+        observer = builder.AddNamedSystem(
+            f"{name}{self.name}_tissue_observer", TissueObserver(self, capsules, tool_geometries)
+        )
         builder.Connect(
             plant.get_deformable_body_configuration_output_port(),
             observer.GetInputPort("deformable_configuration"),
@@ -227,6 +254,42 @@ class FemOrgan:
         builder.Connect(plant.get_body_poses_output_port(), observer.GetInputPort("body_poses"))
         builder.Connect(plant.get_contact_results_output_port(), observer.GetInputPort("contact_results"))
         return observer
+
+
+def free_body(plant: MultibodyPlant, scoped: str, *, welded_ok: bool = False):
+    """The free body ``model::body`` (or a model whose one body it is) of ``plant`` (before
+    ``Finalize``); ``welded_ok``: or a body welded to the world (a rigid organ's glued site)."""
+    model, _, name = scoped.rpartition("::")
+    try:
+        body = plant.GetBodyByName(name, plant.GetModelInstanceByName(model)) if model else None
+        if body is None:
+            (index,) = plant.GetBodyIndices(plant.GetModelInstanceByName(scoped))
+            body = plant.get_body(index)
+    except (RuntimeError, ValueError):
+        raise ValueError(
+            f"{scoped!r}: no such body; give a free body of the directives as model::body"
+        ) from None
+    jointed = {plant.get_joint(JointIndex(j)).child_body().index() for j in range(plant.num_joints())}
+    welded = welded_ok and any(
+        plant.get_joint(JointIndex(j)).child_body().index() == body.index()
+        and plant.get_joint(JointIndex(j)).type_name() == "weld"
+        and plant.get_joint(JointIndex(j)).parent_body().index() == plant.world_body().index()
+        for j in range(plant.num_joints())
+    )
+    if body.index() in jointed and not welded:  # before Finalize a free body has no joint yet
+        raise ValueError(f"{scoped}: a jointed or welded body; give a free body")
+    return body
+
+
+def weld_glued(plant: MultibodyPlant, organs: Organs) -> None:
+    """Rigid organs cannot move: each body glued to the organ (``organs.glued``) is welded where it
+    starts (before ``Finalize``)."""
+    for scoped in organs.glued:
+        try:
+            body = free_body(plant, scoped)
+        except ValueError as e:
+            raise ValueError(f"organs.glued: {e}") from None
+        plant.WeldFrames(plant.world_frame(), body.body_frame(), plant.GetDefaultFloatingBaseBodyPose(body))
 
 
 def body_config(organs: Organs) -> DeformableBodyConfig:
@@ -309,14 +372,16 @@ class TissueObserver(LeafSystem):
     inside any of the tool's capsules, its radius minus its distance to the
     capsule's axis); whether a capsule's end lies inside the deformed surface
     (1: a pop-through); and the contact force on the tissue in W (N, from
-    Drake's contact results: the tool feels its opposite).
+    Drake's contact results: the tool feels its opposite), of the contacts with
+    ``tool_geometries`` only when given (a scene of several tools: each its own).
     """
 
     SUMMARY = ("max_displacement_m", "max_strain", "tool_penetration_m", "tip_inside", "fx_N", "fy_N", "fz_N")
 
-    def __init__(self, organ: FemOrgan, capsules=()):
+    def __init__(self, organ: FemOrgan, capsules=(), tool_geometries=None):
         super().__init__()
         self._organ = organ
+        self._tool_geometries = None if tool_geometries is None else frozenset(tool_geometries)
         self._gid = organ.geometry_id
         self._config = self.DeclareAbstractInputPort(
             "deformable_configuration", AbstractValue.Make(GeometryConfigurationVector())
@@ -336,14 +401,16 @@ class TissueObserver(LeafSystem):
         output.SetFromVector(self.positions(context)[self._organ.surface].ravel())
 
     def contact_force(self, context) -> np.ndarray:
-        """The net contact force on the tissue (N, W)."""
+        """The net contact force on the tissue (N, W), of the tool's contacts when given."""
         results = self._contacts.Eval(context)
+        mine = self._tool_geometries
         f = np.zeros(3)
         for i in range(results.num_deformable_contacts()):
             info = results.deformable_contact_info(i)
-            if info.id_A() == self._gid:
+            a, b = info.id_A(), info.id_B()
+            if a == self._gid and (mine is None or b in mine):
                 f += info.F_Ac_W().translational()
-            elif info.id_B() == self._gid:
+            elif b == self._gid and (mine is None or a in mine):
                 f -= info.F_Ac_W().translational()
         return f
 
