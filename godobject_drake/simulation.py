@@ -163,7 +163,8 @@ class _Run:
         duration = sim.duration_s if duration_s is None else float(duration_s)
         if not (duration > 0 and np.isfinite(duration)):
             raise ValueError(f"duration_s={duration!r} s must be > 0")
-        if duration > sim.duration_s and kind_of(scenario.device).needs_log:
+        logged = any(kind_of(view.device).needs_log for view in scenario.per_tool().values())
+        if duration > sim.duration_s and logged:
             raise ValueError(
                 f"duration_s={duration!r} s is past the scenario's simulation.duration_s={sim.duration_s!r} "
                 "s, and its device's log was read only that far: build the station with the longer duration"
@@ -253,7 +254,7 @@ class _Run:
             "diagnosis": self.diagnosis,
             "partial": partial,
             "predicted_static_penetration_m": station.predicted_penetration_m,
-            **(configuration(self.scenario, station) if len(station.tools) == 1 else scene_keys(station)),
+            **(_one_tool_keys(station) if len(station.tools) == 1 else scene_keys(station)),
             **(station.sleeper.result() if station.sleeper is not None else {}),
         }
 
@@ -568,6 +569,12 @@ def configuration(scenario: Scenario, station: Station) -> dict:
     }
     out.update(next(iter(station.tools.values())).configuration(scenario, station))  # the kind's own keys
     return out
+
+
+def _one_tool_keys(station) -> dict:
+    """The configuration keys of a scene of one tool (its own view: ``tools: {NAME: ...}`` too)."""
+    view = station.for_tool(next(iter(station.tools)))
+    return configuration(view.scenario, view)
 
 
 class _NoBar:

@@ -17,6 +17,7 @@ from godobject_drake import cli
 from godobject_drake.config.scenario import ScenarioError, replace, shipped_scenario
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
+from godobject_drake.studies.analyze import analyze
 
 RADII_M = np.array([0.045, 0.030, 0.025])
 SITE_Z_M = 0.0176
@@ -152,3 +153,18 @@ def test_a_tools_device_file_set_from_the_command_line_is_the_users_and_keeps_it
     device = s.tools["right"].device
     assert type(device).__name__ == "ScriptedJoints" and device.path == str(path)
     assert s.tools["left"].device.path.endswith("bimanual_left_path.yaml")
+
+
+@pytest.mark.slow(seconds=30)
+def test_analyze_gives_each_graspers_rows_and_predicts_the_press_drake_simulates(fem):
+    """``analyze`` on the two-tool scene: each tool's own rows, named by it; the right grasper's
+    predicted tissue force (linear FEM stiffness at its contact in series with its coupling's
+    stiffness at the tip) against the force Drake's run gives (3.7 N against 4.0 N here)."""
+    summary = analyze(shipped_scenario("laparoscopy_bimanual"), quick=True)
+    assert set(summary["tools"]) == {"left", "right"}
+    subjects = [c["subject"] for c in summary["checks"]]
+    assert any(s.startswith("left: ") for s in subjects) and any(s.startswith("right: ") for s in subjects)
+    assert summary["checks"][-1]["subject"] == "left and right"  # the contact between the two tools
+    predicted = summary["tools"]["right"]["tissue"]["predicted_force_n"]
+    simulated = fem.metrics["tools"]["right"]["max_tissue_contact_force_N"]
+    assert predicted == pytest.approx(simulated, rel=0.15)

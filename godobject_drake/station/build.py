@@ -219,7 +219,7 @@ def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     any free port for a recording only, None otherwise
     (:func:`~godobject_drake.systems.drawing.start_meshcat`)."""
     vis = scenario.visualization
-    if vis.serve or kind_of(scenario.device).live:
+    if vis.serve or any(kind_of(view.device).live for view in scenario.per_tool().values()):
         return start_meshcat(vis.host, vis.port)
     if not scenario.recording.file:
         return None
@@ -292,8 +292,8 @@ class Station:
         metrics and the studies of one tool read."""
         if name not in self.tools:
             raise KeyError(f"no tool {name!r}; the tools are {', '.join(map(repr, self.tools))}")
-        if list(self.tools) == [name]:
-            return self
+        if list(self.tools) == [name] and not self.scenario.tools:
+            return self  # the one-tool form: the scenario is the tool's
         loggers = {key: self.loggers[full] for key, full in self.tool_loggers[name].items()}
         view = self.scenario.per_tool()[name]
         return dataclasses.replace(self, scenario=view, tools={name: self.tools[name]}, loggers=loggers,

@@ -125,6 +125,8 @@ def analysis_scenario(scenario: sc.Scenario) -> sc.Scenario:
     by a scripted one standing at its start (the analysis needs no browser and no driver)."""
     s = sc.replace(scenario, **{"recording.file": "", "visualization.serve": False, "metrics.file": ""})
     s.device = s.device.stand_in()  # the device kind's own (device_kinds): no browser, no driver
+    for tool in s.tools.values():
+        tool.device = tool.device.stand_in()
     return s
 
 
@@ -1107,6 +1109,8 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     verify = (not quick) if verify is None else verify
     s = analysis_scenario(scenario)
     sc.check_scenario(s)
+    if s.tools:
+        return _analyze_tools(s, quick, verify, start)
     station = _quiet_build(s)
     out: dict = {
         "scene": s.name,
@@ -1132,6 +1136,89 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     out["checks"] = [c.as_dict() for c in checks]
     out["verdict"] = max((c.verdict for c in checks), key=order.__getitem__, default="ok")
     out["elapsed_s"] = time.perf_counter() - start
+    return out
+
+
+def _analyze_tools(s: sc.Scenario, quick: bool, verify: bool, start: float) -> dict:
+    """A scene of several tools: each tool's rows from its own view of the scene (its loop, its
+    contacts, its device; the other tools' models there as bodies no loop drives), named by the
+    tool, under ``tools``; then the contact between each two tools' held bodies."""
+    out: dict = {"scene": s.name, "time_step_s": s.time_step, "quick": quick, "verify": verify, "tools": {}}
+    checks: list[dict] = []
+    for name, view in s.per_tool().items():
+        own = analyze(view, quick=quick, verify=verify)
+        for row in own["checks"]:
+            row["subject"] = f"{name}: {row['subject']}"
+        out["tools"][name] = own
+        checks += own["checks"]
+    out["kind"] = ", ".join(f"{name} {own['kind']}" for name, own in out["tools"].items())
+    checks += [c.as_dict() for c in _between_tools(_quiet_build(s), s)]
+    order = {"fail": 3, "warn": 2, "ok": 1, "info": 0}
+    out["checks"] = checks
+    out["verdict"] = max((c["verdict"] for c in checks), key=order.__getitem__, default="ok")
+    out["elapsed_s"] = time.perf_counter() - start
+    return out
+
+
+def _between_tools(station, s: sc.Scenario) -> list[Check]:
+    """Each two tools' held bodies pressed together: the weaker capped pull of the two sets the
+    contact force (the stronger tool pushes the weaker one's body away past it), the pair's
+    combined point-contact stiffness the depth. A tool with no force cap (articulated) or nothing
+    to hold gives an ``info`` row."""
+    budget = s.metrics.penetration_budget_m
+    held = {}
+    for name, tool in station.tools.items():
+        names = (
+            sorted(tool.source.grasp_names(s.simulation.duration_s) - {"*"}) if tool.holds_free_bodies else []
+        )
+        held[name] = (tool, [tool.coupling.body_for_grasp(n) for n in names])
+    inspector = station.scene_graph.model_inspector()
+    rows, names = [], list(held)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            (ta, bodies_a), (tb, bodies_b) = held[a], held[b]
+            subject = f"{a} and {b}"
+            reason = ta.no_prediction_reason or tb.no_prediction_reason
+            if not reason and not (bodies_a and bodies_b):
+                reason = "a tool that holds no free body in its path presses with its own bodies only"
+            pairs = [] if reason else _pairs_between(station, s, ta, tb, bodies_a, bodies_b, inspector)
+            if not reason and not pairs:
+                reason = "no point contact between their held bodies to predict from"
+            if reason:
+                rows.append(Check("contact", "static penetration between two tools' held bodies",
+                                  subject, "info", None, budget, "m", reason))  # fmt: skip
+                continue
+            force, k, body_a, body_b = max(pairs, key=lambda p: p[0] / p[1])
+            depth = force / k
+            rows.append(Check(
+                "contact", f"static penetration between two tools' held bodies, under the weaker pull "
+                f"({force:.3g} N) into {k:.3g} N/m", f"{subject}: {body_a} against {body_b}",
+                _verdict_below(depth, budget), depth, budget, "m",
+                f"combined contact stiffness k_A k_B/(k_A + k_B) ≥ "
+                f"{_ge(force / (WARN_FRACTION * budget))} N/m, or lower the weaker tool's omega_n or "
+                "max_stretch_m",
+            ))  # fmt: skip
+    return rows
+
+
+def _pairs_between(station, s, tool_a, tool_b, bodies_a, bodies_b, inspector) -> list[tuple]:
+    """``(weaker cap N, combined stiffness N/m, body A, body B)`` for each held body of one tool
+    against each of the other's (point contact only)."""
+    plant = station.plant
+    pairs = penetration_pairs(plant, station.scene_graph, tool_a.coupling, s.plant.penetration_allowance)
+    names_b = {}
+    for body in bodies_b:
+        frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
+        names_b.update({inspector.GetName(g): body for g in inspector.GetGeometries(frame, Role.kProximity)})
+    caps = {body.index: tool_b.coupling.force_caps(body)[0] for body in bodies_b}  # the other's own pull
+    out = []
+    own = {b.index for b in bodies_a}
+    for p in pairs:
+        other = names_b.get(p.obstacle)
+        if p.body_index in own and other is not None and other.index != p.body_index:
+            out.append(
+                (min(p.force_n, caps.get(other.index, p.force_n)), p.stiffness_n_m, p.body, other.name)
+            )
     return out
 
 
