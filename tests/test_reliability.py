@@ -4,6 +4,7 @@ and a real device's feedback zeroed whatever stops the run."""
 import dataclasses
 import json
 import math
+import os
 import re
 import subprocess
 import sys
@@ -419,3 +420,35 @@ def test_an_output_gets_the_mode_a_plain_write_gives(tmp_path):
     plain.write_text("x")
     write_atomically(tmp_path / "atomic.txt", "x")
     assert os.stat(tmp_path / "atomic.txt").st_mode & 0o777 == os.stat(plain).st_mode & 0o777
+
+
+YCB_SCENE = """
+name: ycb
+directives:
+- add_model:
+    name: mustard
+    file: package://drake_models/ycb/006_mustard_bottle.sdf
+god_object: !Rigid {}
+device: !Scripted {waypoints: [{t: 0.0, xyz: [0, 0, 0.1]}, {t: 1.0, xyz: [0, 0, 0.1]}]}
+simulation: {duration_s: 0.1}
+"""
+
+
+def test_a_model_drake_must_download_without_network_names_the_package_and_the_ways_out(tmp_path):
+    """A YCB object is in Drake's ``drake_models`` package, which the drake wheel does not ship:
+    Drake downloads it. Without network (here: networking denied to Drake's PackageMap by
+    DRAKE_ALLOW_NETWORK, and an empty download cache, so nothing leaves the machine) the run
+    exits 2 naming the package, the wheel's own models and the cache to copy."""
+    scene = tmp_path / "ycb.yaml"
+    scene.write_text(YCB_SCENE)
+    env = {**os.environ, "DRAKE_ALLOW_NETWORK": "meshcat:lcm", "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    done = subprocess.run([sys.executable, "-m", "godobject_drake", "run", str(scene), "--no-progress"],
+                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    said = " ".join(done.stderr.split())
+    assert (
+        "a model of the package 'drake_models' (package://drake_models/...) is not in the drake wheel" in said
+    )
+    assert "package://drake/examples/kuka_iiwa_arm/models/objects/folding_table.urdf" in said
+    assert f"{tmp_path / 'cache' / 'drake' / 'package_map'} (copy that folder" in said
+    assert "Check the directives' files" not in said  # not the misleading hint

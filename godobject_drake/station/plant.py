@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 import re
 from pathlib import Path
 
@@ -299,6 +300,10 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
             )
         except RuntimeError as e:  # Drake's parser and plant: a model file, a name, a frame
             said = " ".join(str(e).split()).rstrip(".")
+            download = _DOWNLOAD_FAILED.search(said)
+            if download is not None:
+                package = download.group(1) or download.group(2)
+                raise sc.ScenarioError(_download_advice(package, said)) from None
             raise sc.ScenarioError(
                 f"directives: Drake could not build the scene's plant: {said}. Check the directives' files, "
                 "model names (each once) and frame names (model::frame)"
@@ -315,6 +320,26 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
     scene.forces = ForceBus(scene.plant)
     scene.tool_names = tuple(scenario.tools)
     return scene
+
+
+# Drake's PackageMap, failing to fetch a remote package (drake_models: the YCB objects, the iiwa,
+# the WSG gripper, ... which the drake wheel does not ship), or forbidden to (DRAKE_ALLOW_NETWORK).
+_DOWNLOAD_FAILED = re.compile(
+    r"PackageMap: when downloading '([^']+)'|PackageMap::AddRemote on '([^']+)' only provides network URLs"
+)
+
+
+def _download_advice(package: str, said: str) -> str:
+    """The error for a model of a package Drake must download and could not (no network)."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "drake" / "package_map"
+    return (
+        f"directives: a model of the package '{package}' (package://{package}/...) is not in the drake "
+        f"wheel, and Drake could not download it ({said}). Either use models the wheel ships "
+        "(package://drake/examples/..., e.g. package://drake/examples/kuka_iiwa_arm/models/objects/"
+        "folding_table.urdf, the kuka_iiwa_arm tables and objects, the acrobot, the planar gripper) or "
+        f"your own files, or run the scene once where there is network: Drake keeps the download in {cache} "
+        "(copy that folder to this machine to run offline)"
+    )
 
 
 class _DrakeWarnings(logging.Handler):
