@@ -9,11 +9,14 @@ import re
 import subprocess
 import sys
 import threading
+import warnings
 
 import numpy as np
 import pytest
 from conftest import REPO, assert_refused, build_scene, own_scene_files
 from drake import lcmt_force_torque
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import Simulator
 
 from godobject_drake import cli
 from godobject_drake.config.scenario import ScenarioError, load_scenario
@@ -21,7 +24,7 @@ from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
 from godobject_drake.protocol import FEEDBACK_CHANNEL
-from godobject_drake.simulation import UnsupportedBodyWarning, simulate
+from godobject_drake.simulation import FallWatch, UnsupportedBodyWarning, _AllTools, simulate
 from godobject_drake.station.build import build_station
 
 
@@ -452,3 +455,72 @@ def test_a_model_drake_must_download_without_network_names_the_package_and_the_w
     assert "package://drake/examples/kuka_iiwa_arm/models/objects/folding_table.urdf" in said
     assert f"{tmp_path / 'cache' / 'drake' / 'package_map'} (copy that folder" in said
     assert "Check the directives' files" not in said  # not the misleading hint
+
+
+BOX_IN_TABLE = """
+name: box_table
+directives:
+- add_model:
+    name: table
+    file: package://drake/examples/kuka_iiwa_arm/models/objects/folding_table.urdf
+- add_weld: {parent: world, child: table::table_surface_center}
+- add_model:
+    name: box
+    file: package://drake/examples/kuka_iiwa_arm/models/objects/open_top_box.urdf
+- add_model:
+    name: block
+    file: package://drake/examples/kuka_iiwa_arm/models/objects/block_for_pick_and_place.urdf
+    default_free_body_pose: {base_link: {translation: [0.0, 0.0, 0.2]}}
+god_object: !Rigid {}
+device: !Scripted
+  waypoints: [{t: 0.0, xyz: [0, 0, 0.2], grasp: block}, {t: 1.0, xyz: [0, 0, 0.2], grasp: block}]
+simulation: {duration_s: 0.5}
+"""
+
+
+def test_a_model_left_unwelded_inside_another_is_named_before_the_run(tmp_path):
+    """Drake's open-top box with its weld left out starts at the world's origin, inside the folding
+    table's top (whose surface is at z = 0): Drake's contact threw it out at 1.2 m/s and the run
+    exited 0. Now the build refuses it, naming both, the depth (10 mm, as Drake's point-pair query
+    gives it) and the two likely causes; welded 20 mm up, it builds."""
+    scene = tmp_path / "box.yaml"
+    scene.write_text(BOX_IN_TABLE)
+    with pytest.raises(ScenarioError) as refused:
+        build_station(load_scenario(scene))
+    said = str(refused.value)
+    assert said.startswith("table::table_top and box::bin start 10 mm inside each other")
+    assert "missing weld (model 'box' has none" in said and "default_free_body_pose" in said
+    weld = "- add_weld: {parent: world, child: box::bin, X_PC: {translation: [0, 0, 0.02]}}\n"
+    welded = BOX_IN_TABLE.replace("- add_model:\n    name: block", weld + "- add_model:\n    name: block")
+    scene.write_text(welded)  # the weld, 20 mm up: on the table
+    build_station(load_scenario(scene))
+
+
+def test_a_body_thrown_at_the_start_is_named_unless_a_tool_is_at_it():
+    """The fall watch's second rule on the brick scene's start (the device holds brick_0): brick_1
+    put 0.2 m sideways with nothing near it is named as thrown; put on the held brick, both 0.2 m
+    away (a tool could have pushed it there), it is not; brick_0, held, never is."""
+    station = build_scene("lego", "--duration", "0.5")
+    plant = station.plant
+    simulator = Simulator(station.diagram)
+    simulator.AdvanceTo(0.01)  # the device's first sample taken: brick_0 held
+    root = simulator.get_mutable_context()
+    context = plant.GetMyMutableContextFromRoot(root)
+    brick = plant.GetBodyByName("brick", plant.GetModelInstanceByName("brick_1"))
+    held = plant.GetBodyByName("brick", plant.GetModelInstanceByName("brick_0"))
+    tools = _AllTools(station)
+    assert tools.held_bodies(root) == {int(held.index())}
+    start, start_held = (plant.EvalBodyPoseInWorld(context, b) for b in (brick, held))
+    away = np.array([0.1, 0.1, 0.05])
+    for alone, named in ((True, ["brick_1::brick"]), (False, [])):
+        watch = FallWatch(plant, context, tools, 1.0)
+        plant.SetFreeBodyPose(context, brick, RigidTransform(start.rotation(), away))
+        if not alone:  # the held brick just under it: touching (one brick height, 9.6 mm, apart)
+            plant.SetFreeBodyPose(context, held, RigidTransform(start.rotation(), away - [0.0, 0.0, 0.0096]))
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            watch.check(context, root)
+        assert watch.fallen == named
+        assert [str(w.message).split(" moved")[0] for w in said] == named
+        plant.SetFreeBodyPose(context, held, start_held)
+        plant.SetFreeBodyPose(context, brick, start)

@@ -30,7 +30,7 @@ from godobject_drake.safeguards import check_wiring
 from godobject_drake.sleeping import SleepManager
 from godobject_drake.station.kinds import GodObject, kind_for
 from godobject_drake.station.loop import add_device, share_grasps
-from godobject_drake.station.plant import SceneParts, add_plant
+from godobject_drake.station.plant import SceneParts, add_plant, check_start_overlaps
 from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.systems.drawing import (
     Drawing,
@@ -124,6 +124,7 @@ def finish(
     if meshcat is not None:
         add_visualization(builder, meshcat, scene, tools, scenario)
     diagram = builder.Build()
+    check_start_overlaps(diagram, scene.plant, scene.scene_graph, scenario.plant.penetration_allowance)
     views = scenario.per_tool() if set(tools) == set(scenario.per_tool()) else dict.fromkeys(tools, scenario)
     predicted = []
     for name, tool in tools.items():

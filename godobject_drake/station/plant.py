@@ -15,6 +15,7 @@ import os
 import re
 from pathlib import Path
 
+import numpy as np
 from pydrake.geometry import (
     CollisionFilterDeclaration,
     GeometrySet,
@@ -32,7 +33,7 @@ from pydrake.multibody.parsing import (
     ProcessModelDirectives,
 )
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
-from pydrake.multibody.tree import ModelInstanceIndex
+from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
@@ -358,6 +359,61 @@ class _DrakeWarnings(logging.Handler):
 
     def __exit__(self, *exc):
         logging.getLogger("drake").removeHandler(self)
+
+
+# A free body that starts inside another leaves it at up to depth · sqrt(k/m) (the contact's spring
+# energy, ½ k d², all turned into speed; SAP's damping takes some): past this it is thrown, not settled.
+START_OVERLAP_SPEED_MPS = 0.25
+
+
+def point_stiffness(inspector, geometry_id, default: float) -> float:
+    """A geometry's point-contact stiffness (N/m), or ``default`` (Drake's from the penetration
+    allowance) where its model gives none."""
+    props = inspector.GetProximityProperties(geometry_id)
+    if props is not None and props.HasProperty("material", "point_contact_stiffness"):
+        return float(props.GetProperty("material", "point_contact_stiffness"))
+    return default
+
+
+def check_start_overlaps(diagram, plant: MultibodyPlant, scene_graph, penetration_allowance: float) -> None:
+    """Refuse a free body that starts inside another body deeper than the contact can resolve
+    gently (it would leave at more than :data:`START_OVERLAP_SPEED_MPS`), naming both, the depth,
+    the speed and the likely cause: a model that should be welded, or a wrong starting pose."""
+    free = {int(b) for b in plant.GetFloatingBaseBodies()}
+    if not free:
+        return
+    context = diagram.CreateDefaultContext()
+    query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
+    inspector = query.inspector()
+    masses = [plant.get_body(BodyIndex(i)).default_mass() for i in range(plant.num_bodies())]
+    g = float(np.linalg.norm(plant.gravity_field().gravity_vector()))
+    default_k = 2.0 * max([m for m in masses if math.isfinite(m)] or [0.0]) * g / penetration_allowance
+    worst = None
+    for pair in query.ComputePointPairPenetration():
+        bodies = [plant.GetBodyFromFrameId(inspector.GetFrameId(i)) for i in (pair.id_A, pair.id_B)]
+        moving = [b for b in bodies if b is not None and int(b.index()) in free]
+        if not moving:
+            continue
+        ka, kb = (point_stiffness(inspector, i, default_k) for i in (pair.id_A, pair.id_B))
+        k = ka * kb / (ka + kb)
+        m = 1.0 / sum(1.0 / b.default_mass() for b in moving)  # two free bodies: the reduced mass
+        speed = pair.depth * math.sqrt(k / m)
+        if speed > START_OVERLAP_SPEED_MPS and (worst is None or speed > worst[0]):
+            worst = (speed, pair.depth, bodies, moving)
+    if worst is None:
+        return
+    speed, depth, bodies, moving = worst
+    names = [b.scoped_name().get_full() if b is not None else "the world" for b in bodies]
+    fixed = [b for b in bodies if b is not None and int(b.index()) not in free]
+    model = plant.GetModelInstanceName(moving[0].model_instance())
+    raise sc.ScenarioError(
+        f"{names[0]} and {names[1]} start {depth * 1e3:.3g} mm inside each other: contact would throw "
+        f"{' and '.join(b.scoped_name().get_full() for b in moving)} out at up to {speed:.2g} m/s "
+        f"(the contact's spring energy; more than {START_OVERLAP_SPEED_MPS:g} m/s). Likely a missing weld "
+        f"(model {model!r} has none: "
+        f"add_weld it if it should stay put{' on ' + fixed[0].scoped_name().get_full() if fixed else ''}) "
+        "or a wrong starting pose (its default_free_body_pose, or the X_PC of a weld): move it out"
+    )
 
 
 def check_free_bodies(plant: MultibodyPlant) -> None:

@@ -49,7 +49,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform
 from pydrake.multibody.fem import DeformableBodyConfig
 from pydrake.multibody.plant import ContactResults, CoulombFriction, MultibodyPlant
-from pydrake.multibody.tree import JointIndex
+from pydrake.multibody.tree import BodyIndex, JointIndex
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.scene import Organs
@@ -303,19 +303,24 @@ def body_config(organs: Organs) -> DeformableBodyConfig:
     return config
 
 
+def _some(names: list[str], n: int = 8) -> str:
+    """At most ``n`` of ``names``, and how many there are."""
+    shown = ", ".join(names[:n])
+    return shown if len(names) <= n else f"{shown}, ... ({len(names)} in all)"
+
+
 def _find_geometry(plant, inspector, scoped: str):
     names = []
     for i in range(plant.num_bodies()):
-        from pydrake.multibody.tree import BodyIndex
-
         body = plant.get_body(BodyIndex(i))
         for gid in plant.GetCollisionGeometriesForBody(body):
             names.append(inspector.GetName(gid))
             if inspector.GetName(gid) == scoped:
                 return body, gid
     raise ValueError(
-        f"organs.organ: {scoped!r} is not a collision geometry of this scene (it has {sorted(names)}); "
-        "organs.model: fem replaces one of them (the laparoscopy scene's pelvis::uterus)"
+        f"organs.organ: {scoped!r} is not a collision geometry of this scene (it has "
+        f"{_some(sorted(names))}); organs.model: fem replaces one of them (the laparoscopy scene's "
+        "pelvis::uterus)"
     )
 
 
