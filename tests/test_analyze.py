@@ -14,7 +14,10 @@ import pytest
 from conftest import REPO, own_scene_files
 
 from godobject_drake.config import scenario as sc
+from godobject_drake.config.gains import DEFAULT_MAX_STRETCH_M
 from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.station.build import build_station
+from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.studies.analyze import WARN_FRACTION, analysis_scenario, analyze, write_report
 
 STABILITY_GUIDE = (REPO / "docs" / "guide" / "stability.md").read_text()
@@ -261,3 +264,49 @@ def test_a_body_resting_exactly_on_a_surface_is_analysed(tmp_path):
     push = s["verify_penetration"]
     assert push["obstacle"].endswith("floor") and not push["diverged"], push
     assert push["simulated_m"] == pytest.approx(push["predicted_m"], rel=0.2), push
+
+
+PUSH = """
+name: push
+directives:
+- add_model:
+    name: table
+    file: package://drake/examples/kuka_iiwa_arm/models/table/extra_heavy_duty_table_surface_only_collision.sdf
+- add_weld: {parent: world, child: table::link, X_PC: {translation: [0.0, 0.0, -0.7645]}}
+- add_model:
+    name: pusher
+    file: package://drake/examples/kuka_iiwa_arm/models/objects/simple_cuboid.urdf
+    default_free_body_pose: {base_link: {translation: [-0.2, 0.0, 0.1]}}
+- add_model:
+    name: box
+    file: package://drake/examples/kuka_iiwa_arm/models/objects/block_for_pick_and_place.urdf
+    default_free_body_pose: {base_link: {translation: [0.0, 0.0, 0.1]}}
+god_object: !Rigid {gains: {omega_n: 700.0, zeta: 1.0, omega_n_rot: 700.0}}
+device: !Scripted
+  waypoints: [{t: 0.0, xyz: [-0.2, 0.0, 0.1], grasp: pusher}, {t: 2.0, xyz: [0.1, 0.0, 0.1], grasp: pusher}]
+simulation: {duration_s: 2.0}
+"""
+
+
+def test_the_body_the_device_grasps_is_checked_and_the_body_it_pushes_too(tmp_path, recwarn):
+    """A 68 g cuboid (the grasped pusher) pushes a 100 g block: the rows are the pusher's, not the
+    heavier block's (every free body used to count as grasped, and the block's larger cap made it
+    the subject); the block, pushed by the pusher's capped pull (m ωn² max_stretch_m, by hand),
+    gets its own row into the table; labels say "1 body"; and ``run``'s warning gives the very fix
+    analyze's row gives."""
+    path = tmp_path / "push.yaml"
+    path.write_text(PUSH)
+    scenario = sc.load_scenario(path)
+    summary = analyze(scenario, quick=True)
+    (translation,) = rows(summary, "simulation", "translation")
+    assert translation["subject"] == "pusher::base_link (1 body the device grasps)"
+    grasped, pushed = rows(summary, "contact", "static penetration")
+    assert grasped["subject"].startswith("pusher::base_link (1 body the device grasps)")
+    assert pushed["subject"] == "box::base_link (pushed by pusher::base_link; 1 body it can push)"
+    cap = 0.068 * 700.0**2 * DEFAULT_MAX_STRETCH_M
+    assert f"capped pull ({cap:.3g} N)" in pushed["name"]
+    softest = min(q["stiffness_n_m"] for q in summary["pushed_pairs"])  # the deepest pair
+    assert pushed["value"] == pytest.approx(cap / softest, rel=1e-9)
+    with pytest.warns(PenetrationBudgetWarning) as said:
+        build_station(scenario, meshcat=None)
+    assert str(said[0].message).endswith("Fix: " + grasped["fix"])

@@ -15,7 +15,6 @@ by kind is asked of it.
 
 import dataclasses
 import logging
-import math
 import warnings
 
 import numpy as np
@@ -31,7 +30,7 @@ from godobject_drake.sleeping import SleepManager
 from godobject_drake.station.kinds import GodObject, kind_for
 from godobject_drake.station.loop import add_device, share_grasps
 from godobject_drake.station.plant import SceneParts, add_plant, check_start_overlaps
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
+from godobject_drake.station.rigid_tool import PenetrationBudgetWarning, penetration_fix
 from godobject_drake.systems.drawing import (
     Drawing,
     TissueVisualizer,
@@ -166,20 +165,19 @@ def check_penetration_budget(god: GodObject, scene: SceneParts, scenario: sc.Sce
     """The deepest static penetration the tool's capped pull can cause (m; None where it cannot be
     predicted), with a :class:`PenetrationBudgetWarning` naming the fix when it is past the
     scenario's budget."""
-    predicted = god.predict_penetration(scene, scenario.plant.penetration_allowance)
+    predicted = god.predict_penetration(
+        scene, scenario.plant.penetration_allowance, scenario.simulation.duration_s
+    )
     if predicted is None:
         return None
     budget = scenario.metrics.penetration_budget_m
     depth, body, obstacle, force, k = predicted
     if depth > budget:
-        w_max = god.coupling.gains.omega_n * math.sqrt(budget / depth)
-        stretch_max = god.coupling.max_stretch_m * budget / depth
+        fix = penetration_fix(force, depth, budget, god.coupling.gains.omega_n, god.coupling.max_stretch_m)
         warnings.warn(
             f"{body}'s capped pull ({force:.3g} N) can push it {depth * 1e3:.3g} mm into {obstacle} "
             f"(their point contacts combine to {k:.3g} N/m), past the scene's penetration budget "
-            f"{budget * 1e3:.3g} mm. Fix: omega_n ≤ {w_max:.3g} rad/s, or max_stretch_m ≤ "
-            f"{stretch_max:.3g} m, or point_contact_stiffness values that combine "
-            f"(k_A k_B / (k_A + k_B)) to ≥ {force / budget:.3g} N/m",
+            f"{budget * 1e3:.3g} mm. Fix: {fix}",
             PenetrationBudgetWarning,
             stacklevel=3,
         )

@@ -157,8 +157,9 @@ class GodObject:
         """The kind's metrics accumulator: ``fold(rows, data, finite) -> (p_WT, p_WG)`` and ``result()``."""
         raise NotImplementedError(f"{type(self).__name__}.new_metrics")
 
-    def predict_penetration(self, scene, penetration_allowance: float = 1e-3):
-        """The deepest static penetration its capped pull can cause, or None (no force cap)."""
+    def predict_penetration(self, scene, penetration_allowance: float = 1e-3, duration_s=None):
+        """The deepest static penetration its capped pull can cause on the bodies its device grasps
+        over ``duration_s``, or None (no force cap)."""
         return None
 
     def configuration(self, scenario, station) -> dict:

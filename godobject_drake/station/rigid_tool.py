@@ -26,8 +26,9 @@ from godobject_drake.config.gains import GRASP_NEAREST, CouplingGains, FeedbackG
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
 from godobject_drake.station import loop
-from godobject_drake.station.haptic_chain import add_haptic_chain, check_haptic_gains
+from godobject_drake.station.haptic_chain import WARN_FRACTION, add_haptic_chain, check_haptic_gains
 from godobject_drake.station.kinds import GodObject, tool_kind
+from godobject_drake.station.plant import point_stiffness
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, GodObjectVisualizer
 from godobject_drake.systems.implicit import ImplicitCouplingError, SpringHook, add_springs, implicit_terms
@@ -112,8 +113,8 @@ class RigidGodObject(GodObject):
     def new_metrics(self, station):
         return _RigidFold(station)
 
-    def predict_penetration(self, scene, penetration_allowance: float = 1e-3):
-        return predict_penetration(scene, self, penetration_allowance)
+    def predict_penetration(self, scene, penetration_allowance: float = 1e-3, duration_s=None):
+        return predict_penetration(scene, self, penetration_allowance, duration_s)
 
     def configuration(self, scenario, station) -> dict:
         return {"haptic": scenario.haptic.mode}
@@ -294,10 +295,12 @@ def impose_target(plant, plant_context, coupling, coupling_context) -> None:
 # -- what the god-object's pull can do to contact ----------------------------------------------------------
 
 
-def predict_penetration(scene, god: RigidGodObject, penetration_allowance: float = 1e-3):
+def predict_penetration(scene, god: RigidGodObject, penetration_allowance: float = 1e-3,
+                        duration_s: float | None = None):  # fmt: skip
     """The deepest static penetration a held body's capped pull can cause, or None.
 
-    For each body the coupling may hold and each rigid obstacle geometry its own geometry
+    For each body the device grasps over ``duration_s`` (:func:`grasped_bodies`) and each rigid
+    obstacle geometry its own geometry
     is not filtered against: ``depth = F_cap / k``, with ``F_cap`` the coupling's force cap
     (``m ωn² · max_stretch_m``, what a target far inside the obstacle pulls with) and ``k``
     the pair's point-contact stiffness as SAP combines it: harmonically,
@@ -309,8 +312,9 @@ def predict_penetration(scene, god: RigidGodObject, penetration_allowance: float
     deformable core (no collision geometry: its shell deforms instead), hydroelastic
     contact (its pressure depends on the contact area).
     """
+    bodies = grasped_bodies(god.coupling, god.source, duration_s)
     pairs = penetration_pairs(
-        scene.plant, scene.scene_graph, god.coupling, penetration_allowance, softest=True
+        scene.plant, scene.scene_graph, god.coupling, penetration_allowance, softest=True, bodies=bodies
     )
     if not pairs:
         return None
@@ -329,6 +333,7 @@ class ContactPair:
     obstacle_anchored: bool  # welded to the world (a fixed obstacle), not another free body
     force_n: float  # the coupling's force cap on the body (N)
     stiffness_n_m: float  # the pair's combined point-contact stiffness (N/m)
+    obstacle_body_index: int = -1  # the obstacle's body (its BodyIndex)
 
     @property
     def depth_m(self) -> float:
@@ -337,13 +342,17 @@ class ContactPair:
 
 
 def penetration_pairs(
-    plant, scene_graph, coupling, penetration_allowance: float = 1e-3, softest: bool = False
-) -> list[ContactPair]:
+    plant, scene_graph, coupling, penetration_allowance: float = 1e-3, softest: bool = False,
+    bodies=None, force_n: float | None = None, anchored_only: bool = False,
+) -> list[ContactPair]:  # fmt: skip
     """Every (held body geometry, obstacle geometry) pair that can touch, with the coupling's
     force cap on the body and the pair's combined stiffness (:func:`predict_penetration`);
     empty without point contact. ``softest``: only, for each held geometry, the softest obstacle
     it can touch (the deepest pair, found by trying obstacles from the softest up: what the
-    prediction needs, without the bodies × geometries² loop that took 18 s for 128 bricks)."""
+    prediction needs, without the bodies × geometries² loop that took 18 s for 128 bricks).
+    ``bodies``: these of the coupling's bodies only (:func:`grasped_bodies`; default all);
+    ``force_n``: this force instead of each body's own cap (a body pushed by a held one);
+    ``anchored_only``: obstacles welded to the world only."""
     if plant.get_contact_model() != ContactModel.kPoint:
         return []
     inspector = scene_graph.model_inspector()
@@ -359,12 +368,16 @@ def penetration_pairs(
     world = inspector.world_frame_id()
     welded = plant.GetBodiesWeldedTo(plant.world_body())  # the world body included
     anchored = {plant.GetBodyFrameIdOrThrow(b.index()) for b in welded} | {world}
-    stiffness = {b: _stiffness(inspector, b, default_k) for b in ids}
+    stiffness = {b: point_stiffness(inspector, b, default_k) for b in ids}
+    if anchored_only:
+        ids = [b for b in ids if inspector.GetFrameId(b) in anchored]
     if softest:
         ids = sorted(ids, key=lambda b: stiffness[b])
     pairs = []
-    for body in {b.index: b for b in coupling.bodies.values()}.values():
-        force, _ = coupling.force_caps(body)
+    if bodies is None:
+        bodies = {b.index: b for b in coupling.bodies.values()}.values()
+    for body in bodies:
+        force = coupling.force_caps(body)[0] if force_n is None else force_n
         frame = plant.GetBodyFrameIdOrThrow(BodyIndex(body.index))
         for a in inspector.GetGeometries(frame, Role.kProximity):
             ka = stiffness[a]
@@ -377,14 +390,37 @@ def penetration_pairs(
                     pairs.append(ContactPair(
                         body.name, body.index, inspector.GetName(a), inspector.GetName(b),
                         inspector.GetFrameId(b) in anchored, force, k,
+                        int(plant.GetBodyFromFrameId(inspector.GetFrameId(b)).index()),
                     ))  # fmt: skip
                     if softest:
                         break
     return pairs
 
 
-def _stiffness(inspector, geometry_id, default: float) -> float:
-    props = inspector.GetProximityProperties(geometry_id)
-    if props is not None and props.HasProperty("material", "point_contact_stiffness"):
-        return float(props.GetProperty("material", "point_contact_stiffness"))
-    return default
+def grasped_bodies(coupling, source, duration_s: float | None = None) -> list:
+    """The coupling's bodies (:class:`~godobject_drake.systems.coupling.GraspableBody`) the
+    device's path or log grasps by name over ``duration_s``; all of them where it grasps the
+    nearest (``*``) or names none ahead of time (a live device)."""
+    names = source.grasp_names(duration_s)
+    everything = list({b.index: b for b in coupling.bodies.values()}.values())
+    if not names or GRASP_NEAREST in names:
+        return everything
+    return list({b.index: b for b in (coupling.body_for_grasp(n) for n in sorted(names))}.values())
+
+
+def penetration_fix(force_n: float, depth_m: float, budget_m: float, omega_n: float, max_stretch_m: float,
+                    margin: float = WARN_FRACTION) -> str:  # fmt: skip
+    """What brings a static penetration ``depth_m`` under a capped pull ``force_n`` back inside
+    ``budget_m``, with the margin ``analyze`` passes a row at: the run's warning and analyze's row
+    give this same text."""
+    w, stretch, k = (
+        omega_n * math.sqrt(budget_m / depth_m),
+        max_stretch_m * budget_m / depth_m,
+        force_n / budget_m,
+    )
+    return (
+        f"omega_n ≤ {w * math.sqrt(margin) * (1 - 1e-3):.4g} rad/s, or max_stretch_m ≤ "
+        f"{stretch * margin * (1 - 1e-3):.4g} m, or point_contact_stiffness values that combine "
+        f"(k_A k_B/(k_A + k_B)) to ≥ {k / margin * (1 + 1e-3):.4g} N/m ({1 - margin:.0%} inside the budget; "
+        f"at the budget itself: {w:.4g} rad/s, {stretch:.4g} m, {k:.4g} N/m)"
+    )

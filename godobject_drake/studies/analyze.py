@@ -40,7 +40,12 @@ from godobject_drake.metrics import TrueShapeMetrics
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.station.haptic_chain import hand_on_handle
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning, penetration_pairs
+from godobject_drake.station.rigid_tool import (
+    PenetrationBudgetWarning,
+    grasped_bodies,
+    penetration_fix,
+    penetration_pairs,
+)
 from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
@@ -140,7 +145,7 @@ def _pose_tool_checks(station, out: dict) -> list[Check]:
     g = coupling.gains
     rows, per_body = [], []
     own = {b.index: b for b in graspable_bodies(plant).values()}
-    for body in {b.index: b for b in coupling.bodies.values()}.values():
+    for body in _grasped(station):
         # The coupling sizes its gains on what it carries (a deformable core's shell) and the
         # model takes the carried part as moving with the body. Its explicit force acts on the
         # body alone, though: with the shell left out the limit would be lower (the
@@ -169,7 +174,7 @@ def _pose_tool_checks(station, out: dict) -> list[Check]:
         name = "omega_n" if axis == "translation" else "omega_n_rot"
         rows.append(Check(
             "simulation", f"explicit limit, {axis} (ω·h)",
-            f"{worst['body']} ({len({r['body'] for r in of_axis})} bodies)",
+            f"{worst['body']} ({_bodies(len({r['body'] for r in of_axis}))} the device grasps)",
             _verdict_below(worst["omega_h"], worst["omega_h_limit"]), worst["omega_h"],
             worst["omega_h_limit"],
             "", f"{name} ≤ {_le(WARN_FRACTION * worst['omega_max_rad_s'])} rad/s, or time_step ≤ "
@@ -208,7 +213,7 @@ def _implicit_pose_checks(station, out: dict) -> list[Check]:
     beta = station.scenario.plant.sap_near_rigid_threshold
     beta = 1.0 if beta is None else beta
     per_body = []
-    for body in {b.index: b for b in coupling.bodies.values()}.values():
+    for body in _grasped(station):
         I_c = np.linalg.eigvalsh(body.I_Bcm_B)
         axes = [("translation", body.mass, g.omega_n, g.zeta)]
         axes += [(f"rotation {i + 1}", float(I_c[i]), g.omega_r, g.zeta_r) for i in range(3)]
@@ -239,7 +244,7 @@ def _implicit_pose_checks(station, out: dict) -> list[Check]:
         rate = worst["rate_fraction"]
         rows.append(Check(
             "simulation", f"implicit step response, {axis}: decay rate / ωn (backward Euler)",
-            f"{worst['body']} ({len({r['body'] for r in of_axis})} bodies)",
+            f"{worst['body']} ({_bodies(len({r['body'] for r in of_axis}))} the device grasps)",
             "ok" if rate >= IMPLICIT_RATE_FLOOR else "warn", rate, IMPLICIT_RATE_FLOOR, "",
             f"time_step ≤ {_le(x_floor / worst['omega_rad_s'])} s or {name} ≤ {_le(x_floor / h)} rad/s "
             "for a response within 20 % of Eq. 3's rate (slower past it, never unstable)", bound="lower",
@@ -513,35 +518,76 @@ def _verify_tissue(station, scenario, out: dict) -> list[Check]:
 
 
 def _contact_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
+    """The static penetration of each body the device grasps (by its path) under the coupling's
+    capped pull, into what it can touch; and of each free body it can push, pushed by that pull
+    into what is fixed behind it."""
     budget = scenario.metrics.penetration_budget_m
     out["penetration_budget_m"] = budget
     kind = station.god_object.kind
     reason = station.god_object.no_prediction_reason or None
-    pairs = (
-        []
-        if reason
-        else penetration_pairs(
-            station.plant, station.scene_graph, station.coupling, scenario.plant.penetration_allowance
+    allowance = scenario.plant.penetration_allowance
+    pairs, pushed = [], []
+    if not reason:
+        held = _grasped(station)
+        pairs = penetration_pairs(
+            station.plant, station.scene_graph, station.coupling, allowance, bodies=held
         )
-    )
+        pushed = _pushed_pairs(station, pairs, allowance)
     if not reason and not pairs:
         reason = "no point contact to predict (hydroelastic pressure depends on the contact area)"
     out["contact_pairs"] = [dict(dataclasses.asdict(p), depth_m=p.depth_m) for p in pairs]
+    out["pushed_pairs"] = [dict(dataclasses.asdict(p), depth_m=p.depth_m, pushed_by=by) for p, by in pushed]
     if reason:
         return [Check("contact", "static penetration", kind, "info", None, budget, "m", reason)]
-    gains = station.coupling.gains
-    max_stretch = station.coupling.max_stretch_m
+    gains, max_stretch = station.coupling.gains, station.coupling.max_stretch_m
     deepest = max(pairs, key=lambda p: p.depth_m)
-    depth, n_bodies = deepest.depth_m, len({p.body for p in pairs})
-    w_max = gains.omega_n * math.sqrt(budget / depth)
-    return [Check(
+    rows = [Check(
         "contact", f"static penetration under the capped pull ({deepest.force_n:.3g} N), into "
-        f"{deepest.obstacle} ({deepest.stiffness_n_m:.3g} N/m)", f"{deepest.body} ({n_bodies} bodies)",
-        _verdict_below(depth, budget), depth, budget, "m",
-        f"combined contact stiffness k_A k_B/(k_A + k_B) ≥ {_ge(deepest.force_n / (WARN_FRACTION * budget))} "
-        f"N/m, or omega_n ≤ {_le(w_max * math.sqrt(WARN_FRACTION))} rad/s, or max_stretch_m ≤ "
-        f"{_le(WARN_FRACTION * max_stretch * budget / depth)} m",
+        f"{deepest.obstacle} ({deepest.stiffness_n_m:.3g} N/m)",
+        f"{deepest.body} ({_bodies(len({p.body for p in pairs}))} the device grasps)",
+        _verdict_below(deepest.depth_m, budget), deepest.depth_m, budget, "m",
+        penetration_fix(deepest.force_n, deepest.depth_m, budget, gains.omega_n, max_stretch),
     )]  # fmt: skip
+    if pushed:
+        deep, by = max(pushed, key=lambda p: p[0].depth_m)
+        rows.append(Check(
+            "contact", f"static penetration of a pushed body under {by}'s capped pull "
+            f"({deep.force_n:.3g} N), into {deep.obstacle} ({deep.stiffness_n_m:.3g} N/m)",
+            f"{deep.body} (pushed by {by}; {_bodies(len({p.body for p, _ in pushed}))} it can push)",
+            _verdict_below(deep.depth_m, budget), deep.depth_m, budget, "m",
+            penetration_fix(deep.force_n, deep.depth_m, budget, gains.omega_n, max_stretch),
+        ))  # fmt: skip
+    return rows
+
+
+def _bodies(n: int) -> str:
+    return f"{n} body" if n == 1 else f"{n} bodies"
+
+
+def _grasped(station) -> list:
+    """The coupling's bodies the device grasps by its path (all, for a live device or ``*``)."""
+    return grasped_bodies(station.coupling, station.device, station.scenario.simulation.duration_s)
+
+
+def _pushed_pairs(station, pairs, allowance: float) -> list[tuple]:
+    """``(pair, pushed by)`` for each free body a grasped body can touch, against the fixed
+    obstacles it can touch, under the grasped body's capped pull."""
+    coupling = station.coupling
+    by_index = {b.index: b for b in coupling.bodies.values()}
+    grasped = {p.body_index for p in pairs}
+    pushers: dict[int, tuple[str, float]] = {}
+    for p in pairs:
+        index = p.obstacle_body_index
+        if p.obstacle_anchored or index in grasped or index not in by_index:
+            continue
+        if p.force_n > pushers.get(index, ("", 0.0))[1]:
+            pushers[index] = (p.body, p.force_n)
+    out = []
+    for index, (by, force) in pushers.items():
+        pushed = penetration_pairs(station.plant, station.scene_graph, coupling, allowance,
+                                   bodies=[by_index[index]], force_n=force, anchored_only=True)  # fmt: skip
+        out += [(q, by) for q in pushed]
+    return out
 
 
 # -- device side ------------------------------------------------------------------------------------------
