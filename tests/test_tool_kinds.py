@@ -7,6 +7,7 @@ coupling without gravity compensation. Its flag ``--brick`` is an alias of its f
 """
 
 import dataclasses
+import inspect
 import json
 from typing import ClassVar
 
@@ -146,3 +147,18 @@ def test_every_tool_kind_is_whole(config):
     for question in ("build", "new_metrics", "pose_body"):
         assert getattr(kind, question) is not getattr(GodObject, question), (kind.__name__, question)
     np.testing.assert_equal(kind.loop_model in ("body", "implicit_body", "joint"), True)
+
+
+@pytest.mark.parametrize("config", TOOL_CONFIGS, ids=lambda c: c.__name__)
+def test_every_kind_answers_with_the_bases_signature(config):
+    """A kind that overrides a question takes every argument the base's takes, by the same names, so
+    ``build_station`` can ask any kind the same way (the deformable kind's ``predict_penetration``
+    once lacked ``duration_s`` and every deformable scene failed to build)."""
+    kind = TOOL_KINDS[config]
+    for name, base in inspect.getmembers(GodObject, inspect.isfunction):
+        if name.startswith("__"):
+            continue
+        own = getattr(kind, name)
+        want = list(inspect.signature(base).parameters)
+        have = list(inspect.signature(own).parameters)
+        assert have[: len(want)] == want, (kind.__name__, name, have, want)

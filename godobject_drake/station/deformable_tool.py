@@ -103,7 +103,7 @@ class DeformableGodObject(RigidGodObject):
     def new_metrics(self, station):
         return _ShellFold(station, self)
 
-    def predict_penetration(self, scene, penetration_allowance: float = 1e-3):
+    def predict_penetration(self, scene, penetration_allowance: float = 1e-3, duration_s=None):
         return None
 
     def configuration(self, scenario, station) -> dict:
