@@ -26,6 +26,7 @@ from drake import lcmt_force_torque, lcmt_robot_state
 from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
+from test_link import driver_link, pair, pump, scene_link
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.devices.lcm import ForceTorqueMessage, LcmDevice
@@ -36,11 +37,8 @@ from godobject_drake.protocol import (
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
     UdpLcm,
-    pack,
-    parse_url,
     pose_message,
     status_message,
-    unpack,
 )
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
@@ -113,67 +111,7 @@ def rendered(log):
     return np.c_[log["fx"], log["fy"], log["fz"]]
 
 
-# -- the driver's safety, alone ----------------------------------------------------------------------------
-
-
-def test_force_is_cut_to_the_rated_maximum_and_rate():
-    """12 N rated, 1200 N/s: a 20 N request is cut to 12 N along its direction, reached by
-    1.2 N steps (ten periods); going dead renders zero at once."""
-    safety = drv.ForceSafety(12.0, 1200.0, 0.001)
-    request = np.array([0.0, 16.0, -12.0])  # |f| = 20 N
-    out = [safety.step(request, True) for _ in range(12)]
-    np.testing.assert_allclose(np.linalg.norm(out[0]), 1.2, rtol=1e-12)
-    np.testing.assert_allclose(out[9], request * 12.0 / 20.0, rtol=1e-12)
-    np.testing.assert_allclose(out[11], out[9], rtol=1e-12)
-    assert safety.counts["force_clamps"] == 12 and safety.counts["rate_clamps"] == 10
-    assert np.all(safety.step(request, False) == 0.0)  # no ramp on the way to zero
-    assert np.all(safety.step([math.nan, 0, 0], True) == 0.0)
-
-
-def test_a_buzz_near_nyquist_is_damped_and_counted_a_slow_wave_is_not():
-    """Requested f_x = 1 + 0.5 (−1)^k N (the device's Nyquist rate): once the window has seen it,
-    the 4-tap mean renders exactly 1 N; a 5 Hz wave of 2 N is left alone."""
-    safety = drv.ForceSafety(12.0, 1e9, 0.001)
-    out = [safety.step([1.0 + 0.5 * (-1) ** k, 0.0, 0.0], True)[0] for k in range(100)]
-    assert safety.counts["buzz_events"] == 1
-    np.testing.assert_allclose(out[30:], 1.0, rtol=1e-12)
-    calm = drv.ForceSafety(12.0, 1e9, 0.001)
-    wave = [2.0 * math.sin(2 * math.pi * 5 * k * 0.001) for k in range(1000)]
-    out = [calm.step([w, 0.0, 0.0], True)[0] for w in wave]
-    assert calm.counts["buzz_events"] == 0
-    np.testing.assert_array_equal(out, wave)
-
-
-# -- the link and the device frame -------------------------------------------------------------------------
-
-
-def test_udp_link_carries_lcm_packets_and_answers_the_sender():
-    url = f"udp://127.0.0.1:{free_port()}"
-    scene, driver = UdpLcm.listen(url), UdpLcm.connect(url)
-    got = []
-    scene.Subscribe(POSE_CHANNEL, got.append)
-    scene.Publish(FEEDBACK_CHANNEL, b"nobody yet")  # nobody has spoken: dropped, not an error
-    driver.Publish(POSE_CHANNEL, pose_message(7, [0.1, 0.2, 0.3], [1, 0, 0, 0], "*").encode())
-    driver.sock.sendto(b"not an LCM packet", ("127.0.0.1", scene.port))
-    for _ in range(200):
-        if scene.HandleSubscriptions(0) or got:
-            break
-        time.sleep(0.005)
-    scene.HandleSubscriptions(0)
-    assert lcmt_robot_state.decode(got[0]).utime == 7 and scene.counts["udp_malformed"] == 1
-    back = []
-    driver.Subscribe(FEEDBACK_CHANNEL, back.append)
-    scene.Publish(FEEDBACK_CHANNEL, b"\x01\x02")
-    for _ in range(200):
-        if driver.HandleSubscriptions(0):
-            break
-        time.sleep(0.005)
-    assert back == [b"\x01\x02"]
-    assert unpack(pack("C", b"xyz", 3)) == ("C", b"xyz") and unpack(b"LC02") is None
-    for bad in ("udp://127.0.0.1", "udpm://239.255.76.67:7667", "udp://:80"):
-        with pytest.raises(ValueError, match=r"udp://HOST:PORT"):
-            parse_url(bad)
-    scene.close(), driver.close()
+# -- the device frame -------------------------------------------------------------------------------------
 
 
 def test_device_frame_maps_poses_in_and_the_wrench_back_preserving_power():
@@ -382,18 +320,17 @@ def test_the_force_is_zero_within_the_watchdog_time_after_the_scene_is_killed(tm
 
 
 def test_driver_status_reaches_the_scene_metrics():
-    """A driver's counts message on the link lands in the device's metrics as driver_*."""
-    url = f"udp://127.0.0.1:{free_port()}"
-    device = LcmDevice(UdpLcm.listen(url), RigidTransform(), period_s=0.001)
-    link = UdpLcm.connect(url)
+    """A paired driver's counts message lands in the device's metrics as driver_*."""
+    scene = scene_link()
+    device = LcmDevice(scene, RigidTransform(), period_s=0.001)
+    link = driver_link(scene)
+    pair(scene, link)
     link.Publish(DRIVER_STATUS_CHANNEL, status_message(5, {"watchdog_trips": 3, "buzz_events": 2}).encode())
-    for _ in range(200):
-        status = device.lcm_status()
-        if status["driver_status_messages"]:
-            break
-        time.sleep(0.005)
+    pump(scene, until=lambda: device.driver_status_messages, what="the status")
+    status = device.lcm_status()
     assert status["driver_watchdog_trips"] == 3 and status["driver_buzz_events"] == 2
-    assert status["driver_force_clamps"] == 0 and status["lcm_udp_received"] == 1
+    assert status["driver_force_clamps"] == 0 and status["driver_status_messages"] == 1
+    assert status["lcm_udp_received"] == 3 and status["lcm_udp_pairings"] == 1  # HELLO, first DATA, status
 
 
 class _QuietLink:
@@ -426,7 +363,7 @@ def test_the_clutch_holds_the_pose_sent_and_resumes_without_a_jump():
     driver = drv.Driver(device, _QuietLink(), RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
                         max_force_n=12.0)  # fmt: skip
     driver.run(0.8)
-    rows = driver.rows[:-1]  # the last is the exit row
+    rows = list(driver.rows)[:-1]  # the last is the exit row
     state = np.array([r[11] for r in rows])
     sent = np.array([r[1:4] for r in rows])
     clutched = np.flatnonzero(state == "clutch")
@@ -478,7 +415,7 @@ def test_a_message_that_waited_out_a_stall_is_as_old_as_the_stall():
     driver = drv.Driver(device, link, RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
                         max_force_n=12.0, grasp="always")  # fmt: skip
     driver.run(0.2)
-    rows = driver.rows[:-1]
+    rows = list(driver.rows)[:-1]
     state = [r[11] for r in rows]
     rendered = np.array([r[7:10] for r in rows])
     first_heard = next(i for i, r in enumerate(rows) if not math.isnan(r[10]))
