@@ -361,7 +361,9 @@ LINK_CHANNEL = "GODOBJECT_LINK"  # a driver's first DATA (empty): the scene pair
 
 # What each end of a link counts (UdpLcm.counts; a scene's metrics have them as lcm_<key>).
 LINK_COUNT_KEYS = (
-    "udp_received",  # datagrams read
+    "udp_received",  # datagrams read: each is counted once more below, as taken, a handshake, or dropped
+    "udp_taken",  # messages handed on (DATA, authentic, of this session, newer than the last)
+    "udp_handshakes",  # HELLO answered WELCOME (a scene), WELCOME taken (a driver)
     "udp_malformed",  # not a datagram of this link, or of a kind this end does not take
     "udp_unauthenticated",  # the tag did not verify: another key, altered, forged
     "udp_stale",  # authentic but of another session: an earlier scene's, an answer to an old HELLO
@@ -491,6 +493,7 @@ class _End:
             self.counts["udp_replayed"] += 1
             return None
         self._taken = counter
+        self.counts["udp_taken"] += 1
         return message
 
 
@@ -551,11 +554,11 @@ class SceneEnd(_End):
             self.counts["udp_unauthenticated"] += 1
             return None
         asked = datagram[HEAD:-TAG_BYTES]  # the driver's nonce and challenge
-        kind = WELCOME
         if self.session is not None and asked[:NONCE_BYTES] != self.session[1]:
-            kind = REFUSED
             self._refuse(asked[:NONCE_BYTES], sender)
-        return self._hello.seal(MAGIC + kind + self.nonce + asked)
+            return self._hello.seal(MAGIC + REFUSED + self.nonce + asked)
+        self.counts["udp_handshakes"] += 1
+        return self._hello.seal(MAGIC + WELCOME + self.nonce + asked)
 
 
 class DriverEnd(_End):
@@ -607,6 +610,7 @@ class DriverEnd(_End):
         if kind == REFUSED:
             self._refused(scene_nonce)
             return None, None
+        self.counts["udp_handshakes"] += 1
         self.heard = now
         if self.session == (scene_nonce, self.nonce):
             return None, None

@@ -426,3 +426,44 @@ def test_a_message_that_waited_out_a_stall_is_as_old_as_the_stall():
     after = slice(first_heard + 2, None)
     assert "ok" in state[after]
     assert np.max(np.linalg.norm(rendered[after], axis=1)) == pytest.approx(2.0, rel=1e-9)
+
+
+class _NullLink(_QuietLink):
+    """Hears nothing and keeps nothing of what is sent."""
+
+    def Publish(self, channel, data):
+        pass
+
+
+def test_the_driver_keeps_bounded_memory_without_a_log():
+    """Issue 45, Why 5: without --log the driver kept every period (Driver.rows, +0.32 MB/s at
+    1 kHz: an out-of-memory kill is a SIGKILL, which skips the zero force). The memory Python
+    allocates between the driver's 2200th and 5200th periods (tracemalloc) is now under 64 kB,
+    where 3000 more rows took 1.3 MB; it keeps the last ROWS_KEPT periods, ending with the
+    exit row. (Ten minutes of the real process: analysis/driver_memory.py.)"""
+    import tracemalloc
+
+    device = drv.EmulatedDevice(HandPath.still(), start_on_scene=False)
+    driver = drv.Driver(device, _NullLink(), RATED["emulated"], rate_hz=1e5, watchdog_periods=10,
+                        max_force_n=12.0)  # fmt: skip  # 10 µs periods: as fast as the loop goes
+    read, traced = device.read, {}
+
+    def read_and_measure():
+        loops = driver.counts["loops"]
+        if loops in (2200, 5200):
+            traced[loops] = tracemalloc.get_traced_memory()[0]
+        driver.stop_requested = loops >= 5200
+        return read()
+
+    device.read = read_and_measure
+    tracemalloc.start()
+    try:
+        driver.run()
+    finally:
+        tracemalloc.stop()
+    growth = traced[5200] - traced[2200]
+    print(f"driver: {growth / 1e3:.1f} kB kept from period 2200 to 5200; {len(driver.rows)} rows")
+    assert growth < 64_000
+    rows = list(driver.rows)
+    assert len(rows) == drv.Driver.ROWS_KEPT and rows[-1][11] == "exit" and rows[-2][0] > rows[0][0]
+    assert driver.summary()["loop_lateness"]["n"] == 5200
