@@ -31,6 +31,13 @@ def test_force_is_cut_to_the_rated_maximum_and_rate():
     assert np.all(safety.step([0, math.inf, 0], True) == 0.0)
 
 
+def test_an_absurd_request_is_cut_to_the_rated_force_along_its_direction():
+    """1e300 N along x and y (its square overflows a double): 12 N along the diagonal, not zero."""
+    safety = ForceSafety(12.0, 1e9, 0.001)
+    np.testing.assert_allclose(safety.step([1e300, 1e300, 0.0], True), [12 / 2**0.5, 12 / 2**0.5, 0.0])
+    np.testing.assert_allclose(safety.step([-1e300, 0.0, 0.0], True), [-12.0, 0.0, 0.0])
+
+
 def test_exactly_the_rated_force_and_step_are_not_clamped():
     safety = ForceSafety(12.0, 12_000.0, 0.001)  # 12 N per period
     np.testing.assert_array_equal(safety.step([12.0, 0.0, 0.0], True), [12.0, 0.0, 0.0])
