@@ -79,12 +79,14 @@ this transport is published by :class:`~godobject_drake.devices.lcm.ForceTorqueP
 
 from __future__ import annotations
 
+import binascii
 import errno
 import hashlib
 import hmac
 import logging
 import math
 import os
+import re
 import secrets
 import socket
 import stat
@@ -271,7 +273,7 @@ def _create_key(path: Path) -> None:
     made one at the same moment: then theirs is used)."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".link.key.")
     try:
-        os.write(fd, secrets.token_bytes(KEY_BYTES).hex().encode() + b"\n")
+        os.write(fd, os.urandom(KEY_BYTES).hex().encode() + b"\n")
         os.fsync(fd)
         os.close(fd)
         try:
@@ -323,24 +325,20 @@ def load_key(key_file: str | Path = "") -> tuple[bytes, Path]:
                 f"(at most 0600): chmod 600 {path}, and if others may have read it, delete it so a "
                 "new key is made (then copy the new one to the other end)"
             )
-        text = os.read(fd, KEY_HEX + 2).strip()
+        text = os.read(fd, KEY_HEX + 3)  # 64 digits and a line end ("\n" or "\r\n"); one more: too long
     finally:
         os.close(fd)
-    try:
-        key = bytes.fromhex(text.decode("ascii"))
-    except (UnicodeDecodeError, ValueError):
-        key = b""
-    if len(key) != KEY_BYTES:
+    if re.fullmatch(rb"[0-9a-fA-F]{%d}\r?\n?" % KEY_HEX, text) is None:
         raise KeyFileError(
-            f"key file {path}: not a key of {KEY_HEX} hex digits ({len(text)} characters); delete "
-            "it so a new key is made, or copy the other end's key file here"
+            f"key file {path}: not a key of {KEY_HEX} hex digits ({st.st_size} bytes); delete it so a "
+            "new key is made, or copy the other end's key file here"
         )
-    return key, path
+    return binascii.unhexlify(text[:KEY_HEX]), path
 
 
 def key_fingerprint(key: bytes) -> str:
     """8 hex digits that name a key without revealing it: compare the two ends' to see they pair."""
-    return hmac.digest(key, b"godobject link fingerprint", "sha256")[:4].hex()
+    return hmac.digest(key, b"godobject link fingerprint", hashlib.sha256)[:4].hex()
 
 
 # -- the datagrams ---------------------------------------------------------------------------------------
@@ -353,6 +351,7 @@ COUNTER = struct.Struct(">Q")
 HEAD = len(MAGIC) + 1
 DATA_HEAD = HEAD + 2 * NONCE_BYTES + COUNTER.size
 MAX_DATAGRAM = 8192  # bytes: a driver's messages take ~300; a longer datagram is dropped unread
+RECV_BYTES = MAX_DATAGRAM + 1  # read one byte more: a longer datagram shows as too long
 MAX_PER_POLL = 256  # datagrams handled per poll: a flood cannot hold either end in one poll
 HELLO_INTERVAL_S = 0.1  # a driver without a scene says HELLO this often
 SILENT_S = 0.5  # a paired driver that heard nothing this long says HELLO again (a scene restarted)
@@ -382,7 +381,7 @@ LINK_REJECTED = ("udp_malformed", "udp_unauthenticated", "udp_stale", "udp_repla
 
 
 def _derive(key: bytes, label: bytes) -> bytes:
-    return hmac.digest(key, b"godobject link " + label, "sha256")
+    return hmac.digest(key, b"godobject link " + label, hashlib.sha256)
 
 
 class _Tagger:
@@ -437,6 +436,8 @@ class _End:
 
     SEND: bytes  # the kind of DATA this end sends
     TAKE: bytes  # the kind of DATA it takes
+    _rx: _Tagger  # the session's key for what this end takes (set when paired)
+    _taken: int  # the counter of the last DATA taken in this session (0 when paired)
 
     def __init__(self, key: bytes, nonce: bytes | None = None):
         if len(key) != KEY_BYTES:
@@ -446,9 +447,7 @@ class _End:
         self.counts = dict.fromkeys(LINK_COUNT_KEYS, 0)
         self.session: tuple[bytes, bytes] | None = None  # (scene nonce, driver nonce) once paired
         self._tx: _Tagger | None = None
-        self._rx: _Tagger | None = None
         self._sent = 0  # the counter of the last DATA sent: it only grows
-        self._taken = 0  # the counter of the last DATA taken in this session
 
     def data_key(self, kind: bytes, session: tuple[bytes, bytes]) -> _Tagger:
         return _Tagger(_derive(self.key, b"data" + kind + session[0] + session[1]))
@@ -571,6 +570,7 @@ class DriverEnd(_End):
         super().__init__(key, nonce)
         self.peer = peer  # the scene's address: the only one heard
         self.challenge: bytes | None = None
+        self.answered = True  # the current challenge was answered: the next search asks a new one
         self.heard = -math.inf  # when the scene was last heard (authentic, this session)
         self._said_hello = -math.inf
         self.refused_by: set[bytes] = set()
@@ -583,8 +583,8 @@ class DriverEnd(_End):
             return None
         if now - self._said_hello < HELLO_INTERVAL_S:
             return None
-        if self.challenge is None or self._said_hello < self.heard:
-            self.challenge = secrets.token_bytes(NONCE_BYTES)
+        if self.answered:
+            self.challenge, self.answered = secrets.token_bytes(NONCE_BYTES), False
         self._said_hello = now
         return self._hello.seal(MAGIC + HELLO + self.nonce + self.challenge)
 
@@ -611,7 +611,7 @@ class DriverEnd(_End):
             self._refused(scene_nonce)
             return None, None
         self.counts["udp_handshakes"] += 1
-        self.heard = now
+        self.heard, self.answered = now, True
         if self.session == (scene_nonce, self.nonce):
             return None, None
         self._pair((scene_nonce, self.nonce))
@@ -681,7 +681,7 @@ class UdpLcm:
                 "another scene or driver may hold the port: choose another PORT"
             ) from None
         self.sock.setblocking(False)
-        self.url = url or f"{SCHEME}://{bind[0]}:{self.sock.getsockname()[1]}"
+        self.url = f"{SCHEME}://{bind[0]}:{self.port}"  # where it listens (the port picked, if 0)
         self._handlers: dict[str, list[Callable[[bytes], None]]] = {}
         self.key_file: Path | None = None
 
@@ -694,12 +694,12 @@ class UdpLcm:
             raise ValueError(f"LCM URL {url!r}: no address for {host!r} ({e}); give an IP address") from None
 
     @classmethod
-    def listen(cls, url: str, key_file: str | Path = "", **options) -> UdpLcm:
+    def listen(cls, url: str, key_file: str | Path = "") -> UdpLcm:
         """The scene's end: listen on the URL's address, answer the paired driver."""
         key, path = load_key(key_file)
-        link = cls(cls._address(url), None, url, key=key, **options)
+        link = cls(cls._address(url), None, url, key=key)
         link.key_file = path
-        log.info(f"{url}: waiting for a driver with the key {path} (fingerprint {key_fingerprint(key)})")
+        log.info(f"{link.url}: waiting for a driver with the key {path} (fingerprint {key_fingerprint(key)})")
         return link
 
     @classmethod
@@ -744,7 +744,7 @@ class UdpLcm:
                 raise
             self.counts["udp_send_errors"] += 1
 
-    def HandleSubscriptions(self, timeout_millis: int = 0) -> int:
+    def HandleSubscriptions(self, timeout_millis: int) -> int:
         """Hand every authentic message waiting (at most :data:`MAX_PER_POLL` datagrams) to its
         channel's handlers; waits up to ``timeout_millis`` for the first only if none is
         waiting. A driver says HELLO first when it has to. Returns how many were handled."""
@@ -753,12 +753,11 @@ class UdpLcm:
             if hello is not None:
                 self._send(hello, self.end.peer)
         handled = 0
-        if timeout_millis > 0:
-            self.sock.settimeout(timeout_millis / 1000.0)
+        self.sock.settimeout(max(timeout_millis, 0) * 1e-3)  # 0: do not wait
         try:
             for _ in range(MAX_PER_POLL):
                 try:
-                    datagram, sender = self.sock.recvfrom(MAX_DATAGRAM + 1)
+                    datagram, sender = self.sock.recvfrom(RECV_BYTES)
                 except (BlockingIOError, TimeoutError, ConnectionRefusedError):
                     break
                 finally:

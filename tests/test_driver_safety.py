@@ -40,6 +40,7 @@ def test_an_absurd_request_is_cut_to_the_rated_force_along_its_direction():
 
 def test_exactly_the_rated_force_and_step_are_not_clamped():
     safety = ForceSafety(12.0, 12_000.0, 0.001)  # 12 N per period
+    assert safety.buzzing is False and safety.step([1, 0, 0], True).dtype == np.float64
     np.testing.assert_array_equal(safety.step([12.0, 0.0, 0.0], True), [12.0, 0.0, 0.0])
     assert safety.counts == {"force_clamps": 0, "rate_clamps": 0, "buzz_events": 0, "buzz_periods": 0}
     np.testing.assert_array_equal(safety.step([-12.0, 0.0, 0.0], True), [0.0, 0.0, 0.0])  # 24 N cut to 12
@@ -113,6 +114,12 @@ def test_the_buzz_needs_big_changes_past_2_percent_of_the_rated_force():
     assert _buzzes(_changes(0.25 * alternate), buzz_min_n=0.2)
 
 
+def test_a_change_of_exactly_buzz_min_is_not_big():
+    alternate = np.array([(-1) ** k for k in range(24)], float)
+    assert not _buzzes(_changes(0.25 * alternate), buzz_min_n=0.25)  # 0.25 is exact in binary
+    assert _buzzes(_changes(0.25 * alternate), buzz_min_n=0.25 - 2**-20)
+
+
 def test_the_buzz_needs_20_of_24_changes_big():
     """0.8 × 24 = 19.2: 20 big changes (and 4 small, all alternating) are a buzz, 19 are not."""
     for big, buzz in ((20, True), (19, False), (24, True)):
@@ -155,6 +162,7 @@ def test_fresh_feedback_is_rendered_until_the_watchdog_time_then_not():
     """Watchdog 0.25 s, feedback at t = 1: fresh through t = 1.25 exactly, stale after; one trip
     when it goes stale (not one per stale period); fresh again with the next message."""
     gate = FeedbackGate(0.25)
+    assert gate.stopped is False and gate.arrived is None
     assert gate.state(0.0, False) == "waiting" and gate.trips == 0
     np.testing.assert_array_equal(gate.force, [0.0, 0.0, 0.0])
     assert math.isnan(gate.scene_time)
@@ -179,8 +187,8 @@ def test_the_stop_holds_until_the_next_feedback_and_outranks_the_clutch():
     assert gate.state(5.0, False) == "stopped" and gate.trips == 1  # stale under the stop: still a trip
     gate.stop()
     assert gate.stops == 2
-    gate.feedback([1.0, 0.0, 0.0], 0.1, 5.0)
-    assert not gate.stopped and gate.state(5.0, False) == "ok"
+    gate.feedback([1, 0, 0], 0.1, 5.0)  # integers: still newtons as doubles
+    assert gate.stopped is False and gate.state(5.0, False) == "ok" and gate.force.dtype == np.float64
     assert FeedbackGate(0.25).state(0.0, True) == "clutch"  # before any feedback too
 
 

@@ -5,6 +5,8 @@ Two layers: the ends (:class:`SceneEnd`, :class:`DriverEnd`) with datagrams hand
 by the test, so every count is exact, and :class:`UdpLcm` over real sockets on 127.0.0.1. Fast,
 and the mutation goal's tests for the link (pyproject ``[tool.mutmut]``)."""
 
+import hashlib
+import hmac
 import logging
 import os
 import socket
@@ -39,7 +41,7 @@ DRIVER_AT = ("127.0.0.1", 40000)
 # -- helpers, also used by test_driver, test_pairing and test_fuzz -----------------------------------------
 
 
-def pump(*links, until, timeout_s: float = 20.0, what: str = "") -> None:
+def pump(*links, until, timeout_s: float = 5.0, what: str = "") -> None:
     """Poll ``links`` (waiting 1 ms each for a datagram) until ``until()``; fail after ``timeout_s``
     (generous: only a stalled machine comes near it)."""
     deadline = time.monotonic() + timeout_s
@@ -187,11 +189,21 @@ def test_a_key_file_or_folder_of_another_user_is_refused(tmp_path):
     os.chown(path, 65534, 65534)
     with pytest.raises(KeyFileError, match=r"owned by uid 65534, not by you \(uid 0\)"):
         pr.load_key(path)
-    folder = tmp_path / "theirs"
-    folder.mkdir(mode=0o700)
-    os.chown(folder, 65534, 65534)
-    with pytest.raises(KeyFileError, match=r"its folder .*owner uid 65534"):
-        pr.load_key(folder / "link.key")
+    with pytest.raises(KeyFileError) as refused:
+        pr.load_key(path)
+    assert str(refused.value) == (
+        f"key file {path}: owned by uid 65534, not by you (uid 0); only your own key can pair your scene "
+        "and driver: copy it to a file of yours (mode 0600)"
+    )
+    for uid in (65534, 1):
+        folder = tmp_path / f"theirs_{uid}"
+        folder.mkdir(mode=0o700)
+        os.chown(folder, uid, uid)
+        with pytest.raises(KeyFileError, match=rf"its folder .*owner uid {uid}\)"):
+            pr.load_key(folder / "link.key")
+    root_folder = tmp_path / "root_owned"  # root's own folders are accepted (the user's is too)
+    root_folder.mkdir(mode=0o755)
+    assert len(pr.load_key(root_folder / "link.key")[0]) == 32
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="running a process as another user needs root")
@@ -205,30 +217,89 @@ def test_another_user_cannot_read_the_key(tmp_path):
     assert done.returncode == 1 and "Permission denied" in done.stderr and done.stdout == ""
 
 
-def test_a_symlink_a_folder_a_fifo_or_bad_text_as_the_key_is_refused(tmp_path):
+def test_a_symlink_a_folder_or_a_fifo_as_the_key_is_refused_naming_the_fix(tmp_path):
     real = _key_file(tmp_path)
     link = real.parent / "link.key.symlink"
     link.symlink_to(real)
-    with pytest.raises(KeyFileError, match=r"not a link"):
+    with pytest.raises(KeyFileError) as refused:
         pr.load_key(link)
-    folder = real.parent / "a_folder"
+    assert str(refused.value) == (
+        f"key file {link}: Too many levels of symbolic links; give the path of a regular file (not a "
+        "link), or a new path where the key will be created"
+    )
+    folder, fifo = real.parent / "a_folder", real.parent / "fifo"
     folder.mkdir()
-    with pytest.raises(KeyFileError, match=r"a_folder: not a regular file"):
-        pr.load_key(folder)
-    fifo = real.parent / "fifo"
     os.mkfifo(fifo, 0o600)
-    with pytest.raises(KeyFileError, match=r"fifo: not a regular file"):  # and no hang on open
-        pr.load_key(fifo)
-    for text, length in (("ab" * 31, 62), ("zz" * 32, 64), ("ab" * 33, 66), ("", 0), ("é" * 32, 64)):
+    for path in (folder, fifo):  # a FIFO: refused, and no hang on opening it
         with pytest.raises(KeyFileError) as refused:
-            pr.load_key(_key_file(tmp_path, text))
-        assert f"not a key of 64 hex digits ({length} characters)" in str(refused.value)
-    assert pr.load_key(_key_file(tmp_path, "AB" * 32))[0] == bytes([0xAB] * 32)  # no newline, capitals
+            pr.load_key(path)
+        assert str(refused.value) == (
+            f"key file {path}: not a regular file; give the path of the key file (64 hex digits), or a "
+            "new path where the key will be created"
+        )
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["ab" * 31, "zz" * 32, "ab" * 33, "", "é" * 32, "ab" * 32 + "\n\n", " " + "ab" * 32, "ab" * 32 + "\n\r"],
+)
+def test_anything_but_64_hex_digits_and_a_line_end_is_refused_naming_its_size(tmp_path, text):
+    path = _key_file(tmp_path, text)
+    with pytest.raises(KeyFileError) as refused:
+        pr.load_key(path)
+    assert str(refused.value) == (
+        f"key file {path}: not a key of 64 hex digits ({len(text.encode())} bytes); delete it so a new "
+        "key is made, or copy the other end's key file here"
+    )
+
+
+@pytest.mark.parametrize("end", ["", "\n", "\r\n", "\r"])
+def test_64_hex_digits_of_either_case_and_a_line_end_are_a_key(tmp_path, end):
+    key = bytes(range(0x90, 0xB0))
+    assert pr.load_key(_key_file(tmp_path, key.hex().upper() + end)) == (
+        key,
+        tmp_path / "private" / "link.key",
+    )
+    assert pr.load_key(_key_file(tmp_path, key.hex() + end))[0] == key
+
+
+def test_the_key_file_messages_name_the_file_and_the_fix(tmp_path, caplog):
+    path = _key_file(tmp_path, mode=0o644)
+    with pytest.raises(KeyFileError) as refused:
+        pr.load_key(path)
+    assert str(refused.value) == (
+        f"key file {path}: mode 0644 lets others read or change it (at most 0600): chmod 600 {path}, and "
+        "if others may have read it, delete it so a new key is made (then copy the new one to the other end)"
+    )
+    folder = tmp_path / "open"
+    folder.mkdir()
+    folder.chmod(0o777)
+    with pytest.raises(KeyFileError) as refused:
+        pr.load_key(folder / "k")
+    assert str(refused.value) == (
+        f"key file {folder / 'k'}: its folder {folder} (mode 0777, owner uid {os.getuid()}) can be "
+        "written by others, who could replace the key; keep the key in a folder only you can write "
+        f"(chmod 700 {folder}, or the default ~/.config/godobject/)"
+    )
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        new = tmp_path / "new" / "link.key"
+        pr.load_key(new)
+        pr.load_key(new)
+    assert [r.getMessage() for r in caplog.records] == [
+        f"created the link key {new} (mode 0600): a scene and a driver pair with the same file; copy it "
+        "to the other computer if the driver runs there"
+    ]
+
+
+def test_the_key_is_the_environments_when_none_is_given(link_key):
+    assert pr.load_key()[1] == link_key == Path(os.environ[pr.KEY_ENV])
 
 
 def test_the_fingerprint_names_a_key_in_8_hex_digits():
-    assert len(pr.key_fingerprint(KEY)) == 8 and int(pr.key_fingerprint(KEY), 16) >= 0
-    assert pr.key_fingerprint(KEY) == pr.key_fingerprint(bytes(KEY)) != pr.key_fingerprint(OTHER_KEY)
+    """The first 4 bytes of HMAC-SHA256(K, "godobject link fingerprint"), as docs/haptic_devices.md says."""
+    expected = hmac.new(KEY, b"godobject link fingerprint", hashlib.sha256).hexdigest()[:8]
+    assert pr.key_fingerprint(KEY) == expected and len(expected) == 8
+    assert pr.key_fingerprint(KEY) != pr.key_fingerprint(OTHER_KEY)
     with pytest.raises(ValueError, match="a link key is 32 bytes, not 31"):
         SceneEnd(KEY[:31])
 
@@ -436,10 +507,13 @@ def test_a_scene_takes_one_driver_and_refuses_a_second_saying_so(caplog):
     assert scene.counts["udp_refused"] == 3 and scene.counts["udp_refused_drivers"] == 1
     assert second.counts["udp_refused"] == 2 and second.seal("POSE", b"x") is not None  # its own, for nobody
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
-    assert len(warnings) == 2, warnings
-    assert warnings[0].startswith("refused a second driver (at 127.0.0.1:40002)")
-    assert "paired with the driver at 127.0.0.1:40000" in warnings[0] and "restart the scene" in warnings[0]
-    assert warnings[1].startswith("the scene at 127.0.0.1:7667 refused this driver")
+    assert warnings == [
+        "refused a second driver (at 127.0.0.1:40002): this scene is paired with the driver at "
+        "127.0.0.1:40000 until it ends; stop the other driver, or restart the scene to pair a new one "
+        "(lcm_udp_refused_drivers in the metrics)",
+        "the scene at 127.0.0.1:7667 refused this driver: it is paired with another driver until it "
+        "ends; nothing is rendered (stop the other driver and restart the scene)",
+    ]
     _, welcome = scene.receive(first.hello(2.0), DRIVER_AT)  # the paired driver is welcomed again
     assert welcome[4:5] == pr.WELCOME and first.receive(welcome, SCENE_AT, 2.0) == (None, None)
     assert first.counts["udp_pairings"] == 1
@@ -500,6 +574,92 @@ def test_a_message_too_long_for_a_datagram_is_refused_when_sealed():
     assert len(driver.seal("C", bytes(room))) == MAX_DATAGRAM
     with pytest.raises(ValueError, match=r"of 8114 bytes is over the link's 8192-byte datagram"):
         driver.seal("C", bytes(room + 1))
+
+
+def _tag(key: bytes, label: bytes, data: bytes) -> bytes:
+    """The wire format's tag, computed here from its description (docs/haptic_devices.md)."""
+    derived = hmac.new(key, b"godobject link " + label, hashlib.sha256).digest()
+    return hmac.new(derived, data, hashlib.sha256).digest()
+
+
+def test_the_datagrams_are_as_the_wire_format_says():
+    """Known answers, from the format's description alone: HELLO, WELCOME and DATA (both ways)."""
+    scene, driver = ends()
+    driver_nonce, scene_nonce = b"d" * 16, b"s" * 16
+    hello = driver.hello(0.0)
+    challenge = hello[5 + 16 : 5 + 32]
+    head = b"GOD1H" + driver_nonce + challenge
+    assert hello == head + _tag(KEY, b"hello", head)
+    _, welcome = scene.receive(hello, DRIVER_AT)
+    head = b"GOD1W" + scene_nonce + driver_nonce + challenge
+    assert welcome == head + _tag(KEY, b"hello", head)
+    _, first = driver.receive(welcome, SCENE_AT, 0.0)
+    head = b"GOD1D" + scene_nonce + driver_nonce + struct.pack(">Q", 1) + LINK_CHANNEL.encode() + b"\0"
+    assert first == head + _tag(KEY, b"dataD" + scene_nonce + driver_nonce, head)
+    scene.receive(first, DRIVER_AT)
+    back = scene.seal("FEEDBACK", b"f")
+    head = b"GOD1S" + scene_nonce + driver_nonce + struct.pack(">Q", 1) + b"FEEDBACK\0f"
+    assert back == head + _tag(KEY, b"dataS" + scene_nonce + driver_nonce, head)
+
+
+def test_the_robot_state_of_a_pose_is_parsed_with_its_grasp_taken_out():
+    names = list(pr.POSE_NAMES)
+    q = [1.0, 0.0, 0.0, 0.0]
+    for grasp, expected in (("*", "*"), ("", ""), ("brick_0", "brick_0"), (None, None)):
+        raw = pr.pose_message(2**40, [0.5, -0.25, 1.0], q, grasp).encode()
+        assert pr.parse_robot_state(raw, names) == (2**40, names, [0.5, -0.25, 1.0, *q], expected)
+    two = lcmt_robot_state()
+    two.utime, two.num_joints, two.joint_name, two.joint_position = 1, 2, ["x", "y"], [0.0, 1.0]
+    assert pr.parse_robot_state(two.encode(), names) == (1, ["x", "y"], [0.0, 1.0], None)
+    assert pr.parse_robot_state(two.encode()[:-4], names) is None  # one value short
+    first = lcmt_robot_state()
+    first.utime, first.num_joints = 3, 3
+    first.joint_name, first.joint_position = ["grasp=*", "x", "grasp=y"], [0.0, 0.5, 0.0]
+    assert pr.parse_robot_state(first.encode(), names) == (3, ["x", "grasp=y"], [0.5, 0.0], "*")  # the first
+
+
+def test_each_rejection_is_counted_each_time():
+    """Every count goes up by one per datagram (two of each here), not to one."""
+    scene, driver = ends()
+    forged_hello = DriverEnd(OTHER_KEY, SCENE_AT, b"x" * 16).hello(0.0)
+    driver.seal("P", b"")
+    driver.seal("P", b"")
+    hello = driver.hello(0.0)
+    for _ in range(2):
+        scene.receive(b"junk", DRIVER_AT)
+        scene.receive(forged_hello, DRIVER_AT)
+        driver.receive(b"junk", SCENE_AT, 0.0)
+        driver.receive(b"junk", ("127.0.0.1", 1), 0.0)
+        scene.seal("F", b"")
+        _, welcome = scene.receive(hello, DRIVER_AT)
+        driver.receive(welcome, SCENE_AT, 0.0)
+    keys = ("udp_malformed", "udp_unauthenticated", "udp_unpaired", "udp_handshakes")
+    assert [scene.counts[k] for k in keys] == [2, 2, 2, 2]
+    keys = ("udp_malformed", "udp_foreign", "udp_unpaired", "udp_handshakes")
+    assert [driver.counts[k] for k in keys] == [2, 2, 2, 2]
+    scene.receive(driver.seal("P", b"1"), DRIVER_AT)  # the first DATA pairs the scene
+    older = SceneEnd(KEY, b"o" * 16)
+    older._pair((b"o" * 16, b"d" * 16))
+    stale = DriverEnd(KEY, SCENE_AT, b"d" * 16)
+    stale._pair((b"q" * 16, b"d" * 16))
+    for _ in range(2):
+        scene.receive(driver.seal("P", b"p"), ("127.0.0.1", 40009))
+        scene.receive(stale.seal("P", b"p"), DRIVER_AT)
+        driver.receive(older.seal("F", b"f"), SCENE_AT, 0.0)
+        driver.receive(b"GOD1S" + bytes(40) + b"F\0" + bytes(32), SCENE_AT, 0.0)
+    assert (scene.counts["udp_foreign"], scene.counts["udp_stale"]) == (2, 2)
+    assert (driver.counts["udp_stale"], driver.counts["udp_unauthenticated"]) == (2, 2)
+
+
+def test_a_search_after_a_silence_asks_a_new_challenge_even_when_answered_at_once():
+    scene, driver = ends()
+    hello = driver.hello(1.0)
+    scene.receive(driver.receive(scene.receive(hello, DRIVER_AT)[1], SCENE_AT, 1.0)[1], DRIVER_AT)
+    assert driver.challenge == hello[21:37] and driver.answered
+    again = driver.hello(1.0 + pr.SILENT_S + 0.001)
+    assert again[21:37] == driver.challenge != hello[21:37] and not driver.answered
+    old_welcome = scene.receive(hello, DRIVER_AT)[1]  # an answer to the first challenge, replayed
+    assert driver.receive(old_welcome, SCENE_AT, 2.0) == (None, None) and driver.counts["udp_stale"] == 1
 
 
 # -- the transport, over sockets on 127.0.0.1 --------------------------------------------------------------
@@ -596,7 +756,136 @@ def test_a_port_in_use_or_a_host_without_address_is_refused_naming_the_fix():
 
 def test_a_url_that_is_not_udp_host_port_is_refused_naming_the_form():
     for bad in ("udp://127.0.0.1", "udpm://239.255.76.67:7667", "udp://:80", "udp://127.0.0.1:x", "memq://"):
-        with pytest.raises(ValueError, match=r"a driver link is udp://HOST:PORT, e.g. udp://127.0.0.1:7667"):
+        with pytest.raises(ValueError) as refused:
             pr.parse_url(bad)
+        assert str(refused.value) == (
+            f"LCM URL {bad!r}: a driver link is udp://HOST:PORT, e.g. udp://127.0.0.1:7667 (127.0.0.1 "
+            "keeps every datagram on this machine)"
+        )
     assert pr.parse_url("udp://127.0.0.1:7667") == ("127.0.0.1", 7667)
     assert pr.is_udp_url("udp://h:1") and not pr.is_udp_url("udpm://h:1") and not pr.is_udp_url("memq://")
+
+
+def test_a_listening_link_names_its_own_address_key_and_buffer(tmp_path, caplog):
+    key_file = tmp_path / "k" / "link.key"
+    with caplog.at_level(logging.INFO, logger="godobject_drake.link"):
+        scene = UdpLcm.listen("udp://localhost:0", key_file)
+        driver = driver_link(scene, key_file=key_file)
+        pair(scene, driver)
+    try:
+        key = pr.load_key(key_file)[0]
+        assert scene.get_lcm_url() == f"udp://127.0.0.1:{scene.port}" and scene.key_file == key_file
+        assert driver.get_lcm_url() == f"udp://127.0.0.1:{driver.port}" and driver.key_file == key_file
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+        assert driver.port >= low  # a port the kernel picked
+        rmem_max = int(Path("/proc/sys/net/core/rmem_max").read_text())
+        buffer = scene.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        assert buffer == 2 * min(1 << 20, rmem_max)  # Linux reports twice what was set
+        messages = [r.getMessage() for r in caplog.records if r.name == "godobject_drake.link"]
+        assert messages[-3:] == [
+            f"udp://127.0.0.1:{scene.port}: waiting for a driver with the key {key_file} (fingerprint "
+            f"{pr.key_fingerprint(key)})",
+            f"paired with the scene at 127.0.0.1:{scene.port}",
+            f"paired with the driver at 127.0.0.1:{driver.port}",
+        ]
+    finally:
+        scene.close(), driver.close()
+
+
+def test_a_poll_hands_on_each_message_to_each_handler_and_says_how_many():
+    scene = scene_link()
+    driver = driver_link(scene)
+    got = []
+    scene.Subscribe("A", got.append)
+    scene.Subscribe("A", got.append)
+    scene.Subscribe("B", got.append)
+    try:
+        pair(scene, driver)
+        driver.Publish("A", b"a")
+        driver.Publish("B", b"b")
+        time.sleep(0.05)
+        handled = scene.HandleSubscriptions(0)
+        if handled < 3:  # a loaded machine delivered one late
+            handled += scene.HandleSubscriptions(1000)
+        assert handled == 3 and got == [b"a", b"a", b"b"]
+        assert scene.HandleSubscriptions(0) == 0
+    finally:
+        scene.close(), driver.close()
+
+
+def test_a_poll_waits_for_the_first_datagram_only_as_long_as_asked():
+    scene = scene_link()
+    try:
+        start = time.monotonic()
+        assert scene.HandleSubscriptions(0) == 0
+        assert scene.HandleSubscriptions(-5) == 0
+        quick = time.monotonic() - start
+        start = time.monotonic()
+        assert scene.HandleSubscriptions(40) == 0
+        waited = time.monotonic() - start
+        assert waited >= 0.04 and waited < 5.0 and quick < 1.0  # upper bounds: only a stalled machine
+        assert scene.sock.gettimeout() == 0.0  # non-blocking again after the wait
+    finally:
+        scene.close()
+
+
+def test_floods_are_counted_each_time_a_poll_stops_at_its_limit():
+    scene = scene_link()
+    junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for _ in range(2):
+            for i in range(pr.MAX_PER_POLL + 1):
+                junk.sendto(b"junk %d" % i, ("127.0.0.1", scene.port))
+            time.sleep(0.05)
+            received(scene, scene.counts["udp_received"] + pr.MAX_PER_POLL + 1)
+        assert scene.counts["udp_flooded"] == 2
+    finally:
+        scene.close(), junk.close()
+
+
+class _RefusingSocket:
+    """The OS refusing to send (a full buffer, no route): ``sendto`` raises ``errno``."""
+
+    def __init__(self, sock, code):
+        self.sock, self.code = sock, code
+
+    def sendto(self, data, address):
+        raise OSError(self.code, os.strerror(self.code))
+
+    def __getattr__(self, name):
+        return getattr(self.sock, name)
+
+
+def test_a_datagram_the_os_cannot_send_is_counted_and_any_other_error_raised():
+    import errno
+
+    scene, driver = scene_link(), None
+    try:
+        driver = driver_link(scene)
+        pair(scene, driver)
+        real = driver.sock
+        for code in (errno.ECONNREFUSED, errno.EAGAIN, errno.ENOBUFS, errno.EHOSTUNREACH):
+            driver.sock = _RefusingSocket(real, code)
+            driver.Publish("P", b"p")
+        assert driver.counts["udp_send_errors"] == 4
+        driver.sock = _RefusingSocket(real, errno.EPERM)
+        with pytest.raises(PermissionError):
+            driver.Publish("P", b"p")
+        driver.sock = real
+    finally:
+        scene.close()
+        if driver is not None:
+            driver.close()
+
+
+def test_a_port_that_cannot_be_bound_is_refused_naming_it():
+    scene = scene_link()
+    try:
+        with pytest.raises(ValueError) as refused:
+            UdpLcm(("127.0.0.1", scene.port), key=KEY)
+        assert str(refused.value) == (
+            f"LCM URL ('127.0.0.1', {scene.port}): cannot listen on 127.0.0.1:{scene.port} (Address "
+            "already in use); another scene or driver may hold the port: choose another PORT"
+        )
+    finally:
+        scene.close()

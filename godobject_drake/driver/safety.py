@@ -30,7 +30,7 @@ class FeedbackGate:
     def __init__(self, watchdog_s: float):
         self.watchdog_s = float(watchdog_s)
         self.force = np.zeros(3)
-        self.scene_time = float("nan")
+        self.scene_time = math.nan
         self.arrived: float | None = None
         self.stopped = False
         self.trips = 0
@@ -70,9 +70,9 @@ class ForceSafety:
     zero at once (no rate limit on the way to zero). Counts in :attr:`counts`.
     """
 
-    BUZZ_WINDOW = 24  # periods looked at
-    BUZZ_ALTERNATION = 0.8  # the share of successive changes that flip sign
-    BUZZ_BIG = 0.8  # the share of the changes that must be larger than buzz_min
+    BUZZ_WINDOW = 24  # changes looked at (the last 25 requests)
+    BUZZ_BIG_CHANGES = math.ceil(0.8 * BUZZ_WINDOW)  # 20: how many must be larger than buzz_min
+    BUZZ_FLIPS = math.ceil(0.8 * (BUZZ_WINDOW - 1))  # 19 of the 23 successive pairs flip sign
     DAMP_TAPS = 4
 
     def __init__(
@@ -93,10 +93,10 @@ class ForceSafety:
         for axis in range(3):
             step = d[:, axis]
             big = np.abs(step) > self.buzz_min
-            if big.sum() < self.BUZZ_BIG * len(step):
+            if big.sum() < self.BUZZ_BIG_CHANGES:
                 continue
             flips = np.sum(np.sign(step[1:]) * np.sign(step[:-1]) < 0)
-            if flips >= self.BUZZ_ALTERNATION * (len(step) - 1):
+            if flips >= self.BUZZ_FLIPS:
                 return True
         return False
 
