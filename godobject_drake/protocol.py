@@ -175,13 +175,12 @@ def decode(message_type, raw: bytes):
 def parse_robot_state(raw: bytes, names) -> tuple[int, list[str], list[float], str | None] | None:
     """An ``lcmt_robot_state`` pose or joint sample: ``(utime, names, values, grasp)`` with the
     ``grasp=`` entry taken out (``grasp`` None when the message has none), or None when ``raw`` is
-    not one (another type, a truncated message, lengths that disagree)."""
+    not one (another type, a truncated message: LCM's decoding reads ``num_joints`` names and
+    values, or fails)."""
     msg = decode(lcmt_robot_state, raw)
     if msg is None:
         return None
     names, values = list(msg.joint_name), list(msg.joint_position)
-    if len(names) != msg.num_joints or len(values) != msg.num_joints:
-        return None
     grasp = None
     for i, name in enumerate(names):
         if name.startswith(GRASP_PREFIX):

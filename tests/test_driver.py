@@ -467,3 +467,23 @@ def test_the_driver_keeps_bounded_memory_without_a_log():
     rows = list(driver.rows)
     assert len(rows) == drv.Driver.ROWS_KEPT and rows[-1][11] == "exit" and rows[-2][0] > rows[0][0]
     assert driver.summary()["loop_lateness"]["n"] == 5200
+
+
+def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_package():
+    """A driver process imports godobject_drake.protocol and its own driver/ modules, nothing of the
+    scene's: no pydrake.systems (a fresh interpreter, so nothing else imported it first)."""
+    code = (
+        "import json, sys, godobject_drake.driver.process\n"
+        "loaded = [m for m in sys.modules if m.startswith(('pydrake.systems', 'godobject_drake'))]\n"
+        "print(json.dumps(sorted(loaded)))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == [
+        "godobject_drake",
+        "godobject_drake.driver",
+        "godobject_drake.driver.families",
+        "godobject_drake.driver.process",
+        "godobject_drake.driver.safety",
+        "godobject_drake.protocol",
+    ]

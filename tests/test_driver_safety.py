@@ -67,7 +67,7 @@ def test_a_buzz_near_nyquist_is_damped_from_the_25th_request_and_counted_once():
     np.testing.assert_allclose(out[24:], 1.0, rtol=1e-12)
     assert safety.buzzing
     safety.step([1.0, 0.0, 0.0], False)  # dead: the window starts again
-    assert not safety.buzzing
+    assert safety.buzzing is False
     out = [safety.step([a, 0.0, 0.0], True)[0] for a in asked[:30]]
     np.testing.assert_array_equal(out[:24], asked[:24])
     assert safety.counts["buzz_events"] == 2

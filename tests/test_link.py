@@ -635,6 +635,9 @@ def test_each_rejection_is_counted_each_time():
         driver.receive(welcome, SCENE_AT, 0.0)
     keys = ("udp_malformed", "udp_unauthenticated", "udp_unpaired", "udp_handshakes")
     assert [scene.counts[k] for k in keys] == [2, 2, 2, 2]
+    for _ in range(2):  # the head of a DATA, and no channel after it
+        assert scene.receive(b"GOD1D" + bytes(40) + b"\0" + bytes(32), DRIVER_AT) == (None, None)
+    assert scene.counts["udp_malformed"] == 4
     keys = ("udp_malformed", "udp_foreign", "udp_unpaired", "udp_handshakes")
     assert [driver.counts[k] for k in keys] == [2, 2, 2, 2]
     scene.receive(driver.seal("P", b"1"), DRIVER_AT)  # the first DATA pairs the scene
@@ -743,10 +746,12 @@ def test_an_oversized_datagram_is_malformed_and_one_at_the_limit_is_read():
 def test_a_port_in_use_or_a_host_without_address_is_refused_naming_the_fix():
     scene = scene_link()
     try:
-        with pytest.raises(
-            ValueError, match=rf"cannot listen on 127.0.0.1:{scene.port} .*choose another PORT"
-        ):
+        with pytest.raises(ValueError) as refused:
             UdpLcm.listen(f"udp://127.0.0.1:{scene.port}")
+        assert str(refused.value) == (
+            f"LCM URL udp://127.0.0.1:{scene.port}: cannot listen on 127.0.0.1:{scene.port} (Address "
+            "already in use); another scene or driver may hold the port: choose another PORT"
+        )
         with pytest.raises(ValueError, match=r"no address for 'no-such-host.invalid'.*give an IP address"):
             UdpLcm.connect("udp://no-such-host.invalid:7667")
     finally:
@@ -881,6 +886,7 @@ def test_a_datagram_the_os_cannot_send_is_counted_and_any_other_error_raised():
 def test_a_port_that_cannot_be_bound_is_refused_naming_it():
     scene = scene_link()
     try:
+        assert UdpLcm(("127.0.0.1", 0), key=KEY).key_file is None  # made here: no file named
         with pytest.raises(ValueError) as refused:
             UdpLcm(("127.0.0.1", scene.port), key=KEY)
         assert str(refused.value) == (
