@@ -487,3 +487,31 @@ def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_packa
         "godobject_drake.driver.safety",
         "godobject_drake.protocol",
     ]
+
+
+def test_a_key_others_can_read_or_a_link_that_cannot_be_paired_is_refused_before_anything_runs(
+    tmp_path, capsys
+):
+    """Exit 2 (the driver) or a ValueError before the scene is built, each naming the value and
+    the fix: a key file of mode 0644; Drake's multicast for the driver without the opt-in; a key
+    file for a link that is not udp://."""
+    from godobject_drake.protocol import KeyFileError
+
+    key = tmp_path / "keys" / "link.key"
+    key.parent.mkdir(mode=0o700)
+    key.write_text("ab" * 32 + "\n")
+    key.chmod(0o644)
+    url = f"udp://127.0.0.1:{free_port()}"
+    scenario = lcm_scenario(url, 0.1)
+    scenario.device.key_file = str(key)
+    with pytest.raises(KeyFileError, match=rf"key file {key}: mode 0644 .*chmod 600 {key}"):
+        build_station(scenario)
+    assert drv.main(["run", "emulated", "--scene", url, "--key-file", str(key), "--duration", "1"]) == 2
+    assert f"godobject-driver: --key-file: key file {key}: mode 0644" in capsys.readouterr().err
+    assert drv.main(["run", "emulated", "--scene", "udpm://239.255.76.67:7667?ttl=0"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        "only a udp://HOST:PORT link is paired and authenticated" in err and "--allow-unauthenticated" in err
+    )
+    with pytest.raises(sc.ScenarioError, match=r"device.key_file: 'k' pairs a udp:// link only.*url: udp://"):
+        sc.load_scenario(LEGO, "device: !Lcm {url: 'memq://', key_file: k}")

@@ -519,7 +519,8 @@ def test_a_scene_takes_one_driver_and_refuses_a_second_saying_so(caplog):
     assert first.counts["udp_pairings"] == 1
 
 
-def test_a_scene_remembers_at_most_MAX_REFUSED_second_drivers():
+def test_a_scene_remembers_at_most_MAX_REFUSED_second_drivers(monkeypatch):
+    monkeypatch.setattr(pr, "MAX_REFUSED", 4)  # 64 by default; 4 keeps the test (run per mutant) quick
     scene, first = ends()
     handshake(scene, first)
     for i in range(pr.MAX_REFUSED + 3):
@@ -530,7 +531,8 @@ def test_a_scene_remembers_at_most_MAX_REFUSED_second_drivers():
     assert len(scene.refused) == pr.MAX_REFUSED and scene.counts["udp_refused"] == 2 * (pr.MAX_REFUSED + 3)
 
 
-def test_a_driver_remembers_at_most_MAX_REFUSED_scenes(caplog):
+def test_a_driver_remembers_at_most_MAX_REFUSED_scenes(caplog, monkeypatch):
+    monkeypatch.setattr(pr, "MAX_REFUSED", 4)
     driver = DriverEnd(KEY, SCENE_AT, b"d" * 16)
     with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
         for i in range(pr.MAX_REFUSED + 2):

@@ -21,6 +21,8 @@ import threading
 import time
 
 import numpy as np
+import pytest
+from conftest import REPO
 from drake import lcmt_force_torque
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
@@ -287,6 +289,43 @@ def test_truncated_datagrams_are_counted_and_the_scene_runs_on():
         scene.close(), stranger.close(), link.close()
     assert counts["lcm_udp_malformed"] + counts["lcm_udp_unauthenticated"] == len(cut)
     assert counts["lcm_bad_messages"] == 0 and counts["driver_loops"] == 0
+
+
+def test_a_scene_sent_truncated_datagrams_runs_to_its_end_and_writes_its_metrics_whole():
+    """The brick scene with a driver's device on udp:// (no driver), sent truncated pose and status
+    messages before and while it runs: before pairing struct.error ended the run (exit 1, no
+    metrics at all); now it runs its 0.2 s and its metrics count each datagram."""
+    from godobject_drake.config import scenario as sc
+    from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
+
+    probe = udp_socket()
+    port = probe.getsockname()[1]
+    probe.close()  # a port free a moment ago, for the scene
+    scenario = sc.load_scenario(REPO / "diagrams" / "lego.yaml",
+                                f"device: !Lcm {{url: 'udp://127.0.0.1:{port}', rate_hz: 200.0}}\n"
+                                "simulation: {duration_s: 0.2}")  # fmt: skip
+    station = build_station(scenario)
+    stranger = udp_socket()
+    cut = [lc02(POSE_CHANNEL, pose_message(1, START, Q).encode()[:20]),
+           lc02(DRIVER_STATUS_CHANNEL, status_message(1, {"loops": 9}).encode()[:30]),
+           forged(b"D", POSE_CHANNEL, pose_message(1, START, Q).encode())[:60]]  # fmt: skip
+    try:
+        for datagram in cut:
+            stranger.sendto(datagram, ("127.0.0.1", port))
+
+        def more(metrics):
+            for datagram in cut:
+                stranger.sendto(datagram, ("127.0.0.1", port))
+
+        m = simulate(station, progress=False, checkpoint=more, checkpoint_period_s=0.0).metrics
+    finally:
+        stranger.close()
+        station.device.lcm.close()
+    assert m["sim_time_s"] == pytest.approx(0.2) and not m["diverged"]
+    assert m["lcm_bad_messages"] == 0 and m["driver_loops"] == 0
+    assert m["lcm_udp_received"] >= 2 * len(cut) and m["lcm_udp_received"] % len(cut) == 0
+    assert m["lcm_udp_malformed"] == m["lcm_udp_received"] and m["lcm_udp_pairings"] == 0
 
 
 def test_a_truncated_message_of_the_paired_driver_is_dropped_and_counted():
