@@ -67,8 +67,8 @@ driver's watchdog turns into zero force).
 URLs (``--lcm-url`` / ``device.url`` on the scene; ``--scene`` on the driver):
 
 - ``udp://HOST:PORT`` on the scene: listen on HOST:PORT; the feedback goes to the paired driver;
-- the driver binds an ephemeral port on the same host and sends to the scene's address, and
-  takes datagrams from that address only.
+- the driver binds an ephemeral port on its own address towards the scene (127.0.0.1 on one
+  machine) and sends to the scene's address, and takes datagrams from that address only.
 
 Use ``127.0.0.1`` on one machine: nothing leaves the host (tests use nothing else).
 :class:`UdpLcm` has the part of ``DrakeLcm``'s interface the devices use (``Subscribe``,
@@ -701,13 +701,27 @@ class UdpLcm:
         log.info(f"{link.url}: waiting for a driver with the key {path} (fingerprint {key_fingerprint(key)})")
         return link
 
+    @staticmethod
+    def _local_address_towards(scene: tuple[str, int]) -> str:
+        """This machine's address that reaches ``scene`` (the scene's own on one machine; the
+        interface towards it on a second): a UDP socket's connect picks the route, sends nothing."""
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.connect(scene)
+            except OSError as e:
+                raise ValueError(
+                    f"no route from this machine to {scene[0]}:{scene[1]} ({e.strerror}): give the "
+                    "scene's address as this machine reaches it"
+                ) from None
+            return probe.getsockname()[0]
+
     @classmethod
     def connect(cls, url: str, key_file: str | Path = "", **options) -> UdpLcm:
-        """The driver's end: a free port on the scene's host, sending to (and hearing only) the
-        URL's address."""
+        """The driver's end: a free port on this machine's address towards the scene, sending to
+        (and hearing only) the URL's address."""
         key, path = load_key(key_file)
-        host, port = cls._address(url)
-        link = cls((host, 0), (host, port), key=key, **options)
+        scene = cls._address(url)
+        link = cls((cls._local_address_towards(scene), 0), scene, key=key, **options)
         link.key_file = path
         return link
 

@@ -759,6 +759,9 @@ def test_a_port_in_use_or_a_host_without_address_is_refused_naming_the_fix():
     finally:
         scene.close()
     assert UdpLcm._address("udp://localhost:5") == ("127.0.0.1", 5)
+    # the driver binds its own address towards the scene: 127.0.0.1 here, an interface's on a
+    # second computer (before, it bound the scene's address, which a second computer does not have)
+    assert UdpLcm._local_address_towards(("127.0.0.1", 5)) == "127.0.0.1"
 
 
 def test_a_url_that_is_not_udp_host_port_is_refused_naming_the_form():
