@@ -463,6 +463,12 @@ class Wire:
         forger._sent = 2**40
         return forger.seal("POSE" if to == "scene" else "FEEDBACK", b"forged")
 
+    def paired_via(self, side: str) -> str | None:
+        """Where the first intact DATA of the other end reached ``side`` from (it pairs)."""
+        other = "driver" if side == "scene" else "scene"
+        theirs = {d for s, d in self.captured if s == other and d[4:5] in (b"D", b"S")}
+        return next((via for datagram, via in self.arrived[side] if datagram in theirs), None)
+
     def expected(self, side: str) -> list[tuple[str, bytes]]:
         """What ``side`` should have handed on: the other end's DATA that arrived intact, in order,
         each the first time, newer than the last, from the address that paired (the first)."""
@@ -513,8 +519,15 @@ def test_each_end_hands_on_exactly_the_intact_newer_messages_of_its_paired_end(a
     event("not paired" if poses < 0 else f"poses handed on: {min(poses, 5)}{'+' * (poses > 5)}")
     if wire.handled["driver"]:
         event("feedback reached the driver")
-    # the stranger hears only WELCOMEs answering HELLOs it replayed: nothing it could use
-    assert all(d[4:5] == b"W" for d in wire.answered_elsewhere)
+    # The stranger hears WELCOMEs answering HELLOs it replayed, and, if it replayed the driver's
+    # first message before the scene had it (the pairing stolen: a denial of service by whoever
+    # can capture and hold back datagrams, docs/haptic_devices.md), the scene's own messages; the
+    # real driver then hears none (expected() above), so its watchdog keeps the force at zero.
+    stolen = wire.paired_via("scene") == "elsewhere"
+    assert all(d[4:5] == b"W" or (stolen and d[4:5] == b"S") for d in wire.answered_elsewhere)
+    if stolen:
+        event("the pairing stolen by a replay from elsewhere")
+        assert wire.handled["driver"] == []
 
 
 # -- the driver's end: any feedback payload ----------------------------------------------------------------
