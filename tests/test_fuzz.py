@@ -1,10 +1,13 @@
-"""Bad device input, fuzzed (hypothesis): arbitrary CSV text, sample streams and LCM payloads.
+"""Bad device input, fuzzed (hypothesis): arbitrary CSV text, sample streams, LCM payloads, both
+ends of a driver's udp:// link through an adversary, and a driver's feedback payloads.
 
 Properties: a log is either read whole (finite values, increasing times, unit quaternions) or
 refused with a ValueError naming the file (and the line, for a bad row); no non-finite value
-or non-unit quaternion ever leaves a device for the coupling; every counter adds up to what
-was sent. The number of cases: ``max_examples`` below (run with
-``--hypothesis-show-statistics`` to see them).
+or non-unit quaternion ever leaves a device for the coupling; junk among valid LCM messages
+changes nothing the valid ones do; each end of a link hands on exactly the intact, newer
+messages of its paired end; a driver renders only the newest valid force, within its rated
+limits; every counter adds up to what was sent. The number of cases: ``max_examples`` below
+(run with ``--hypothesis-show-statistics`` to see them).
 """
 
 import functools
