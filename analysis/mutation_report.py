@@ -49,6 +49,17 @@ UNITS = {
     "device source (guard, timing)": ("devices.sources", "DeviceSource", None),
     "device aids (tether, ratio)": ("config.device_files", "RelativeAids", None),
     "device timing check": ("devices.sources", None, {"_check_timing"}),
+    # what a haptic device renders (issue 45): the driver's watchdog and stop, its rated limits
+    # and buzz damping; what the link lets through: the key file, each datagram, each end's rules
+    "driver: watchdog and stop": ("driver.safety", "FeedbackGate", None),
+    "driver: rated limits and buzz": ("driver.safety", "ForceSafety", None),
+    "link: key file": ("protocol", None, {"key_path", "_check_folder", "_create_key", "load_key",
+                                          "key_fingerprint"}),
+    "link: datagrams and messages": ("protocol", "_Tagger", None),
+    "link: datagram checks": ("protocol", None, {"split", "data_fields", "decode", "parse_robot_state",
+                                                 "parse_url", "is_udp_url", "_derive"}),
+    "link: each end's rules": ("protocol", ("_End", "SceneEnd", "DriverEnd"), None),
+    "link: transport": ("protocol", "UdpLcm", None),
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
 NAME = re.compile(r"godobject_drake\.([\w.]+?)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")

@@ -3,33 +3,72 @@
 What the scene's LCM devices (:mod:`godobject_drake.devices.lcm`) and a driver process
 (:mod:`godobject_drake.driver.process`) share, and nothing else: the channel names, the packing of a pose
 sample, a driver's counts and the parsing of a pose message (Drake's ``lcmt_*`` types, which the
-drake wheel ships without ``pydrake.systems``), and the unicast UDP transport below. The message
-formats are in :mod:`godobject_drake.devices.lcm`'s docstring and docs/haptic_devices.md.
+drake wheel ships without ``pydrake.systems``), and the paired unicast UDP transport below. The
+message formats are in :mod:`godobject_drake.devices.lcm`'s docstring and docs/haptic_devices.md.
 
 **Transport: LCM messages over unicast UDP**, the scene and a device driver in separate processes.
 
 Drake's LCM (``DrakeLcm``) speaks multicast (``udpm://``) between processes, which a lab's
 network or a locked-down machine may not carry, and ``memq://`` stays in one process. A driver
 and a scene on one machine (or two, over a cable) need only a point-to-point link, so this is
-one: each datagram is one LCM message in LCM's own small-message packet format (the
-``LC02`` magic, a sequence number, the channel name NUL-terminated, then the message's
-``encode()`` bytes), sent to one address. The message types are Drake's (``lcmt_robot_state``
-for poses, ``lcmt_force_torque`` for the wrench), so nothing about the messages changes, only
-how they travel.
+one: each datagram carries one LCM message (a channel name and a Drake ``lcmt_*`` message's
+``encode()`` bytes), sent to one address.
 
 Why datagrams and not a stream (TCP, a Unix stream socket): a haptic loop wants the newest
 sample, never a queue of old ones behind a stalled reader; a datagram is a whole message or
 nothing (no framing to resynchronise after a crash); there is no connection to set up or tear
 down, so a killed scene leaves the driver nothing to clean up (it simply stops hearing
-feedback, which its watchdog turns into zero force), and a restarted scene is heard at once.
-UDP rather than a Unix datagram socket: the same code reaches another machine when the device
-hangs off a separate real-time computer, and no socket file is left behind.
+feedback, which its watchdog turns into zero force). UDP rather than a Unix datagram socket:
+the same code reaches another machine when the device hangs off a separate real-time computer,
+and no socket file is left behind.
+
+**Pairing: only the owner's scene and driver talk** (issue 45). Any process on the machine can
+send a datagram to any UDP port (and read the ports from ``/proc/net/udp``), so every datagram
+is authenticated with a key only the user's own files hold:
+
+- the **key**: 32 random bytes, as 64 hex digits in a file only its owner may read (mode 0600,
+  in a folder only its owner may write), created on first use by whichever end starts first:
+  ``key_file`` (scene) / ``--key-file`` (driver), else ``$GODOBJECT_LINK_KEY``, else
+  ``~/.config/godobject/link.key`` (:func:`key_path`, :func:`load_key`). Two computers: copy
+  the file to the other one;
+- the **handshake**: the driver sends ``HELLO`` (its random session nonce and a fresh
+  challenge), the scene answers ``WELCOME`` (its own session nonce, the driver's, the
+  challenge), both tagged with a key derived from the shared one; a ``WELCOME`` that does not
+  answer the driver's current challenge (an old scene's, replayed) is refused;
+- every **message** is then ``DATA``: both session nonces, a counter that only grows, the
+  channel and the LCM message, tagged HMAC-SHA256 with a key derived from the shared key and
+  both nonces, one key per direction. A message of another session (an earlier scene, a
+  replay across runs), an old counter (a replay within the run), another address than the
+  paired one, or a tag that does not verify is dropped and counted, before any handler sees it;
+- a scene **takes one driver**: the first whose ``DATA`` verifies (a driver sends an empty one
+  on ``GODOBJECT_LINK`` as soon as it is welcomed). Another driver with the key
+  is refused (its ``HELLO`` is answered ``REFUSED``, its messages dropped), counted in
+  ``udp_refused_drivers`` and logged, until the scene ends. A driver sends nothing but
+  ``HELLO`` until it is paired, so nothing reaches its device before.
+
+Wire format (big-endian), each datagram at most :data:`MAX_DATAGRAM` bytes::
+
+    "GOD1" | kind (1 byte) | body | tag: HMAC-SHA256 over everything before it (32 bytes)
+    HELLO    H: driver nonce (16) | challenge (16)                       tag key: K_hello
+    WELCOME  W: scene nonce (16) | driver nonce (16) | challenge (16)    tag key: K_hello
+    REFUSED  R: scene nonce (16) | driver nonce (16) | challenge (16)    tag key: K_hello
+    DATA  D, S: scene nonce (16) | driver nonce (16) | counter (8) | channel | NUL | payload
+                D from the driver, S from the scene; tag key: K_data(kind, scene nonce, driver nonce)
+
+    K_hello = HMAC-SHA256(K, "godobject link hello")
+    K_data  = HMAC-SHA256(K, "godobject link data" | kind | scene nonce | driver nonce)
+
+What it does not do: it does not encrypt (whoever can capture the packets, root on either
+machine or on the wire between them, can read the poses and forces, though never forge or
+replay them), and it cannot stop a flood from costing CPU (each poll reads at most
+:data:`MAX_PER_POLL` datagrams, so neither end hangs; a flood can starve the link, which the
+driver's watchdog turns into zero force).
 
 URLs (``--lcm-url`` / ``device.url`` on the scene; ``--scene`` on the driver):
 
-- ``udp://HOST:PORT`` on the scene: listen on HOST:PORT; the feedback goes back to whoever sent
-  the newest datagram (the driver), so one address configures both directions.
-- the driver binds an ephemeral port on the same host and sends to the scene's address.
+- ``udp://HOST:PORT`` on the scene: listen on HOST:PORT; the feedback goes to the paired driver;
+- the driver binds an ephemeral port on its own address towards the scene (127.0.0.1 on one
+  machine) and sends to the scene's address, and takes datagrams from that address only.
 
 Use ``127.0.0.1`` on one machine: nothing leaves the host (tests use nothing else).
 :class:`UdpLcm` has the part of ``DrakeLcm``'s interface the devices use (``Subscribe``,
@@ -40,11 +79,23 @@ this transport is published by :class:`~godobject_drake.devices.lcm.ForceTorqueP
 
 from __future__ import annotations
 
+import binascii
 import errno
+import hashlib
+import hmac
+import logging
+import math
+import os
+import re
+import secrets
 import socket
+import stat
 import struct
+import tempfile
+import time
 import urllib.parse
 from collections.abc import Callable
+from pathlib import Path
 
 from drake import lcmt_robot_state
 from pydrake.lcm import DrakeLcm
@@ -77,6 +128,7 @@ DRIVER_STATUS_KEYS = (
     "rate_clamps",  # device periods with the force's change cut to the rated rate
     "buzz_events",  # feedback oscillating near the device's Nyquist rate: damped
     "bad_feedback",  # feedback messages that did not decode or were not finite
+    "link_rejected",  # datagrams the driver's end of the link dropped (LINK_REJECTED)
 )
 
 
@@ -91,34 +143,44 @@ LCM_STATUS_KEYS = (
     "lcm_silent_samples",
 )
 
+log = logging.getLogger("godobject_drake.link")
 
-def make_lcm(url: str = ""):
+
+def make_lcm(url: str = "", key_file: str | Path = ""):
     """Drake's LCM on ``url`` (empty: Drake's default, ``udpm://`` multicast); ``udp://HOST:PORT``:
-    a point-to-point link to a driver process, listened on (:class:`UdpLcm`): the scene's side."""
+    a paired point-to-point link to a driver process, listened on (:class:`UdpLcm`, its key from
+    ``key_file``: :func:`key_path`): the scene's side."""
     if is_udp_url(url):
-        return UdpLcm.listen(url)
+        return UdpLcm.listen(url, key_file)
     return DrakeLcm(url) if url else DrakeLcm()
 
 
-def driver_lcm(url: str = ""):
+def driver_lcm(url: str = "", key_file: str | Path = ""):
     """The driver's side of :func:`make_lcm`: ``udp://HOST:PORT`` is the scene's address, sent to
     from an ephemeral port of the same host (:meth:`UdpLcm.connect`); any other URL is Drake's LCM."""
     if is_udp_url(url):
-        return UdpLcm.connect(url)
+        return UdpLcm.connect(url, key_file)
     return DrakeLcm(url) if url else DrakeLcm()
+
+
+def decode(message_type, raw: bytes):
+    """``message_type.decode(raw)``, or None when ``raw`` is not one: another type (a fingerprint
+    that differs: ``ValueError``), a truncated message or lengths past its end (``struct.error``)."""
+    try:
+        return message_type.decode(raw)
+    except (ValueError, struct.error):
+        return None
 
 
 def parse_robot_state(raw: bytes, names) -> tuple[int, list[str], list[float], str | None] | None:
     """An ``lcmt_robot_state`` pose or joint sample: ``(utime, names, values, grasp)`` with the
     ``grasp=`` entry taken out (``grasp`` None when the message has none), or None when ``raw`` is
-    not one (another type, a truncated message, lengths that disagree)."""
-    try:
-        msg = lcmt_robot_state.decode(raw)
-    except ValueError:  # another type, or a truncated message
+    not one (another type, a truncated message: LCM's decoding reads ``num_joints`` names and
+    values, or fails)."""
+    msg = decode(lcmt_robot_state, raw)
+    if msg is None:
         return None
     names, values = list(msg.joint_name), list(msg.joint_position)
-    if len(names) != msg.num_joints or len(values) != msg.num_joints:
-        return None
     grasp = None
     for i, name in enumerate(names):
         if name.startswith(GRASP_PREFIX):
@@ -151,9 +213,6 @@ def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state
 
 
 SCHEME = "udp"
-MAGIC = 0x4C433032  # "LC02": LCM's short-message packet
-HEADER = struct.Struct(">II")
-MAX_DATAGRAM = 65507
 
 
 def parse_url(url: str) -> tuple[str, int]:
@@ -175,38 +234,441 @@ def is_udp_url(url: str) -> bool:
     return url.startswith(SCHEME + "://")
 
 
-def pack(channel: str, payload: bytes, seqno: int) -> bytes:
-    """One LCM short-message packet."""
-    return HEADER.pack(MAGIC, seqno & 0xFFFFFFFF) + channel.encode() + b"\0" + payload
+# -- the key ---------------------------------------------------------------------------------------------
+
+KEY_ENV = "GODOBJECT_LINK_KEY"
+KEY_BYTES = 32
+KEY_HEX = 2 * KEY_BYTES
 
 
-def unpack(datagram: bytes) -> tuple[str, bytes] | None:
-    """``(channel, payload)`` of a packet, or None if it is not one."""
-    if len(datagram) < HEADER.size + 1:
+class KeyFileError(ValueError):
+    """A key file that cannot pair a link: the message names the file, what is wrong and the fix."""
+
+
+def key_path(key_file: str | Path = "") -> Path:
+    """The link's key file: ``key_file`` if given, else ``$GODOBJECT_LINK_KEY``, else
+    ``$XDG_CONFIG_HOME/godobject/link.key`` (``~/.config/godobject/link.key``)."""
+    if key_file:
+        return Path(key_file).expanduser()
+    if os.environ.get(KEY_ENV):
+        return Path(os.environ[KEY_ENV]).expanduser()
+    config = os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config"
+    return Path(config) / "godobject" / "link.key"
+
+
+def _check_folder(folder: Path, path: Path) -> None:
+    st = folder.stat()
+    if st.st_uid not in (os.getuid(), 0) or st.st_mode & 0o022:
+        raise KeyFileError(
+            f"key file {path}: its folder {folder} (mode {stat.S_IMODE(st.st_mode):04o}, owner uid "
+            f"{st.st_uid}) can be written by others, who could replace the key; keep the key in a "
+            f"folder only you can write (chmod 700 {folder}, or the default ~/.config/godobject/)"
+        )
+
+
+def _create_key(path: Path) -> None:
+    """A new random key at ``path``, atomically: written whole in a private temporary file
+    (mode 0600) and linked to ``path`` only if nothing is there yet (another end may have
+    made one at the same moment: then theirs is used)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".link.key.")
+    try:
+        os.write(fd, os.urandom(KEY_BYTES).hex().encode() + b"\n")
+        os.fsync(fd)
+        os.close(fd)
+        try:
+            os.link(tmp, path)
+            log.warning(
+                f"created the link key {path} (mode 0600): a scene and a driver pair with the same "
+                "file; copy it to the other computer if the driver runs there"
+            )
+        except FileExistsError:
+            pass
+    finally:
+        os.unlink(tmp)
+
+
+def load_key(key_file: str | Path = "") -> tuple[bytes, Path]:
+    """The link's key and its file (:func:`key_path`), created there on first use (and its
+    folder, mode 0700). Refused (:class:`KeyFileError`, naming the file and the fix) when the
+    file is not a regular file of yours that only you can read or change, or not 64 hex digits."""
+    path = key_path(key_file)
+    folder = path.parent
+    if not folder.exists():
+        folder.mkdir(mode=0o700, parents=True)
+    _check_folder(folder, path)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except FileNotFoundError:
+        _create_key(path)
+        return load_key(path)
+    except OSError as e:  # ELOOP: a symbolic link
+        raise KeyFileError(
+            f"key file {path}: {e.strerror}; give the path of a regular file (not a link), or a new "
+            "path where the key will be created"
+        ) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise KeyFileError(
+                f"key file {path}: not a regular file; give the path of the key file (64 hex "
+                "digits), or a new path where the key will be created"
+            )
+        if st.st_uid != os.getuid():
+            raise KeyFileError(
+                f"key file {path}: owned by uid {st.st_uid}, not by you (uid {os.getuid()}); only "
+                "your own key can pair your scene and driver: copy it to a file of yours (mode 0600)"
+            )
+        if st.st_mode & 0o077:
+            raise KeyFileError(
+                f"key file {path}: mode {stat.S_IMODE(st.st_mode):04o} lets others read or change it "
+                f"(at most 0600): chmod 600 {path}, and if others may have read it, delete it so a "
+                "new key is made (then copy the new one to the other end)"
+            )
+        text = os.read(fd, KEY_HEX + 3)  # 64 digits and a line end ("\n" or "\r\n"); one more: too long
+    finally:
+        os.close(fd)
+    if re.fullmatch(rb"[0-9a-fA-F]{%d}\r?\n?" % KEY_HEX, text) is None:
+        raise KeyFileError(
+            f"key file {path}: not a key of {KEY_HEX} hex digits ({st.st_size} bytes); delete it so a "
+            "new key is made, or copy the other end's key file here"
+        )
+    return binascii.unhexlify(text[:KEY_HEX]), path
+
+
+def key_fingerprint(key: bytes) -> str:
+    """8 hex digits that name a key without revealing it: compare the two ends' to see they pair."""
+    return hmac.digest(key, b"godobject link fingerprint", hashlib.sha256)[:4].hex()
+
+
+# -- the datagrams ---------------------------------------------------------------------------------------
+
+MAGIC = b"GOD1"
+HELLO, WELCOME, REFUSED, DRIVER_DATA, SCENE_DATA = b"H", b"W", b"R", b"D", b"S"
+NONCE_BYTES = 16
+TAG_BYTES = 32
+COUNTER = struct.Struct(">Q")
+HEAD = len(MAGIC) + 1
+DATA_HEAD = HEAD + 2 * NONCE_BYTES + COUNTER.size
+MAX_DATAGRAM = 8192  # bytes: a driver's messages take ~300; a longer datagram is dropped unread
+RECV_BYTES = MAX_DATAGRAM + 1  # read one byte more: a longer datagram shows as too long
+MAX_PER_POLL = 256  # datagrams handled per poll: a flood cannot hold either end in one poll
+HELLO_INTERVAL_S = 0.1  # a driver without a scene says HELLO this often
+SILENT_S = 0.5  # a paired driver that heard nothing this long says HELLO again (a scene restarted)
+MAX_REFUSED = 64  # second drivers remembered (and logged) by a scene
+LINK_CHANNEL = "GODOBJECT_LINK"  # a driver's first DATA (empty): the scene pairs with its sender
+
+# What each end of a link counts (UdpLcm.counts; a scene's metrics have them as lcm_<key>).
+LINK_COUNT_KEYS = (
+    "udp_received",  # datagrams read: each is counted once more below, as taken, a handshake, or dropped
+    "udp_taken",  # messages handed on (DATA, authentic, of this session, newer than the last)
+    "udp_handshakes",  # HELLO answered WELCOME (a scene), WELCOME taken (a driver)
+    "udp_malformed",  # not a datagram of this link, or of a kind this end does not take
+    "udp_unauthenticated",  # the tag did not verify: another key, altered, forged
+    "udp_stale",  # authentic but of another session: an earlier scene's, an answer to an old HELLO
+    "udp_replayed",  # authentic, this session, its counter not above the last one taken
+    "udp_foreign",  # from another address than the paired end's
+    "udp_refused",  # a scene: messages of a second driver; a driver: REFUSED answers
+    "udp_refused_drivers",  # a scene: second drivers refused
+    "udp_pairings",  # sessions paired
+    "udp_unpaired",  # messages not sent: no end paired yet
+    "udp_flooded",  # polls that stopped at MAX_PER_POLL datagrams
+    "udp_sent",
+    "udp_send_errors",
+)
+# The counts of datagrams dropped by an end's checks (a driver reports their sum as link_rejected).
+LINK_REJECTED = ("udp_malformed", "udp_unauthenticated", "udp_stale", "udp_replayed", "udp_foreign")
+
+
+def _derive(key: bytes, label: bytes) -> bytes:
+    return hmac.digest(key, b"godobject link " + label, hashlib.sha256)
+
+
+class _Tagger:
+    """HMAC-SHA256 with one key, keyed once (a copy per message saves two compressions)."""
+
+    def __init__(self, key: bytes):
+        self._mac = hmac.new(key, digestmod=hashlib.sha256)
+
+    def seal(self, data: bytes) -> bytes:
+        mac = self._mac.copy()
+        mac.update(data)
+        return data + mac.digest()
+
+    def verify(self, datagram: bytes) -> bool:
+        mac = self._mac.copy()
+        mac.update(datagram[:-TAG_BYTES])
+        return hmac.compare_digest(mac.digest(), datagram[-TAG_BYTES:])
+
+
+BODY_BYTES = {HELLO: 2 * NONCE_BYTES, WELCOME: 3 * NONCE_BYTES, REFUSED: 3 * NONCE_BYTES}
+
+
+def split(datagram: bytes, kinds: tuple[bytes, ...]) -> bytes | None:
+    """The kind of a datagram of this link if it is one of ``kinds`` (and, for a handshake, of
+    its length), its tag not yet checked; None if not: too long, another magic or kind."""
+    kind = datagram[4:HEAD]
+    if len(datagram) > MAX_DATAGRAM or datagram[:4] != MAGIC or kind not in kinds:
         return None
-    magic, _ = HEADER.unpack_from(datagram)
-    end = datagram.find(b"\0", HEADER.size)
-    if magic != MAGIC or end < 0:
+    if kind in BODY_BYTES and len(datagram) != HEAD + BODY_BYTES[kind] + TAG_BYTES:
+        return None
+    return kind
+
+
+def data_fields(datagram: bytes) -> tuple[tuple[bytes, bytes], int, tuple[str, bytes]] | None:
+    """``((scene nonce, driver nonce), counter, (channel, payload))`` of a DATA datagram, or None
+    if it has no NUL-terminated, non-empty UTF-8 channel name after its head."""
+    end = datagram.find(b"\0", DATA_HEAD, len(datagram) - TAG_BYTES)
+    if end <= DATA_HEAD:
         return None
     try:
-        channel = datagram[HEADER.size : end].decode()
+        channel = datagram[DATA_HEAD:end].decode()
     except UnicodeDecodeError:
         return None
-    return channel, datagram[end + 1 :]
+    nonces = datagram[HEAD : HEAD + NONCE_BYTES], datagram[HEAD + NONCE_BYTES : HEAD + 2 * NONCE_BYTES]
+    (counter,) = COUNTER.unpack_from(datagram, HEAD + 2 * NONCE_BYTES)
+    return nonces, counter, (channel, datagram[end + 1 : -TAG_BYTES])
+
+
+class _End:
+    """What both ends of a link keep: the key, this end's nonce, the session's keys, the
+    counters (sent and last taken) and the counts."""
+
+    SEND: bytes  # the kind of DATA this end sends
+    TAKE: bytes  # the kind of DATA it takes
+    _rx: _Tagger  # the session's key for what this end takes (set when paired)
+    _taken: int  # the counter of the last DATA taken in this session (0 when paired)
+
+    def __init__(self, key: bytes, nonce: bytes | None = None):
+        if len(key) != KEY_BYTES:
+            raise ValueError(f"a link key is {KEY_BYTES} bytes, not {len(key)}")
+        self.key, self.nonce = key, nonce or secrets.token_bytes(NONCE_BYTES)
+        self._hello = _Tagger(_derive(key, b"hello"))
+        self.counts = dict.fromkeys(LINK_COUNT_KEYS, 0)
+        self.session: tuple[bytes, bytes] | None = None  # (scene nonce, driver nonce) once paired
+        self._tx: _Tagger | None = None
+        self._sent = 0  # the counter of the last DATA sent: it only grows
+
+    def data_key(self, kind: bytes, session: tuple[bytes, bytes]) -> _Tagger:
+        return _Tagger(_derive(self.key, b"data" + kind + session[0] + session[1]))
+
+    def _pair(self, session: tuple[bytes, bytes]) -> None:
+        self.session, self._taken = session, 0
+        self._tx, self._rx = self.data_key(self.SEND, session), self.data_key(self.TAKE, session)
+        self.counts["udp_pairings"] += 1
+
+    def seal(self, channel: str, payload: bytes) -> bytes | None:
+        """A DATA datagram of this session, or None before pairing (counted ``udp_unpaired``)."""
+        if self._tx is None:
+            self.counts["udp_unpaired"] += 1
+            return None
+        self._sent += 1
+        head = MAGIC + self.SEND + self.session[0] + self.session[1] + COUNTER.pack(self._sent)
+        datagram = self._tx.seal(head + channel.encode() + b"\0" + payload)
+        if len(datagram) > MAX_DATAGRAM:
+            raise ValueError(
+                f"an LCM message on {channel} of {len(payload)} bytes is over the link's "
+                f"{MAX_DATAGRAM}-byte datagram: send fewer values per message"
+            )
+        return datagram
+
+    def _verified(self, datagram: bytes):
+        """:func:`data_fields` of a DATA datagram whose tag verifies (for its session's key),
+        or None (counted)."""
+        fields = data_fields(datagram)
+        if fields is None:
+            self.counts["udp_malformed"] += 1
+            return None
+        session = fields[0]
+        tagger = self._rx if session == self.session else self.data_key(self.TAKE, session)
+        if not tagger.verify(datagram):
+            self.counts["udp_unauthenticated"] += 1
+            return None
+        return fields
+
+    def _newer(self, counter: int, message: tuple[str, bytes]) -> tuple[str, bytes] | None:
+        """The message of this session's DATA if its counter is above the last taken."""
+        if counter <= self._taken:
+            self.counts["udp_replayed"] += 1
+            return None
+        self._taken = counter
+        self.counts["udp_taken"] += 1
+        return message
+
+
+class SceneEnd(_End):
+    """The scene's checks (module docstring): answers HELLO, pairs with the first driver whose
+    DATA verifies, refuses any other. :meth:`receive` returns ``(message, reply)``: the
+    ``(channel, payload)`` to hand to the subscribers and a datagram to send back to the sender."""
+
+    SEND, TAKE = SCENE_DATA, DRIVER_DATA
+
+    def __init__(self, key: bytes, nonce: bytes | None = None):
+        super().__init__(key, nonce)
+        self.peer: tuple | None = None  # the paired driver's address
+        self.refused: set[bytes] = set()
+
+    def receive(self, datagram: bytes, sender) -> tuple[tuple[str, bytes] | None, bytes | None]:
+        kind = split(datagram, (HELLO, DRIVER_DATA))
+        if kind is None:
+            self.counts["udp_malformed"] += 1
+            return None, None
+        if kind == HELLO:
+            return None, self._answer(datagram, sender)
+        fields = self._verified(datagram)
+        if fields is None:
+            return None, None
+        session, counter, message = fields
+        if session[0] != self.nonce:
+            self.counts["udp_stale"] += 1
+            return None, None
+        if self.session is None:
+            self._pair(session)
+            self.peer = sender
+            log.info(f"paired with the driver at {sender[0]}:{sender[1]}")
+        elif session != self.session:
+            self._refuse(session[1], sender)
+            return None, None
+        elif sender != self.peer:
+            self.counts["udp_foreign"] += 1
+            return None, None
+        return self._newer(counter, message), None
+
+    def _refuse(self, driver_nonce: bytes, sender) -> None:
+        """Count a second driver's message; log the driver once."""
+        self.counts["udp_refused"] += 1
+        if driver_nonce in self.refused or len(self.refused) >= MAX_REFUSED:
+            return
+        self.refused.add(driver_nonce)
+        self.counts["udp_refused_drivers"] += 1
+        log.warning(
+            f"refused a second driver (at {sender[0]}:{sender[1]}): this scene is paired with the "
+            f"driver at {self.peer[0]}:{self.peer[1]} until it ends; stop the other driver, or "
+            "restart the scene to pair a new one (lcm_udp_refused_drivers in the metrics)"
+        )
+
+    def _answer(self, datagram: bytes, sender) -> bytes | None:
+        """WELCOME to a HELLO when no driver or this one is paired; REFUSED to another driver."""
+        if not self._hello.verify(datagram):
+            self.counts["udp_unauthenticated"] += 1
+            return None
+        asked = datagram[HEAD:-TAG_BYTES]  # the driver's nonce and challenge
+        if self.session is not None and asked[:NONCE_BYTES] != self.session[1]:
+            self._refuse(asked[:NONCE_BYTES], sender)
+            return self._hello.seal(MAGIC + REFUSED + self.nonce + asked)
+        self.counts["udp_handshakes"] += 1
+        return self._hello.seal(MAGIC + WELCOME + self.nonce + asked)
+
+
+class DriverEnd(_End):
+    """The driver's checks (module docstring): HELLO until a scene answers this challenge,
+    DATA only from that scene's session, nothing from another address."""
+
+    SEND, TAKE = DRIVER_DATA, SCENE_DATA
+
+    def __init__(self, key: bytes, peer, nonce: bytes | None = None):
+        super().__init__(key, nonce)
+        self.peer = peer  # the scene's address: the only one heard
+        self.challenge: bytes | None = None
+        self.answered = True  # the current challenge was answered: the next search asks a new one
+        self.heard = -math.inf  # when the scene was last heard (authentic, this session)
+        self._said_hello = -math.inf
+        self.refused_by: set[bytes] = set()
+
+    def hello(self, now: float) -> bytes | None:
+        """A HELLO to send now, or None: paired and heard within :data:`SILENT_S`, or one sent
+        less than :data:`HELLO_INTERVAL_S` ago. Each search (the first, or after a silence)
+        asks with a new challenge, so no answer to an earlier one can pair the driver."""
+        if self.session is not None and now - self.heard <= SILENT_S:
+            return None
+        if now - self._said_hello < HELLO_INTERVAL_S:
+            return None
+        if self.answered:
+            self.challenge, self.answered = secrets.token_bytes(NONCE_BYTES), False
+        self._said_hello = now
+        return self._hello.seal(MAGIC + HELLO + self.nonce + self.challenge)
+
+    def receive(self, datagram: bytes, sender, now: float) -> tuple[tuple[str, bytes] | None, bytes | None]:
+        """``(message, reply)`` as :meth:`SceneEnd.receive`; the reply to a WELCOME that pairs
+        the driver is its first DATA (on :data:`LINK_CHANNEL`), which pairs the scene."""
+        if sender != self.peer:
+            self.counts["udp_foreign"] += 1
+            return None, None
+        kind = split(datagram, (WELCOME, REFUSED, SCENE_DATA))
+        if kind is None:
+            self.counts["udp_malformed"] += 1
+            return None, None
+        if kind == SCENE_DATA:
+            return self._scene_data(datagram, now), None
+        if not self._hello.verify(datagram):
+            self.counts["udp_unauthenticated"] += 1
+            return None, None
+        scene_nonce = datagram[HEAD : HEAD + NONCE_BYTES]
+        if self.challenge is None or datagram[HEAD + NONCE_BYTES : -TAG_BYTES] != self.nonce + self.challenge:
+            self.counts["udp_stale"] += 1
+            return None, None
+        if kind == REFUSED:
+            self._refused(scene_nonce)
+            return None, None
+        self.counts["udp_handshakes"] += 1
+        self.heard, self.answered = now, True
+        if self.session == (scene_nonce, self.nonce):
+            return None, None
+        self._pair((scene_nonce, self.nonce))
+        log.info(f"paired with the scene at {self.peer[0]}:{self.peer[1]}")
+        return None, self.seal(LINK_CHANNEL, b"")
+
+    def _scene_data(self, datagram: bytes, now: float) -> tuple[str, bytes] | None:
+        fields = self._verified(datagram)
+        if fields is None:
+            return None
+        session, counter, message = fields
+        if session != self.session:
+            self.counts["udp_stale"] += 1
+            return None
+        message = self._newer(counter, message)
+        if message is not None:
+            self.heard = now
+        return message
+
+    def _refused(self, scene_nonce: bytes) -> None:
+        self.counts["udp_refused"] += 1
+        if scene_nonce in self.refused_by or len(self.refused_by) >= MAX_REFUSED:
+            return
+        self.refused_by.add(scene_nonce)
+        log.warning(
+            f"the scene at {self.peer[0]}:{self.peer[1]} refused this driver: it is paired with "
+            "another driver until it ends; nothing is rendered (stop the other driver and "
+            "restart the scene)"
+        )
 
 
 class UdpLcm:
-    """LCM packets over one UDP socket (module docstring).
+    """LCM messages over one UDP socket, paired and authenticated (module docstring).
 
     Parameters
     ----------
     bind : (host, port)
         Where to listen; port 0 picks a free one (a driver).
     peer : (host, port) or None
-        Where :meth:`Publish` sends; None: back to the sender of the newest datagram (a scene).
+        The scene's address (a driver: the only one heard, where everything is sent); None: a
+        scene, answering the paired driver.
+    key : bytes
+        The shared key (:func:`load_key`).
+    clock : callable
+        Seconds, for the driver's HELLO timing (``time.monotonic``).
     """
 
-    def __init__(self, bind: tuple[str, int], peer: tuple[str, int] | None = None, url: str = ""):
+    def __init__(
+        self,
+        bind: tuple[str, int],
+        peer: tuple[str, int] | None = None,
+        url: str = "",
+        *,
+        key: bytes,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.end = SceneEnd(key) if peer is None else DriverEnd(key, peer)
+        self.clock = clock
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         try:
@@ -218,22 +680,58 @@ class UdpLcm:
                 "another scene or driver may hold the port: choose another PORT"
             ) from None
         self.sock.setblocking(False)
-        self.peer, self._fixed_peer = peer, peer is not None
-        self.url = url or f"{SCHEME}://{bind[0]}:{self.sock.getsockname()[1]}"
+        self.url = f"{SCHEME}://{bind[0]}:{self.port}"  # where it listens (the port picked, if 0)
         self._handlers: dict[str, list[Callable[[bytes], None]]] = {}
-        self._seqno = 0
-        self.counts = {"udp_received": 0, "udp_malformed": 0, "udp_sent": 0, "udp_send_errors": 0}
+        self.key_file: Path | None = None
 
-    @classmethod
-    def listen(cls, url: str) -> UdpLcm:
-        """The scene's end: listen on the URL's address, answer whoever sent last."""
-        return cls(parse_url(url), None, url)
-
-    @classmethod
-    def connect(cls, url: str) -> UdpLcm:
-        """The driver's end: a free port on the scene's host, sending to the URL's address."""
+    @staticmethod
+    def _address(url: str) -> tuple[str, int]:
         host, port = parse_url(url)
-        return cls((host, 0), (host, port))
+        try:
+            return socket.gethostbyname(host), port
+        except OSError as e:
+            raise ValueError(f"LCM URL {url!r}: no address for {host!r} ({e}); give an IP address") from None
+
+    @classmethod
+    def listen(cls, url: str, key_file: str | Path = "") -> UdpLcm:
+        """The scene's end: listen on the URL's address, answer the paired driver."""
+        key, path = load_key(key_file)
+        link = cls(cls._address(url), None, url, key=key)
+        link.key_file = path
+        log.info(f"{link.url}: waiting for a driver with the key {path} (fingerprint {key_fingerprint(key)})")
+        return link
+
+    @staticmethod
+    def _local_address_towards(scene: tuple[str, int]) -> str:
+        """This machine's address that reaches ``scene`` (the scene's own on one machine; the
+        interface towards it on a second): a UDP socket's connect picks the route, sends nothing."""
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.connect(scene)
+            except OSError as e:
+                raise ValueError(
+                    f"no route from this machine to {scene[0]}:{scene[1]} ({e.strerror}): give the "
+                    "scene's address as this machine reaches it"
+                ) from None
+            return probe.getsockname()[0]
+
+    @classmethod
+    def connect(cls, url: str, key_file: str | Path = "", **options) -> UdpLcm:
+        """The driver's end: a free port on this machine's address towards the scene, sending to
+        (and hearing only) the URL's address."""
+        key, path = load_key(key_file)
+        scene = cls._address(url)
+        link = cls((cls._local_address_towards(scene), 0), scene, key=key, **options)
+        link.key_file = path
+        return link
+
+    @property
+    def counts(self) -> dict:
+        return self.end.counts
+
+    @property
+    def paired(self) -> bool:
+        return self.end.session is not None
 
     @property
     def port(self) -> int:
@@ -246,41 +744,51 @@ class UdpLcm:
         self._handlers.setdefault(channel, []).append(handler)
 
     def Publish(self, channel: str, buffer: bytes, time_sec=None) -> None:
-        if self.peer is None:
-            return  # nobody has spoken yet: nobody to answer
-        self._seqno += 1
+        datagram = self.end.seal(channel, bytes(buffer))
+        if datagram is not None:
+            self._send(datagram, self.end.peer)
+
+    def _send(self, datagram: bytes, address) -> None:
         try:
-            self.sock.sendto(pack(channel, bytes(buffer), self._seqno), self.peer)
+            self.sock.sendto(datagram, address)
             self.counts["udp_sent"] += 1
         except OSError as e:  # no listener (ECONNREFUSED), a full buffer: the message is lost
             if e.errno not in (errno.ECONNREFUSED, errno.EAGAIN, errno.ENOBUFS, errno.EHOSTUNREACH):
                 raise
             self.counts["udp_send_errors"] += 1
 
-    def HandleSubscriptions(self, timeout_millis: int = 0) -> int:
-        """Hand every datagram waiting to its channel's handlers; waits up to ``timeout_millis``
-        for the first only if none is waiting. Returns how many messages were handled."""
+    def HandleSubscriptions(self, timeout_millis: int) -> int:
+        """Hand every authentic message waiting (at most :data:`MAX_PER_POLL` datagrams) to its
+        channel's handlers; waits up to ``timeout_millis`` for the first only if none is
+        waiting. A driver says HELLO first when it has to. Returns how many were handled."""
+        if isinstance(self.end, DriverEnd):
+            hello = self.end.hello(self.clock())
+            if hello is not None:
+                self._send(hello, self.end.peer)
         handled = 0
-        if timeout_millis > 0:
-            self.sock.settimeout(timeout_millis / 1000.0)
+        self.sock.settimeout(max(timeout_millis, 0) * 1e-3)  # 0: do not wait
         try:
-            while True:
+            for _ in range(MAX_PER_POLL):
                 try:
-                    datagram, sender = self.sock.recvfrom(MAX_DATAGRAM)
+                    datagram, sender = self.sock.recvfrom(RECV_BYTES)
                 except (BlockingIOError, TimeoutError, ConnectionRefusedError):
                     break
                 finally:
                     self.sock.setblocking(False)
                 self.counts["udp_received"] += 1
-                message = unpack(datagram)
+                if isinstance(self.end, DriverEnd):
+                    message, reply = self.end.receive(datagram, sender, self.clock())
+                else:
+                    message, reply = self.end.receive(datagram, sender)
+                if reply is not None:
+                    self._send(reply, sender)
                 if message is None:
-                    self.counts["udp_malformed"] += 1
                     continue
-                if not self._fixed_peer:
-                    self.peer = sender
                 for handler in self._handlers.get(message[0], ()):
                     handler(message[1])
                     handled += 1
+            else:
+                self.counts["udp_flooded"] += 1
         finally:
             self.sock.setblocking(False)
         return handled

@@ -11,6 +11,7 @@ import base64
 import dataclasses
 import importlib.util
 import logging
+import os
 import re
 import shutil
 from pathlib import Path
@@ -167,6 +168,21 @@ def no_drake_deprecation_logged():
     yield
     new = DRAKE_DEPRECATIONS.messages[seen:]
     assert not new, f"Drake logged a deprecation: {new}"
+
+
+@pytest.fixture(autouse=True, scope="session")
+def link_key(tmp_path_factory):
+    """The tests' own link key (``udp://`` links pair with it, godobject_drake.protocol): a file
+    of this session (in a folder of mode 0700), never the user's ~/.config/godobject/link.key.
+    Processes the tests start inherit it through ``$GODOBJECT_LINK_KEY``."""
+    path = tmp_path_factory.mktemp("link", numbered=True) / "link.key"
+    previous = os.environ.get("GODOBJECT_LINK_KEY")
+    os.environ["GODOBJECT_LINK_KEY"] = str(path)
+    yield path
+    if previous is None:
+        os.environ.pop("GODOBJECT_LINK_KEY", None)
+    else:
+        os.environ["GODOBJECT_LINK_KEY"] = previous
 
 
 def assert_refused(call, error, *, value: str, limit: str, fix: str) -> str:

@@ -26,6 +26,7 @@ from drake import lcmt_force_torque, lcmt_robot_state
 from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
+from test_link import driver_link, pair, pump, scene_link
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.devices.lcm import ForceTorqueMessage, LcmDevice
@@ -36,11 +37,8 @@ from godobject_drake.protocol import (
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
     UdpLcm,
-    pack,
-    parse_url,
     pose_message,
     status_message,
-    unpack,
 )
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
@@ -113,67 +111,7 @@ def rendered(log):
     return np.c_[log["fx"], log["fy"], log["fz"]]
 
 
-# -- the driver's safety, alone ----------------------------------------------------------------------------
-
-
-def test_force_is_cut_to_the_rated_maximum_and_rate():
-    """12 N rated, 1200 N/s: a 20 N request is cut to 12 N along its direction, reached by
-    1.2 N steps (ten periods); going dead renders zero at once."""
-    safety = drv.ForceSafety(12.0, 1200.0, 0.001)
-    request = np.array([0.0, 16.0, -12.0])  # |f| = 20 N
-    out = [safety.step(request, True) for _ in range(12)]
-    np.testing.assert_allclose(np.linalg.norm(out[0]), 1.2, rtol=1e-12)
-    np.testing.assert_allclose(out[9], request * 12.0 / 20.0, rtol=1e-12)
-    np.testing.assert_allclose(out[11], out[9], rtol=1e-12)
-    assert safety.counts["force_clamps"] == 12 and safety.counts["rate_clamps"] == 10
-    assert np.all(safety.step(request, False) == 0.0)  # no ramp on the way to zero
-    assert np.all(safety.step([math.nan, 0, 0], True) == 0.0)
-
-
-def test_a_buzz_near_nyquist_is_damped_and_counted_a_slow_wave_is_not():
-    """Requested f_x = 1 + 0.5 (−1)^k N (the device's Nyquist rate): once the window has seen it,
-    the 4-tap mean renders exactly 1 N; a 5 Hz wave of 2 N is left alone."""
-    safety = drv.ForceSafety(12.0, 1e9, 0.001)
-    out = [safety.step([1.0 + 0.5 * (-1) ** k, 0.0, 0.0], True)[0] for k in range(100)]
-    assert safety.counts["buzz_events"] == 1
-    np.testing.assert_allclose(out[30:], 1.0, rtol=1e-12)
-    calm = drv.ForceSafety(12.0, 1e9, 0.001)
-    wave = [2.0 * math.sin(2 * math.pi * 5 * k * 0.001) for k in range(1000)]
-    out = [calm.step([w, 0.0, 0.0], True)[0] for w in wave]
-    assert calm.counts["buzz_events"] == 0
-    np.testing.assert_array_equal(out, wave)
-
-
-# -- the link and the device frame -------------------------------------------------------------------------
-
-
-def test_udp_link_carries_lcm_packets_and_answers_the_sender():
-    url = f"udp://127.0.0.1:{free_port()}"
-    scene, driver = UdpLcm.listen(url), UdpLcm.connect(url)
-    got = []
-    scene.Subscribe(POSE_CHANNEL, got.append)
-    scene.Publish(FEEDBACK_CHANNEL, b"nobody yet")  # nobody has spoken: dropped, not an error
-    driver.Publish(POSE_CHANNEL, pose_message(7, [0.1, 0.2, 0.3], [1, 0, 0, 0], "*").encode())
-    driver.sock.sendto(b"not an LCM packet", ("127.0.0.1", scene.port))
-    for _ in range(200):
-        if scene.HandleSubscriptions(0) or got:
-            break
-        time.sleep(0.005)
-    scene.HandleSubscriptions(0)
-    assert lcmt_robot_state.decode(got[0]).utime == 7 and scene.counts["udp_malformed"] == 1
-    back = []
-    driver.Subscribe(FEEDBACK_CHANNEL, back.append)
-    scene.Publish(FEEDBACK_CHANNEL, b"\x01\x02")
-    for _ in range(200):
-        if driver.HandleSubscriptions(0):
-            break
-        time.sleep(0.005)
-    assert back == [b"\x01\x02"]
-    assert unpack(pack("C", b"xyz", 3)) == ("C", b"xyz") and unpack(b"LC02") is None
-    for bad in ("udp://127.0.0.1", "udpm://239.255.76.67:7667", "udp://:80"):
-        with pytest.raises(ValueError, match=r"udp://HOST:PORT"):
-            parse_url(bad)
-    scene.close(), driver.close()
+# -- the device frame -------------------------------------------------------------------------------------
 
 
 def test_device_frame_maps_poses_in_and_the_wrench_back_preserving_power():
@@ -299,10 +237,12 @@ def test_calibrate_writes_the_reachable_box_as_the_workspace(tmp_path):
 def test_an_emulated_device_feels_the_wall_through_a_driver_process(tmp_path):
     """The scene runs here (a real Drake plant at real time, device !Lcm on udp://); the driver is
     a process of its own with the emulated device. The hand carries brick_0 into the wall and
-    keeps pushing: past t = 3 s (scene time) the force the device renders is R_WDevᵀ kd (p_G − p_T),
-    the scene's stretch at the feedback's time, within 2 % (median, and in 90 % of the periods;
-    the rest are the rated-rate ramps after a watchdog trip on a loaded machine). When the scene
-    stops it says so, and the driver renders zero and exits."""
+    keeps pushing: past t = 3 s (scene time) the force the driver is asked is R_WDevᵀ kd (p_G − p_T),
+    the scene's stretch at the feedback's time, within 2 % (in 99 % of the periods: the scene's
+    own numbers, which no load changes); the force it renders is that request, or one rated step
+    (1.2 N) towards it (the ramps after a watchdog trip, which a loaded machine gives: 1 in 3
+    periods beside two spinning processes). When the scene stops it says so, and the driver
+    renders zero and exits."""
     url = f"udp://127.0.0.1:{free_port()}"
     driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
     try:
@@ -320,11 +260,18 @@ def test_an_emulated_device_feels_the_wall_through_a_driver_process(tmp_path):
     rows = np.clip(np.round(log["t_scene"][ok] / 1e-3).astype(int), 0, len(p_T) - 1)
     R = RollPitchYaw(0, 0, math.radians(YAW)).ToRotationMatrix().matrix()
     expected = (R.T @ (KD * (p_G[rows] - p_T[rows])).T).T
-    error = np.linalg.norm(rendered(log)[ok] - expected, axis=1) / np.linalg.norm(expected, axis=1)
+    requested, f = np.c_[log["fx_req"], log["fy_req"], log["fz_req"]], rendered(log)
+    error = np.linalg.norm(requested[ok] - expected, axis=1) / np.linalg.norm(expected, axis=1)
+    step = summary["limits"]["max_force_rate_n_s"] * summary["limits"]["period_s"]
+    k = np.flatnonzero(ok)
+    reached = np.all(np.isclose(f[k], requested[k], rtol=1e-7, atol=1e-9), axis=1)  # the log's 9 digits
+    ramped = np.isclose(np.linalg.norm(f[k] - f[k - 1], axis=1), step, rtol=1e-6)
     print(f"wall: {ok.sum()} periods, |f| {np.median(np.linalg.norm(expected, axis=1)):.4f} N expected, "
-          f"error median {np.median(error):.2e}, within 2 % in {np.mean(error <= 0.02):.1%}; "
+          f"asked within 2 % in {np.mean(error <= 0.02):.1%} (median {np.median(error):.2e}); rendered "
+          f"as asked in {np.mean(reached):.1%}, a rated step towards it in the rest; "
           f"driver {summary['counts']}")  # fmt: skip
-    assert ok.sum() > 100 and np.median(error) <= 0.02 and np.mean(error <= 0.02) >= 0.9
+    assert ok.sum() > 100 and np.median(error) <= 0.02 and np.mean(error <= 0.02) >= 0.99
+    assert np.all(reached | ramped) and reached.sum() > 50
     assert expected[:, 1].mean() > 0.5  # the wall pushes the hand back along the device's +y
     assert summary["counts"]["scene_stops"] == 1 and log["state"][-2] == "stopped"
     after_stop = np.flatnonzero(log["state"] == "stopped")[0]
@@ -382,18 +329,17 @@ def test_the_force_is_zero_within_the_watchdog_time_after_the_scene_is_killed(tm
 
 
 def test_driver_status_reaches_the_scene_metrics():
-    """A driver's counts message on the link lands in the device's metrics as driver_*."""
-    url = f"udp://127.0.0.1:{free_port()}"
-    device = LcmDevice(UdpLcm.listen(url), RigidTransform(), period_s=0.001)
-    link = UdpLcm.connect(url)
+    """A paired driver's counts message lands in the device's metrics as driver_*."""
+    scene = scene_link()
+    device = LcmDevice(scene, RigidTransform(), period_s=0.001)
+    link = driver_link(scene)
+    pair(scene, link)
     link.Publish(DRIVER_STATUS_CHANNEL, status_message(5, {"watchdog_trips": 3, "buzz_events": 2}).encode())
-    for _ in range(200):
-        status = device.lcm_status()
-        if status["driver_status_messages"]:
-            break
-        time.sleep(0.005)
+    pump(scene, until=lambda: device.driver_status_messages, what="the status")
+    status = device.lcm_status()
     assert status["driver_watchdog_trips"] == 3 and status["driver_buzz_events"] == 2
-    assert status["driver_force_clamps"] == 0 and status["lcm_udp_received"] == 1
+    assert status["driver_force_clamps"] == 0 and status["driver_status_messages"] == 1
+    assert status["lcm_udp_received"] == 3 and status["lcm_udp_pairings"] == 1  # HELLO, first DATA, status
 
 
 class _QuietLink:
@@ -426,7 +372,7 @@ def test_the_clutch_holds_the_pose_sent_and_resumes_without_a_jump():
     driver = drv.Driver(device, _QuietLink(), RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
                         max_force_n=12.0)  # fmt: skip
     driver.run(0.8)
-    rows = driver.rows[:-1]  # the last is the exit row
+    rows = list(driver.rows)[:-1]  # the last is the exit row
     state = np.array([r[11] for r in rows])
     sent = np.array([r[1:4] for r in rows])
     clutched = np.flatnonzero(state == "clutch")
@@ -478,7 +424,7 @@ def test_a_message_that_waited_out_a_stall_is_as_old_as_the_stall():
     driver = drv.Driver(device, link, RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
                         max_force_n=12.0, grasp="always")  # fmt: skip
     driver.run(0.2)
-    rows = driver.rows[:-1]
+    rows = list(driver.rows)[:-1]
     state = [r[11] for r in rows]
     rendered = np.array([r[7:10] for r in rows])
     first_heard = next(i for i, r in enumerate(rows) if not math.isnan(r[10]))
@@ -489,3 +435,92 @@ def test_a_message_that_waited_out_a_stall_is_as_old_as_the_stall():
     after = slice(first_heard + 2, None)
     assert "ok" in state[after]
     assert np.max(np.linalg.norm(rendered[after], axis=1)) == pytest.approx(2.0, rel=1e-9)
+
+
+class _NullLink(_QuietLink):
+    """Hears nothing and keeps nothing of what is sent."""
+
+    def Publish(self, channel, data):
+        pass
+
+
+def test_the_driver_keeps_bounded_memory_without_a_log():
+    """Issue 45, Why 5: without --log the driver kept every period (Driver.rows, +0.32 MB/s at
+    1 kHz: an out-of-memory kill is a SIGKILL, which skips the zero force). The memory Python
+    allocates between the driver's 2200th and 5200th periods (tracemalloc) is now under 64 kB,
+    where 3000 more rows took 1.3 MB; it keeps the last ROWS_KEPT periods, ending with the
+    exit row. (Ten minutes of the real process: analysis/driver_memory.py.)"""
+    import tracemalloc
+
+    device = drv.EmulatedDevice(HandPath.still(), start_on_scene=False)
+    driver = drv.Driver(device, _NullLink(), RATED["emulated"], rate_hz=1e5, watchdog_periods=10,
+                        max_force_n=12.0)  # fmt: skip  # 10 µs periods: as fast as the loop goes
+    read, traced = device.read, {}
+
+    def read_and_measure():
+        loops = driver.counts["loops"]
+        if loops in (2200, 5200):
+            traced[loops] = tracemalloc.get_traced_memory()[0]
+        driver.stop_requested = loops >= 5200
+        return read()
+
+    device.read = read_and_measure
+    tracemalloc.start()
+    try:
+        driver.run()
+    finally:
+        tracemalloc.stop()
+    growth = traced[5200] - traced[2200]
+    print(f"driver: {growth / 1e3:.1f} kB kept from period 2200 to 5200; {len(driver.rows)} rows")
+    assert growth < 64_000
+    rows = list(driver.rows)
+    assert len(rows) == drv.Driver.ROWS_KEPT and rows[-1][11] == "exit" and rows[-2][0] > rows[0][0]
+    assert driver.summary()["loop_lateness"]["n"] == 5200
+
+
+def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_package():
+    """A driver process imports godobject_drake.protocol and its own driver/ modules, nothing of the
+    scene's: no pydrake.systems (a fresh interpreter, so nothing else imported it first)."""
+    code = (
+        "import json, sys, godobject_drake.driver.process\n"
+        "loaded = [m for m in sys.modules if m.startswith(('pydrake.systems', 'godobject_drake'))]\n"
+        "print(json.dumps(sorted(loaded)))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == [
+        "godobject_drake",
+        "godobject_drake.driver",
+        "godobject_drake.driver.families",
+        "godobject_drake.driver.process",
+        "godobject_drake.driver.safety",
+        "godobject_drake.protocol",
+    ]
+
+
+def test_a_key_others_can_read_or_a_link_that_cannot_be_paired_is_refused_before_anything_runs(
+    tmp_path, capsys
+):
+    """Exit 2 (the driver) or a ValueError before the scene is built, each naming the value and
+    the fix: a key file of mode 0644; Drake's multicast for the driver without the opt-in; a key
+    file for a link that is not udp://."""
+    from godobject_drake.protocol import KeyFileError
+
+    key = tmp_path / "keys" / "link.key"
+    key.parent.mkdir(mode=0o700)
+    key.write_text("ab" * 32 + "\n")
+    key.chmod(0o644)
+    url = f"udp://127.0.0.1:{free_port()}"
+    scenario = lcm_scenario(url, 0.1)
+    scenario.device.key_file = str(key)
+    with pytest.raises(KeyFileError, match=rf"key file {key}: mode 0644 .*chmod 600 {key}"):
+        build_station(scenario)
+    assert drv.main(["run", "emulated", "--scene", url, "--key-file", str(key), "--duration", "1"]) == 2
+    assert f"godobject-driver: --key-file: key file {key}: mode 0644" in capsys.readouterr().err
+    assert drv.main(["run", "emulated", "--scene", "udpm://239.255.76.67:7667?ttl=0"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        "only a udp://HOST:PORT link is paired and authenticated" in err and "--allow-unauthenticated" in err
+    )
+    with pytest.raises(sc.ScenarioError, match=r"device.key_file: 'k' pairs a udp:// link only.*url: udp://"):
+        sc.load_scenario(LEGO, "device: !Lcm {url: 'memq://', key_file: k}")

@@ -386,7 +386,11 @@ class Lcm(_PoseDevice):
     url : str
         Drake's LCM URL; empty: Drake's default (UDP multicast on this network). ``memq://``
         stays in the process (tests); ``udp://HOST:PORT`` listens for a driver process
-        (``godobject-driver``, docs/haptic_devices.md).
+        (``godobject-driver``, docs/haptic_devices.md), paired with it by a shared key.
+    key_file : str
+        ``udp://`` only: the file of the key the scene and its driver pair with (the driver's
+        ``--key-file``); empty: ``$GODOBJECT_LINK_KEY``, else ``~/.config/godobject/link.key``.
+        Created on first use (mode 0600); refused if others can read or replace it.
     device_to_world : DeviceToWorld
         The device's frame and scale in the world (identity by default); the scenario's
         ``workspace`` is the box samples are expected in (outside ones are counted).
@@ -406,6 +410,7 @@ class Lcm(_PoseDevice):
     """
 
     url: str = ""
+    key_file: str = ""
     grasp: str = ""
     channel: str = "GODOBJECT_DEVICE_POSE"
     feedback_channel: str = "GODOBJECT_FEEDBACK"
@@ -420,11 +425,21 @@ class Lcm(_PoseDevice):
         if self.noise_m:
             raise ValueError("noise_m: a real device's samples are its own; leave it 0")
         self.device_to_world.check()
-        if self.url.startswith("udp://"):
-            try:
-                parse_url(self.url)
-            except ValueError as e:
-                raise ValueError(f"url: {e}") from None
+        _check_link(self.url, self.key_file)
+
+
+def _check_link(url: str, key_file: str) -> None:
+    if url.startswith("udp://"):
+        try:
+            parse_url(url)
+        except ValueError as e:
+            raise ValueError(f"url: {e}") from None
+    elif key_file:
+        raise ValueError(
+            f"key_file: {key_file!r} pairs a udp:// link only, and url is {url or 'Drake default'!r} "
+            "(memq:// stays in this process; udpm:// multicast is not paired): remove key_file, "
+            "or give url: udp://HOST:PORT"
+        )
 
 
 def _check_timeout(timeout_periods) -> None:
@@ -535,10 +550,11 @@ class MeshcatJointSliders(_JointDevice):
 @dataclasses.dataclass
 class LcmJoints(_JointDevice):
     """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,
-    ``joint_name`` = ``channels``). ``url``, ``channel``, ``timeout_periods`` as for :class:`Lcm`;
-    ``start``: the channel values until the first message."""
+    ``joint_name`` = ``channels``). ``url``, ``key_file``, ``channel``, ``timeout_periods`` as for
+    :class:`Lcm`; ``start``: the channel values until the first message."""
 
     url: str = ""
+    key_file: str = ""
     channel: str = "GODOBJECT_DEVICE_JOINTS"
     timeout_periods: int = 5
     start: list[float] = dataclasses.field(default_factory=list)
@@ -546,5 +562,6 @@ class LcmJoints(_JointDevice):
     def check(self) -> None:
         super().check()
         _check_timeout(self.timeout_periods)
+        _check_link(self.url, self.key_file)
         if len(self.start) != len(self.channels):
             raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")

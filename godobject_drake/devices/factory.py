@@ -98,8 +98,9 @@ def lcm(config: dk.Lcm, *, seed, meshcat, workspace, duration_s) -> LcmDevice:
     if not config.device_to_world.is_identity():
         frame = dict(X_WDev=config.device_to_world.transform(), scale=config.device_to_world.scale)
     return LcmDevice(
-        make_lcm(config.url), config.start_pose(), config.channel, config.timeout_periods, config.period_s,
-        config.latency_s, config.guard, config.interpolation, config.feedback_channel, config.grasp,
+        make_lcm(config.url, config.key_file), config.start_pose(), config.channel, config.timeout_periods,
+        config.period_s, config.latency_s, config.guard, config.interpolation, config.feedback_channel,
+        config.grasp,
         workspace=_box(workspace), **frame,
     )  # fmt: skip
 
@@ -125,6 +126,6 @@ def meshcat_joint_sliders(config, *, seed, meshcat, workspace, duration_s) -> Me
 @device_factory(dk.LcmJoints)
 def lcm_joints(config: dk.LcmJoints, *, seed, meshcat, workspace, duration_s) -> LcmJointDevice:
     return LcmJointDevice(
-        make_lcm(config.url), config.channels, config.start, config.channel, config.timeout_periods,
-        config.sampling()["mix"], config.period_s, config.latency_s,
+        make_lcm(config.url, config.key_file), config.channels, config.start, config.channel,
+        config.timeout_periods, config.sampling()["mix"], config.period_s, config.latency_s,
     )  # fmt: skip

@@ -45,6 +45,12 @@ has stopped": zero force at once, without waiting for its watchdog.
 **Driver status**: a driver (:mod:`~godobject_drake.driver.process`) publishes its fault counts on
 ``GODOBJECT_DRIVER_STATUS`` (``lcmt_robot_state``, one entry per count, :data:`DRIVER_STATUS_KEYS`);
 on a ``udp://`` link the newest counts are in the metrics as ``driver_*``.
+
+**Pairing** (``udp://`` only): the link takes messages from its one paired driver only, each
+authenticated with the key of ``key_file`` and never twice (:mod:`~godobject_drake.protocol`);
+what it drops is counted as ``lcm_udp_*`` in the metrics (``lcm_udp_unauthenticated``,
+``lcm_udp_replayed``, ``lcm_udp_refused_drivers``, ...). ``memq://`` (one process) and Drake's
+``udpm://`` (multicast: anyone on the network) are not paired.
 """
 
 from __future__ import annotations
@@ -71,6 +77,7 @@ from godobject_drake.protocol import (
     POSE_CHANNEL,
     POSE_NAMES,
     STOP_SUFFIX,
+    decode,
     parse_robot_state,
 )
 
@@ -190,6 +197,7 @@ class LcmDevice(DeviceSource):
         self.driver_link = not isinstance(lcm, DrakeLcm)  # udp://: a driver process reports its counts
         self.driver_counts = dict.fromkeys(DRIVER_STATUS_KEYS, 0)
         self.driver_status_messages = 0
+        self.driver_bad_status = 0  # status messages that did not decode
         if self.driver_link:
             lcm.Subscribe(DRIVER_STATUS_CHANNEL, self._driver_status)
         self.known_grasps: set[str] | None = None  # the coupling's names (connect_feedback)
@@ -236,9 +244,9 @@ class LcmDevice(DeviceSource):
         return p, q_W * norm
 
     def _driver_status(self, raw: bytes) -> None:
-        try:
-            msg = lcmt_robot_state.decode(raw)
-        except ValueError:
+        msg = decode(lcmt_robot_state, raw)
+        if msg is None:
+            self.driver_bad_status += 1
             return
         self.driver_status_messages += 1
         for name, value in zip(msg.joint_name, msg.joint_position, strict=False):
@@ -264,6 +272,7 @@ class LcmDevice(DeviceSource):
             self.lcm.HandleSubscriptions(0)  # the driver's last counts, sent as it stops
             counts.update({f"driver_{k}": v for k, v in self.driver_counts.items()})
             counts["driver_status_messages"] = self.driver_status_messages
+            counts["driver_bad_status"] = self.driver_bad_status
             counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})
         return counts
 
@@ -326,7 +335,10 @@ class LcmJointDevice(JointDevice):
         return np.array([self.mix @ self._values])
 
     def lcm_status(self) -> dict:
-        return dict(self.receiver.counts)
+        counts = dict(self.receiver.counts)
+        if not isinstance(self.lcm, DrakeLcm):  # udp://: the link's own counts
+            counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})
+        return counts
 
     def status(self, context) -> dict:
         return self.lcm_status()

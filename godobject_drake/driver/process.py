@@ -1,14 +1,22 @@
 """A haptic device's driver, in a process of its own: the device's loop at its rate, the pose to
 the scene, the scene's feedback wrench to the device, and every safety on the device's side.
 
-    godobject-driver run FAMILY --scene udp://127.0.0.1:7667 [--rate 1000] [--watchdog-periods 10]
-                     [--max-force N] [--rt-priority 50] [--log F.csv] [--summary F.json]
+    godobject-driver run FAMILY --scene udp://127.0.0.1:7667 [--key-file K] [--rate 1000]
+                     [--watchdog-periods 10] [--max-force N] [--rt-priority 50] [--log F.csv]
+                     [--summary F.json]
     godobject-driver calibrate FAMILY --scenario S.yaml --out CALIBRATED.yaml [--seconds 20]
     (or python -m godobject_drake.driver.process ...)
 
 FAMILY is ``emulated``, ``haply``, ``forcedimension`` or ``openhaptics``
 (:mod:`godobject_drake.driver.families`; docs/haptic_devices.md). The scene runs with
 ``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.protocol`).
+
+**Pairing**: the driver and the scene pair with a key both read from the user's own key file
+(``--key-file``, the scene's ``device.key_file``; by default ``~/.config/godobject/link.key``,
+created on first use): every datagram is authenticated, replays are dropped, and nothing but
+the paired scene's feedback reaches the device (:mod:`godobject_drake.protocol`). Until a scene
+answers, the driver sends only its HELLO and renders nothing. A ``--scene`` that is not
+``udp://`` (Drake's multicast) is refused unless ``--allow-unauthenticated``.
 
 Each device period the loop:
 
@@ -37,8 +45,10 @@ Each device period the loop:
 
 On its own exit, SIGTERM or SIGINT the driver renders zero and closes the device before it
 returns. ``--log FILE.csv`` keeps every period (times on ``time.monotonic``, the clock every
-process on the machine shares); ``--summary FILE.json`` the counts, the limits that applied and
-the loop's timing.
+process on the machine shares); ``--summary FILE.json`` the counts, the link's counts, the
+limits that applied and the loop's timing. Without a log the driver keeps only its last
+:attr:`Driver.ROWS_KEPT` periods, and its timing as histograms: its memory does not grow with
+the time it runs.
 
 Exit codes: 0 done, 1 the device failed, 2 bad input (a message naming the value, the limit and
 the fix).
@@ -48,6 +58,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import signal
@@ -59,88 +70,70 @@ from pathlib import Path
 import numpy as np
 
 from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
+from godobject_drake.driver.safety import FeedbackGate, ForceSafety
 from godobject_drake.protocol import (
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
+    KEY_ENV,
+    LINK_REJECTED,
     POSE_CHANNEL,
     STOP_SUFFIX,
+    KeyFileError,
+    decode,
     driver_lcm,
+    is_udp_url,
+    key_fingerprint,
     pose_message,
     status_message,
 )
+
+__all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "ForceSafety", "HandPath",
+           "Quantiles", "main"]  # fmt: skip
 
 DEFAULT_URL = "udp://127.0.0.1:7667"
 DEFAULT_WATCHDOG_PERIODS = 10
 
 
-class ForceSafety:
-    """The force a device may render, from the force the scene asks (module docstring, step 3).
+class Quantiles:
+    """The median, 99th percentile and maximum of a stream of durations (s) in constant memory
+    (a driver runs for hours): counts in bins 1 % wide (each edge 1.01 times the last) from 1 µs
+    to 1000 s, the maximum exact. A quantile is the upper edge of the bin that holds it (capped
+    at the maximum): at most 1 % above the exact one (numpy's ``inverted_cdf``), or 1 µs below it."""
 
-    ``step(f_requested, live)``: ``live`` False (no fresh feedback, a stop, the clutch) renders
-    zero at once (no rate limit on the way to zero). Counts in :attr:`counts`.
-    """
+    LOW_S, HIGH_S, WIDTH = 1e-6, 1e3, 0.01
 
-    BUZZ_WINDOW = 24  # periods looked at
-    BUZZ_ALTERNATION = 0.8  # the share of successive changes that flip sign
-    DAMP_TAPS = 4
+    def __init__(self):
+        self._log_width = math.log1p(self.WIDTH)
+        size = math.ceil(math.log(self.HIGH_S / self.LOW_S) / self._log_width) + 1
+        self.bins = np.zeros(size, np.int64)
+        self.n, self.max = 0, -math.inf
 
-    def __init__(
-        self, max_force_n: float, max_rate_n_s: float, period_s: float, buzz_min_n: float | None = None
-    ):
-        self.max_force, self.max_step = float(max_force_n), float(max_rate_n_s) * period_s
-        self.buzz_min = 0.02 * self.max_force if buzz_min_n is None else float(buzz_min_n)
-        self.history: deque = deque(maxlen=self.BUZZ_WINDOW + 1)
-        self.out = np.zeros(3)
-        self.buzzing = False
-        self.counts = {"force_clamps": 0, "rate_clamps": 0, "buzz_events": 0, "buzz_periods": 0}
+    def add(self, x: float) -> None:
+        i = 0 if x <= self.LOW_S else math.ceil(math.log(x / self.LOW_S) / self._log_width)
+        self.bins[min(i, len(self.bins) - 1)] += 1
+        self.n += 1
+        self.max = max(self.max, x)
 
-    def buzz(self) -> bool:
-        """Do the requested force's changes over the window alternate in sign, near the Nyquist rate?"""
-        if len(self.history) < self.history.maxlen:
-            return False
-        d = np.diff(np.array(self.history), axis=0)  # (window, 3)
-        for axis in range(3):
-            step = d[:, axis]
-            big = np.abs(step) > self.buzz_min
-            if big.sum() < 0.8 * len(step):
-                continue
-            flips = np.sum(np.sign(step[1:]) * np.sign(step[:-1]) < 0)
-            if flips >= self.BUZZ_ALTERNATION * (len(step) - 1):
-                return True
-        return False
+    def quantile(self, q: float) -> float:
+        i = int(np.searchsorted(np.cumsum(self.bins), max(math.ceil(q * self.n), 1)))
+        return min(self.LOW_S * (1.0 + self.WIDTH) ** i, self.max)
 
-    def step(self, f_requested, live: bool) -> np.ndarray:
-        f = np.asarray(f_requested, float)
-        if not live or not np.all(np.isfinite(f)):
-            self.history.clear()
-            self.buzzing = False
-            self.out = np.zeros(3)
-            return self.out
-        self.history.append(f.copy())
-        buzzing = self.buzz()
-        if buzzing and not self.buzzing:
-            self.counts["buzz_events"] += 1
-        self.buzzing = buzzing
-        if buzzing:
-            self.counts["buzz_periods"] += 1
-            f = np.mean(list(self.history)[-self.DAMP_TAPS :], axis=0)
-        norm = float(np.linalg.norm(f))
-        if norm > self.max_force:
-            f = f * (self.max_force / norm)
-            self.counts["force_clamps"] += 1
-        change = f - self.out
-        size = float(np.linalg.norm(change))
-        if size > self.max_step:
-            f = self.out + change * (self.max_step / size)
-            self.counts["rate_clamps"] += 1
-        self.out = f
-        return f
+    def summary(self) -> dict:
+        if not self.n:
+            return {"p50_s": None, "p99_s": None, "max_s": None, "n": 0}
+        return {"p50_s": self.quantile(0.5), "p99_s": self.quantile(0.99), "max_s": self.max, "n": self.n}
 
 
 class Driver:
     """The loop (module docstring), on an opened device and a transport (``Publish``, ``Subscribe``,
-    ``HandleSubscriptions``: :class:`~godobject_drake.protocol.UdpLcm` or a ``DrakeLcm``)."""
+    ``HandleSubscriptions``: :class:`~godobject_drake.protocol.UdpLcm` or a ``DrakeLcm``).
+
+    Its memory stays bounded however long it runs: without a log file it keeps the last
+    :attr:`ROWS_KEPT` periods (:attr:`rows`), and the timing figures are histograms
+    (:class:`Quantiles`)."""
+
+    ROWS_KEPT = 2000  # the last 2 s at 1 kHz (~1 MB): every period goes to --log
 
     def __init__(
         self,
@@ -162,23 +155,22 @@ class Driver:
         self.period = 1.0 / rate_hz
         self.watchdog_s = watchdog_periods * self.period
         self.safety = ForceSafety(max_force_n, rated.max_force_rate_n_s, self.period)
+        self.gate = FeedbackGate(self.watchdog_s)
         self.grasp, self.grasp_button, self.clutch_button = grasp, grasp_button, clutch_button
         self.exit_on_stop, self.channel = exit_on_stop, channel
         self.counts = dict.fromkeys(DRIVER_STATUS_KEYS, 0)
-        self.feedback = None  # (force in the device frame, scene time s, arrival time)
         # The earliest a message handled now can have arrived: the previous poll. A message that
         # waited in the socket while this process was not running (a loaded machine) is as old
         # as that wait, and the watchdog must count it so: read at its handling, a command the
         # scene sent before it died rendered past the watchdog time.
         self._arrived_after: float | None = None
-        self.stopped = False
         self.heard_scene = False
         self.offset = np.zeros(3)  # the clutch's re-indexing
         self.held = None  # the pose sent while the clutch is held
-        self.rows: list[tuple] = []  # kept when there is no log file
+        self.rows: deque = deque(maxlen=self.ROWS_KEPT)  # kept when there is no log file
         self.log_file = None
-        self.late: deque = deque(maxlen=1_000_000)  # the last 17 min at 1 kHz
-        self.gaps: deque = deque(maxlen=1_000_000)
+        self.late = Quantiles()  # how late each period started
+        self.gaps = Quantiles()  # between two feedback messages
         self.stop_requested = False
         lcm.Subscribe(feedback_channel, self._on_feedback)
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
@@ -186,27 +178,21 @@ class Driver:
     def _on_feedback(self, raw: bytes) -> None:
         from drake import lcmt_force_torque
 
-        try:
-            m = lcmt_force_torque.decode(raw)
-        except ValueError:
-            self.counts["bad_feedback"] += 1
-            return
-        f = np.array([m.fx, m.fy, m.fz], float)
-        if not np.all(np.isfinite(f)):
-            self.counts["bad_feedback"] += 1
-            return
+        m = decode(lcmt_force_torque, raw)
         now = time.monotonic() if self._arrived_after is None else self._arrived_after
-        if self.feedback is not None:
-            self.gaps.append(now - self.feedback[2])
-        self.feedback = (f, m.timestamp * 1e-6, now)
-        self.stopped = False
+        previous = self.gate.arrived
+        if m is None or not self.gate.feedback([m.fx, m.fy, m.fz], m.timestamp * 1e-6, now):
+            self.counts["bad_feedback"] += 1
+            return
+        if previous is not None:
+            self.gaps.add(now - previous)
         if not self.heard_scene:
             self.heard_scene = True
             self.device.on_scene()
 
     def _on_stop(self, raw: bytes) -> None:
-        self.stopped = True
-        self.counts["scene_stops"] += 1
+        self.gate.stop()
+        self.counts["scene_stops"] = self.gate.stops
         if self.exit_on_stop:
             self.stop_requested = True
 
@@ -217,17 +203,22 @@ class Driver:
         grasp = True if self.grasp == "always" else pressed(self.grasp_button)
         return grasp, pressed(self.clutch_button)
 
+    def link_counts(self) -> dict:
+        """The link's own counts (a :class:`~godobject_drake.protocol.UdpLcm`'s), or none."""
+        return dict(getattr(self.lcm, "counts", {}))
+
     def publish_status(self, now: float) -> None:
+        link = self.link_counts()
         counts = {
             **self.counts,
             **{k: self.safety.counts[k] for k in ("force_clamps", "rate_clamps", "buzz_events")},
+            "link_rejected": sum(link.get(k, 0) for k in LINK_REJECTED),
         }
         self.lcm.Publish(DRIVER_STATUS_CHANNEL, status_message(round(now * 1e6), counts).encode())
 
     def run(self, duration_s: float = math.inf) -> None:
         start = time.monotonic()
         next_tick = start
-        was_fresh = False
         previous_poll = start
         try:
             while not self.stop_requested:
@@ -235,7 +226,7 @@ class Driver:
                 if now - start >= duration_s:
                     break
                 late = now - next_tick
-                self.late.append(max(late, 0.0))
+                self.late.add(max(late, 0.0))
                 if late > self.period:
                     self.counts["overruns"] += 1
                     next_tick = now  # start again from now: no burst of catch-up periods
@@ -259,28 +250,12 @@ class Driver:
                 self._arrived_after, poll = previous_poll, time.monotonic()
                 self.lcm.HandleSubscriptions(0)
                 previous_poll = poll
-                rendered_at = time.monotonic()
-                fresh = self.feedback is not None and rendered_at - self.feedback[2] <= self.watchdog_s
-                if was_fresh and not fresh:
-                    self.counts["watchdog_trips"] += 1
-                was_fresh = fresh
-                live = fresh and not self.stopped and not clutch
-                requested = self.feedback[0] if self.feedback is not None else np.zeros(3)
-                f = self.safety.step(requested, live)
+                state = self.gate.state(time.monotonic(), clutch)
+                self.counts["watchdog_trips"] = self.gate.trips
+                requested = self.gate.force
+                f = self.safety.step(requested, state == "ok")
                 self.device.render(f)
-                state = (
-                    "stopped"
-                    if self.stopped
-                    else "clutch"
-                    if clutch
-                    else "ok"
-                    if fresh
-                    else "watchdog"
-                    if self.feedback is not None
-                    else "waiting"
-                )
-                t_scene = self.feedback[1] if self.feedback is not None else math.nan
-                self._row((now, *sent, *requested, *f, t_scene, state, int(self.safety.buzzing)))
+                self._row((now, *sent, *requested, *f, self.gate.scene_time, state, int(self.safety.buzzing)))
                 if self.counts["loops"] % 100 == 0:
                     self.publish_status(now)
                     if self.log_file is not None:
@@ -312,19 +287,9 @@ class Driver:
             pass
 
     def summary(self) -> dict:
-        def quantiles(values):
-            if not values:
-                return {"p50_s": None, "p99_s": None, "max_s": None, "n": 0}
-            a = np.asarray(values)
-            return {
-                "p50_s": float(np.quantile(a, 0.5)),
-                "p99_s": float(np.quantile(a, 0.99)),
-                "max_s": float(a.max()),
-                "n": len(a),
-            }
-
         return {
             "counts": {**self.counts, **self.safety.counts},
+            "link": self.link_counts(),
             "limits": {
                 "model": self.rated.model,
                 "max_force_n": self.safety.max_force,
@@ -335,8 +300,8 @@ class Driver:
                 "period_s": self.period,
             },
             "rt_priority": getattr(self, "rt_priority", 0),
-            "loop_lateness": quantiles(self.late),
-            "feedback_gap": quantiles(self.gaps),
+            "loop_lateness": self.late.summary(),
+            "feedback_gap": self.gaps.summary(),
         }
 
     LOG_HEADER = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz"
@@ -410,12 +375,36 @@ def _check(args) -> None:
         raise BadInput(f"--hand moves the emulated device only; {args.family} is moved by your hand")
 
 
+def _log_to_stderr() -> None:
+    """The link's messages (paired, refused) on stderr, as the driver's own lines."""
+    logger = logging.getLogger("godobject_drake")
+    if not any(getattr(h, "driver_lines", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("godobject-driver: %(message)s"))
+        handler.driver_lines = True
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+
+
 def _run(args) -> int:
     _check(args)
+    if not is_udp_url(args.scene) and not args.allow_unauthenticated:
+        raise BadInput(
+            f"--scene {args.scene!r}: only a udp://HOST:PORT link is paired and authenticated; on "
+            "Drake's LCM (udpm:// multicast) any process that reaches it could push the device. "
+            "Give udp://HOST:PORT (the scene's device.url), or --allow-unauthenticated to accept that"
+        )
+    _log_to_stderr()
     try:
-        lcm = driver_lcm(args.scene)
+        lcm = driver_lcm(args.scene, args.key_file)
+    except KeyFileError as e:
+        raise BadInput(f"--key-file: {e}") from None
     except ValueError as e:
         raise BadInput(f"--scene: {e}") from None
+    if is_udp_url(args.scene):
+        link = f"scene {args.scene}, key {lcm.key_file} (fingerprint {key_fingerprint(lcm.end.key)})"
+    else:
+        link = f"scene {args.scene or 'udpm:// (Drake default)'} UNAUTHENTICATED (--allow-unauthenticated)"
     device, rated = open_device(args.family, args)
     driver = Driver(
         device,
@@ -432,7 +421,7 @@ def _run(args) -> int:
         f"godobject-driver {args.family}: {rated.model}, {args.rate:g} Hz, "
         f"force ≤ {limits['max_force_n']:g} N "
         f"(rated {rated.max_force_n:g} N: {rated.source}), change ≤ {limits['max_force_rate_n_s']:g} N/s, "
-        f"watchdog {driver.watchdog_s * 1e3:g} ms; scene {args.scene}",
+        f"watchdog {driver.watchdog_s * 1e3:g} ms; {link}",
         file=sys.stderr,
         flush=True,
     )
@@ -546,6 +535,18 @@ def parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run the device's loop against a scene")
     family_args(run)
     run.add_argument("--scene", default=DEFAULT_URL, help=f"the scene's LCM URL (default {DEFAULT_URL})")
+    run.add_argument(
+        "--key-file",
+        default="",
+        help=f"the link's key, the scene's device.key_file (default ${KEY_ENV}, else "
+        "~/.config/godobject/link.key; created on first use, mode 0600)",
+    )
+    run.add_argument(
+        "--allow-unauthenticated",
+        action="store_true",
+        help="accept a --scene that is not udp:// (Drake's udpm:// multicast): any process that can "
+        "reach it can then push the device",
+    )
     run.add_argument("--rate", type=float, default=1000.0, help="the loop's rate (Hz; default 1000)")
     run.add_argument(
         "--watchdog-periods",
