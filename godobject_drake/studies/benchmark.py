@@ -151,6 +151,40 @@ def machine() -> str:
     return f"{os.cpu_count()} cores ({usable} usable), {cpu_model()}"
 
 
+def drake_version() -> str:
+    """The Drake this process runs (its distribution's version), to print beside every figure."""
+    from godobject_drake.sleeping import drake_version as version
+
+    return version()
+
+
+def round_robin(scenarios: dict, rounds: int = 3) -> dict:
+    """Each scenario's simulation-loop CPU time per simulated second (``simulate``'s
+    ``cpu_time_s``), the scenarios run in turn in this process, ``rounds`` times over: the runs of
+    a round share its load, so their ratios hold on a shared machine where single costs do not.
+
+    Returns ``cpu_s_per_sim_s`` ({key: one value per round}), ``rounds``, ``drake`` (its
+    version), ``machine`` (:func:`machine`) and ``load_1min`` (the 1-minute load average at the
+    start of each round).
+    """
+    import os
+
+    from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
+
+    if rounds < 1:
+        raise ValueError(f"rounds={rounds}; give at least 1 (a ratio's spread needs 3)")
+    cpu: dict = {key: [] for key in scenarios}
+    loads = []
+    for _ in range(rounds):
+        loads.append(os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan)
+        for key, scenario in scenarios.items():
+            metrics = simulate(build_station(scenario), progress=False).metrics
+            cpu[key].append(metrics["cpu_time_s"] / max(metrics["sim_time_s"], 1e-12))
+    return {"cpu_s_per_sim_s": cpu, "rounds": rounds, "drake": drake_version(), "machine": machine(),
+            "load_1min": loads}  # fmt: skip
+
+
 def god_object_body(scenario: Scenario) -> str:
     """The body whose pose is "the god-object's pose" (the tool kind says which: the first body a
     rigid scene's device grasps, an articulated tool's tip body, a deformable probe's core)."""
