@@ -2,6 +2,7 @@
 the recommendation rule, a refused configuration and the MuJoCo peer on the same path."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,6 +147,41 @@ def test_the_scale_sentence_gives_the_median_of_each_rounds_ratio():
     (line, _) = sve.interleaved_lines(r)
     assert "interleaved in one process: 2.00×" in line and "rounds 1.33–2.25×" in line
     assert "Drake 1.58.0; 2 cores (2 usable), AMD EPYC; load 0.4–1.6" in line
+
+
+def test_step_shares_splits_py_spys_samples_by_part(tmp_path):
+    """Four stacks inside simulate's AdvanceTo call (3 in SceneGraph's pose update, 4 in SAP, 1 in
+    the sleep check) and 2 in its metrics fold: C++ 7/8 = 87.5 %, Python 12.5 %, 2/8 = 25 % on
+    top; a stack outside simulate is not counted."""
+    import godobject_drake.simulation as simulation
+
+    ss = load_script("analysis/step_shares.py")
+    advance, fold = ss.loop_lines()
+    source = Path(simulation.__file__).read_text().splitlines()
+    assert "simulator.AdvanceTo(" in source[advance - 1] and source[fold - 1].strip() == "fold()"
+    loop = "<module> (run.py:1);simulate (godobject_drake/simulation.py:{})"
+    raw = tmp_path / "raw.txt"
+    raw.write_text(
+        "\n".join([
+            loop.format(advance) + ";drake::geometry::SceneGraph<double>::CalcPoseUpdate (libdrake.so) 3",
+            loop.format(advance) + ";drake::multibody::internal::SapDriver<double>::Calc (libdrake.so) 4",
+            loop.format(advance) + ";SleepManager.check (godobject_drake/sleeping.py:250) 1",
+            loop.format(fold) + ";SceneMetrics.update (godobject_drake/metrics.py:10) 2",
+            "<module> (run.py:1);build_station (godobject_drake/station/build.py:9) 5",
+        ])
+    )  # fmt: skip
+    s = ss.shares(raw, advance, fold)
+    assert s == {
+        "inside": {
+            "C++: SceneGraph pose update (every geometry)": 3,
+            "C++: SAP (contact problem and solve)": 4,
+            "Python: sleep check": 1,
+        },
+        "outside": 2,
+        "fold": 2,
+    }
+    head = ss.report(raw, s)[0]
+    assert "C++ 87.5 %, Python 12.5 %" in head and "25.0 % on top (the metrics fold 25.0 %)" in head
 
 
 def test_explicit_coupling_refuses_h_10_ms_with_the_limit():
