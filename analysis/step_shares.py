@@ -2,10 +2,10 @@
 
 ``run`` is what to profile (the brick scene, ``simulate`` as ``godobject run`` calls it);
 ``shares`` reads py-spy's raw output (``-f raw``: one collapsed stack and its count a line) and
-splits the samples taken inside ``simulate``'s ``AdvanceTo`` call into Drake's C++ (SAP, the
+splits the samples taken inside the simulation loop's ``AdvanceTo`` call into Drake's C++ (SAP, the
 SceneGraph pose update of every geometry, the geometry query's point pairs, the rest of the
 plant, the framework) and the Python callbacks (the coupling's port reads and its arithmetic,
-the sleep check, the safeguards, the device); what ``simulate`` does outside ``AdvanceTo`` (the
+the sleep check, the safeguards, the device); what the loop does outside ``AdvanceTo`` (the
 metrics fold) is given on top.
 
     py-spy record --native -r 50 -f raw -o /tmp/p8.txt -- python analysis/step_shares.py run
@@ -19,28 +19,44 @@ The shares are of samples, not of time measured otherwise.
 """
 
 import argparse
+import ast
 import collections
-import inspect
 import sys
 from pathlib import Path
 
-SIMULATE = "simulate (godobject_drake/simulation.py:"
+LOOP_FILE = "godobject_drake/simulation.py"
 
 
-def loop_lines() -> tuple[int, int]:
-    """The lines of ``simulate`` that call ``AdvanceTo`` and fold the metrics in its loop."""
+def loop_lines() -> tuple[str, int, int]:
+    """Where ``godobject_drake.simulation`` runs its loop: the qualified name of the function that
+    calls ``AdvanceTo`` (as py-spy names its frames), that call's line, and the line of the metrics
+    fold in the same function (−1 if none). Read from the source, so a restructured loop is found."""
     from godobject_drake import simulation
 
-    lines, first = inspect.getsourcelines(simulation.simulate)
-    advance = fold = None
-    for k, text in enumerate(lines):
-        if "simulator.AdvanceTo(" in text and advance is None:
-            advance = first + k
-        elif text.strip() == "fold()" and advance is not None and fold is None:
-            fold = first + k
-    if advance is None:
-        raise RuntimeError("simulate no longer calls simulator.AdvanceTo: update step_shares.loop_lines")
-    return advance, fold if fold is not None else -1
+    tree = ast.parse(Path(simulation.__file__).read_text())
+
+    def visit(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.ClassDef):
+                yield from visit(child, prefix + child.name + ".")
+            elif isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef):
+                yield prefix + child.name, child
+                yield from visit(child, prefix + child.name + ".<locals>.")
+
+    def calls(function, name):
+        return sorted(
+            n.lineno
+            for n in ast.walk(function)
+            if isinstance(n, ast.Call)
+            and (getattr(n.func, "attr", None) == name or getattr(n.func, "id", None) == name)
+        )
+
+    for qualname, function in visit(tree, ""):
+        advance = calls(function, "AdvanceTo")
+        if advance:
+            fold = [line for line in calls(function, "fold") if line > advance[0]]
+            return qualname, advance[0], fold[0] if fold else -1
+    raise RuntimeError(f"no function of {LOOP_FILE} calls AdvanceTo: update step_shares.loop_lines")
 
 
 def part(below: list[str]) -> str:
@@ -73,17 +89,20 @@ def part(below: list[str]) -> str:
     return "C++: framework (simulator, diagram, loggers)"
 
 
-def shares(path: Path, advance: int, fold: int) -> dict:
-    """Samples by part inside ``AdvanceTo``, and outside it in ``simulate`` (all; the fold)."""
+def shares(path: Path, loop: tuple[str, int, int]) -> dict:
+    """Samples by part inside the loop's ``AdvanceTo`` call, and outside it in the loop's function
+    (all; the fold); ``loop``: :func:`loop_lines`."""
+    function, advance, fold = loop
+    frame = f"{function} ({LOOP_FILE}:"
     inside: collections.Counter = collections.Counter()
     outside = folding = 0
     for line in path.read_text().splitlines():
         stack, _, n = line.rpartition(" ")
         frames = stack.split(";")
-        at = next((k for k, f in enumerate(frames) if f.startswith(SIMULATE)), None)
+        at = next((k for k, f in enumerate(frames) if f.startswith(frame)), None)
         if at is None:
             continue
-        where = int(frames[at][len(SIMULATE) :].rstrip(")"))
+        where = int(frames[at][len(frame) :].rstrip(")"))
         if where == advance:
             inside[part(frames[at + 1 :])] += int(n)
         else:
@@ -95,11 +114,11 @@ def shares(path: Path, advance: int, fold: int) -> dict:
 def report(path: Path, s: dict) -> list[str]:
     total = sum(s["inside"].values())
     if not total:
-        return [f"{path}: no sample inside simulate's AdvanceTo"]
+        return [f"{path}: no sample inside the simulation loop's AdvanceTo"]
     cpp = sum(v for k, v in s["inside"].items() if k.startswith("C++"))
     out = [
         f"{path}: {total} samples inside AdvanceTo: C++ {100 * cpp / total:.1f} %, Python "
-        f"{100 * (total - cpp) / total:.1f} %; outside it, in simulate, {100 * s['outside'] / total:.1f} % "
+        f"{100 * (total - cpp) / total:.1f} %; outside it, in the loop, {100 * s['outside'] / total:.1f} % "
         f"on top (the metrics fold {100 * s['fold'] / total:.1f} %)"
     ]
     for k, v in sorted(s["inside"].items(), key=lambda kv: -kv[1]):
@@ -139,9 +158,9 @@ def main(argv=None) -> int:
     if args.command == "run":
         run(args.bricks, args.seconds, args.repeats, args.deactivate == "on")
         return 0
-    advance, fold = loop_lines()
+    loop = loop_lines()
     for path in args.raw:
-        print("\n".join(report(path, shares(path, advance, fold))))
+        print("\n".join(report(path, shares(path, loop))))
     return 0
 
 

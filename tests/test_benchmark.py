@@ -150,16 +150,17 @@ def test_the_scale_sentence_gives_the_median_of_each_rounds_ratio():
 
 
 def test_step_shares_splits_py_spys_samples_by_part(tmp_path):
-    """Four stacks inside simulate's AdvanceTo call (3 in SceneGraph's pose update, 4 in SAP, 1 in
+    """Four stacks inside the loop's AdvanceTo call (3 in SceneGraph's pose update, 4 in SAP, 1 in
     the sleep check) and 2 in its metrics fold: C++ 7/8 = 87.5 %, Python 12.5 %, 2/8 = 25 % on
-    top; a stack outside simulate is not counted."""
+    top; a stack outside the loop is not counted."""
     import godobject_drake.simulation as simulation
 
     ss = load_script("analysis/step_shares.py")
-    advance, fold = ss.loop_lines()
+    function, advance, fold = ss.loop_lines()
     source = Path(simulation.__file__).read_text().splitlines()
-    assert "simulator.AdvanceTo(" in source[advance - 1] and source[fold - 1].strip() == "fold()"
-    loop = "<module> (run.py:1);simulate (godobject_drake/simulation.py:{})"
+    assert "AdvanceTo(" in source[advance - 1] and "fold()" in source[fold - 1]
+    loop = "<module> (run.py:1);simulate (godobject_drake/simulation.py:1);" + function
+    loop += " (godobject_drake/simulation.py:{})"
     raw = tmp_path / "raw.txt"
     raw.write_text(
         "\n".join([
@@ -170,7 +171,7 @@ def test_step_shares_splits_py_spys_samples_by_part(tmp_path):
             "<module> (run.py:1);build_station (godobject_drake/station/build.py:9) 5",
         ])
     )  # fmt: skip
-    s = ss.shares(raw, advance, fold)
+    s = ss.shares(raw, (function, advance, fold))
     assert s == {
         "inside": {
             "C++: SceneGraph pose update (every geometry)": 3,

@@ -23,6 +23,7 @@ from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.scenario import Scenario, scenario_from_yaml, scenario_to_yaml, shipped_scenario
 from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
 from godobject_drake.simulation import simulate
+from godobject_drake.sleeping import drake_version
 from godobject_drake.spatial import quat_to_rotation
 from godobject_drake.station.build import build_station
 from godobject_drake.station.kinds import kind_for
@@ -151,13 +152,6 @@ def machine() -> str:
     return f"{os.cpu_count()} cores ({usable} usable), {cpu_model()}"
 
 
-def drake_version() -> str:
-    """The Drake this process runs (its distribution's version), to print beside every figure."""
-    from godobject_drake.sleeping import drake_version as version
-
-    return version()
-
-
 def round_robin(scenarios: dict, rounds: int = 3) -> dict:
     """Each scenario's simulation-loop CPU time per simulated second (``simulate``'s
     ``cpu_time_s``), the scenarios run in turn in this process, ``rounds`` times over: the runs of
@@ -167,10 +161,7 @@ def round_robin(scenarios: dict, rounds: int = 3) -> dict:
     version), ``machine`` (:func:`machine`) and ``load_1min`` (the 1-minute load average at the
     start of each round).
     """
-    import os
-
-    from godobject_drake.simulation import simulate
-    from godobject_drake.station.build import build_station
+    import os  # as machine() does
 
     if rounds < 1:
         raise ValueError(f"rounds={rounds}; give at least 1 (a ratio's spread needs 3)")
