@@ -514,8 +514,41 @@ def scale_cases(quick: bool, repeats: int) -> list[bm.Case]:
     return cases
 
 
-def scale_section(rows: list[dict], out: Path) -> tuple[list[str], dict]:
-    """The scale figure and its table: wall time per simulated second against brick count."""
+GOAL_64_OVER_8 = 1.6  # issue 47, Drake 1.58: 64 bricks against 8 per simulated second, interleaved
+
+
+def scale_interleaved(rounds: int) -> dict:
+    """64 bricks against 8 (h = 1 ms, sleep on, the path's first 3 s as ``scale_cases``), run in
+    turn in this process, ``rounds`` times: ``benchmark.round_robin``'s CPU times, each round's
+    ratio (``ratio_rounds``) and their median (``ratio_median``)."""
+    return with_ratios(bm.round_robin({n: variant("lego", 3.0, 1e-3, bricks=n) for n in (8, 64)}, rounds))
+
+
+def with_ratios(r: dict) -> dict:
+    """``r`` (``round_robin``'s, keys 8 and 64) with each round's 64-over-8 ratio and their median."""
+    r["ratio_rounds"] = [b / a for a, b in zip(*(r["cpu_s_per_sim_s"][n] for n in (8, 64)), strict=True)]
+    r["ratio_median"] = float(np.median(r["ratio_rounds"]))
+    return r
+
+
+def interleaved_lines(r: dict) -> list[str]:
+    """The report's sentence on :func:`scale_interleaved`, with the Drake and the machine beside it."""
+    cpu = r["cpu_s_per_sim_s"]
+    loads = [x for x in r["load_1min"] if math.isfinite(x)]
+    return [
+        f"**64 bricks against 8, interleaved in one process: {r['ratio_median']:.2f}×** per simulated "
+        f"second (CPU time of the simulation loop, the path's first 3 s, sleep on, {r['rounds']} rounds of "
+        f"8 then 64 bricks; rounds {min(r['ratio_rounds']):.2f}–{max(r['ratio_rounds']):.2f}×; medians "
+        f"{np.median(cpu[8]):.3g} and {np.median(cpu[64]):.3g} s/s). Drake {r['drake']}; {r['machine']}"
+        + (f"; load {min(loads):.1f}–{max(loads):.1f}" if loads else "")
+        + f". Issue 47's goal on Drake 1.58: ≤ {GOAL_64_OVER_8:g}×.",
+        "",
+    ]
+
+
+def scale_section(rows: list[dict], out: Path, interleaved: dict | None = None) -> tuple[list[str], dict]:
+    """The scale figure and its table: wall time per simulated second against brick count;
+    ``interleaved`` (:func:`scale_interleaved`): the 64-against-8 ratio measured in turn."""
     series: dict[str, dict[int, dict]] = {}
     for r in rows:
         c = r["config"]
@@ -562,11 +595,18 @@ def scale_section(rows: list[dict], out: Path) -> tuple[list[str], dict]:
             cells.append(fmt(cost))
             table.setdefault(k, {})[n] = cost
         md.append(f"| {n} | " + " | ".join(cells) + " |")
-    md += ["", "The cost of 64 bricks against 8 in this run (issue 31's goal for Drake, sleep on: ≤ 2×):", ""]
+    md += [
+        "",
+        f"The cost of 64 bricks against 8 in this run's medians above (Drake {bm.drake_version()}; "
+        f"{machine()}; issue 31's goal for Drake, sleep on: ≤ 2×):",
+        "",
+    ]
     for k in keys:
         c8, c64 = table[k].get(8), table[k].get(64)
         md.append(f"- {k}: {fmt(c64 / c8 if (c8 and c64) else None, '×', digits=2)}")
     md.append("")
+    if interleaved is not None:
+        md += interleaved_lines(interleaved)
     return md, table
 
 
@@ -804,9 +844,11 @@ def main(argv=None) -> int:
                 summary["equal_budget"] = table
             scale_rows = evaluate([r for r, o in zip(results, owner, strict=True) if o == (scene, "scale")],
                                   ref, scene)  # fmt: skip
-            section, table = scale_section(scale_rows, args.out)
+            interleaved = scale_interleaved(args.repeats)
+            section, table = scale_section(scale_rows, args.out, interleaved)
             md += section
             summary["scale"] = {k: {str(n): v for n, v in t.items()} for k, t in table.items()}
+            summary["scale_interleaved"] = interleaved
             section, summary["couplings"] = coupling_section(rows, PENETRATION_BUDGET_M[scene])
             md += section
             cost64 = table.get("Drake, sleep on", {}).get(64)

@@ -18,15 +18,23 @@ boundary and never per step:
   acceleration × period² / 2, plus ``margin_m``. A sleeping body whose bounding sphere meets an
   active body's reach, or the device point's (so a body about to be grasped), is unlocked: it
   wakes before anything can touch it. A grasped sleeping body wakes at the next check.
-- **no collision filters**: the geometry query still finds a sleeping body's contacts, and
-  SAP drops them. Filtering them in the SceneGraph context (``collision_filter_manager(context)``,
-  transient declarations) was measured and left out: Drake's collision filter holds an entry for
-  every geometry pair (some 700 000 with 64 bricks of 13 geometries each) and rebuilds it on
-  every transient change, 20–40 ms a change (one sleep or wake), where the filter saves 3 % of
-  a step (64 bricks asleep: 403 → 392 µs; 8 bricks: 77 → 73 µs). On the scene's own plant
-  replayed at 64 bricks it saves about a quarter of a step, and a change costs 270–370 ms
-  (docs/design.md, "Collision filters in a context"): still a loss over the path's first 3 s,
-  and a stall at every wake.
+- **out of the geometry query** (Drake 1.58 on, ``sleep.deactivate``): a sleeping body that no
+  awake body can reach before the next check is deactivated in the SceneGraph context
+  (``CollisionFilterManager.Deactivate``): no pair of the geometry query has it, so the query
+  costs what the awake bodies cost. The reach here is every awake body's, calm ones too (a calm
+  brick resting on a sleeping one touches it, and SAP keeps a pair with an unlocked side), grown
+  by the largest acceleration the coupling can give a body (as if anything awake could be pushed
+  as hard as the held body is pulled) or gravity's; a body is activated again when that reach
+  meets it, and when it wakes, both at the check, before the next step. So the only pairs it
+  leaves are pairs with both sides locked or anchored, which SAP drops anyway: the trajectory is
+  the locked-only one bit for bit (Drake's proximity engine sorts the point pairs it returns, so
+  the rest come in the same order; measured on every shipped variant and at 64 bricks).
+  A call costs 4 µs for one brick and 0.75 ms for 63 at once (Drake 1.58, measured alone);
+  with the reach test at each check it is about 2 % of the brick scene's CPU time at 8 bricks
+  and 1 % at 64, where a transient filter declaration cost 20–370 ms a change (its table holds
+  every geometry pair, ~700 000 at 64 bricks: docs/design.md, "Collision filters in a context").
+  Older Drake has no ``Deactivate``: the query still finds a sleeping body's contacts and SAP
+  drops them. The run's log says once which it is.
 
 It runs as part of the safeguards' monitor (:func:`~godobject_drake.safeguards.install_safeguards`),
 the one place that may change the plant's context between steps. Locking sets the body's
@@ -34,14 +42,18 @@ velocities to zero; unlocking leaves them at zero, which is what a resting body 
 """
 
 import dataclasses
+import importlib.metadata
+import logging
 import math
 
 import numpy as np
 from pydrake.geometry import (
     Box,
     Capsule,
+    CollisionFilterManager,
     Cylinder,
     Ellipsoid,
+    GeometrySet,
     Role,
     Sphere,
 )
@@ -52,6 +64,18 @@ from pydrake.multibody.tree import JointIndex
 from godobject_drake.config.scene import Sleep
 
 SLEEP_RGBA = (0.25, 0.45, 0.95, 0.9)
+# Drake 1.58 added geometry (de)activation; 1.51 has neither method.
+CAN_DEACTIVATE = hasattr(CollisionFilterManager, "Deactivate") and hasattr(CollisionFilterManager, "Activate")
+
+logger = logging.getLogger("godobject_drake")
+
+
+def drake_version() -> str:
+    """The installed Drake's version (its distribution's metadata), or ``unknown``."""
+    try:
+        return importlib.metadata.version("drake")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def shape_radius(shape) -> float | None:
@@ -77,6 +101,7 @@ class _Body:
     q_start: int
     v_start: int  # in [q; v]
     radius: float  # of a sphere about Bo that holds its proximity geometry (m)
+    geometries: tuple  # its proximity GeometryIds
 
 
 class SleepManager:
@@ -100,6 +125,7 @@ class SleepManager:
         if not h > 0.0:
             raise ValueError(f"sleeping bodies need a discrete plant (time_step={h!r} s)")
         self.plant, self.config, self.coupling = plant, config, coupling
+        self.scene_graph = scene_graph
         self.every = max(1, round(config.check_period_s / h))
         self.period_s = self.every * h
         inspector = scene_graph.model_inspector()
@@ -135,6 +161,7 @@ class SleepManager:
                     q_start=body.floating_positions_start(),
                     v_start=nq + body.floating_velocities_start_in_v(),
                     radius=radius,
+                    geometries=tuple(geometries),
                 )
             )
         self._radius = np.array([b.radius for b in self.bodies])
@@ -147,6 +174,25 @@ class SleepManager:
         self.held_accel = self._held_accel()
         self._index = np.array([b.index for b in self.bodies], int)
         self._pull = np.array([0.5 * self.held_accel.get(b.index, 0.0) for b in self.bodies])  # a/2
+        g = float(np.linalg.norm(plant.gravity_field().gravity_vector()))
+        # what an awake body's reach adds for the query: the margin and the largest pull (or g)
+        # anything awake may get, as if it were pushed as hard as the held body is pulled
+        self._reach_more = config.margin_m + 0.5 * max([g, *self.held_accel.values()]) * self.period_s**2
+        self.deactivates = config.deactivate and CAN_DEACTIVATE
+        if self.deactivates:
+            logger.info(
+                "sleeping bodies: locked, and out of the geometry query while nothing awake can reach "
+                "them (Drake %s: CollisionFilterManager.Deactivate)",
+                drake_version(),
+            )
+        elif config.deactivate:
+            logger.info(
+                "sleeping bodies: locked only, still in the geometry query (Drake %s has no "
+                "CollisionFilterManager.Deactivate; Drake 1.58 has)",
+                drake_version(),
+            )
+        else:
+            logger.info("sleeping bodies: locked only, still in the geometry query (sleep.deactivate: false)")
         if meshcat is not None:
             for b in self.bodies:
                 meshcat.SetObject(f"/godobject/sleep/{b.name}", Sphere(0.0025), _rgba(SLEEP_RGBA))
@@ -156,8 +202,10 @@ class SleepManager:
         """Forget what slept: for a new context, where every body starts awake and unfiltered."""
         n = len(self.bodies)
         self.asleep = np.zeros(n, bool)
+        self.inactive = np.zeros(n, bool)  # out of the geometry query (a subset of asleep)
         self.calm_s = np.zeros(n)
         self.checks = self.wakeups = self.sleeps = 0
+        self.deactivations = self.activations = 0
         self._asleep_sum = 0
 
     def _held_accel(self) -> dict[int, float]:
@@ -210,10 +258,39 @@ class SleepManager:
             self.bodies[k].joint.Lock(plant_context)
             self._mark(k, True, t, centers[k])
         self.asleep = (self.asleep & ~wake) | sleep
+        if self.deactivates:
+            self._leave_query(root_context, centers, speed, spin)
         self.wakeups += int(wake.sum())
         self.sleeps += int(sleep.sum())
         self.checks += 1
         self._asleep_sum += int(self.asleep.sum())
+
+    def _leave_query(self, root_context, centers, speed, spin) -> None:
+        """Deactivate the sleeping bodies no awake body can reach before the next check, and
+        activate every other one that was deactivated (module docstring)."""
+        asleep, awake = self.asleep, ~self.asleep
+        out = asleep.copy()  # nothing awake: every sleeping body out
+        if asleep.any() and awake.any():
+            r, P = self._radius, self.period_s
+            reach = r[awake] + (speed[awake] + spin[awake] * r[awake]) * P + self._reach_more
+            rows = np.flatnonzero(asleep)
+            d2 = np.sum((centers[rows, None, :] - centers[None, awake, :]) ** 2, axis=2)
+            out[rows[np.any(d2 < (r[rows, None] + reach[None, :]) ** 2, axis=1)]] = False
+        back, leave = self.inactive & ~out, out & ~self.inactive
+        if not (back.any() or leave.any()):
+            return
+        sg = self.scene_graph
+        manager = sg.collision_filter_manager(sg.GetMyMutableContextFromRoot(root_context))
+        if back.any():
+            manager.Activate(self._geometry_set(back))
+            self.activations += int(back.sum())
+        if leave.any():
+            manager.Deactivate(self._geometry_set(leave))
+            self.deactivations += int(leave.sum())
+        self.inactive = out
+
+    def _geometry_set(self, which: np.ndarray) -> GeometrySet:
+        return GeometrySet([g for k in np.flatnonzero(which) for g in self.bodies[k].geometries])
 
     def _mark(self, k: int, asleep: bool, t: float, center=None) -> None:
         if self._meshcat is None:

@@ -2,6 +2,7 @@
 the recommendation rule, a refused configuration and the MuJoCo peer on the same path."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,7 +11,16 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config.scenario import replace, shipped_scenario
-from godobject_drake.studies.benchmark import compare, make_case, rigid_energy, run_case, summarize_cost
+from godobject_drake.studies.benchmark import (
+    compare,
+    cpu_model,
+    drake_version,
+    make_case,
+    rigid_energy,
+    round_robin,
+    run_case,
+    summarize_cost,
+)
 
 
 def lego_case(time_step, duration, **kw):
@@ -110,6 +120,69 @@ def test_recommendation_is_the_cheapest_within_both_budgets():
     assert [r["label"] for r in sve.pareto(rows)] == ["a", "b", "c"]
     assert summarize_cost([0.3, 0.1, 0.2])["cost_median_s"] == 0.2
     assert summarize_cost([0.3, 0.1, 0.2])["real_time_factor"] == pytest.approx(5.0)
+
+
+def test_round_robin_runs_each_scenario_once_a_round_in_turn():
+    """Two brick scenes, 0.05 and 0.1 s, two rounds: one CPU cost per scenario and round, per
+    simulated second, with the Drake this Python runs and the machine beside them."""
+    from importlib.metadata import version
+
+    lego = shipped_scenario("lego")
+    runs = {T: replace(lego, **{"simulation.duration_s": T}) for T in (0.05, 0.1)}
+    r = round_robin(runs, rounds=2)
+    assert [len(r["cpu_s_per_sim_s"][T]) for T in runs] == [2, 2] and len(r["load_1min"]) == 2
+    assert all(c > 0.0 for T in runs for c in r["cpu_s_per_sim_s"][T])
+    assert r["drake"] == drake_version() == version("drake")
+    assert r["machine"].endswith(cpu_model()) and r["rounds"] == 2
+
+
+def test_the_scale_sentence_gives_the_median_of_each_rounds_ratio():
+    """Per round 1.0/0.5 = 2, 0.9/0.4 = 2.25, 0.6/0.45 = 1.33: the median is 2.00, not the
+    ratio of the medians (0.9/0.45 = 2); with the Drake, the machine and the load beside it."""
+    sve = load_script("analysis/speed_vs_error.py")
+    r = sve.with_ratios({"cpu_s_per_sim_s": {8: [0.5, 0.4, 0.45], 64: [1.0, 0.9, 0.6]}, "rounds": 3,
+                         "drake": "1.58.0", "machine": "2 cores (2 usable), AMD EPYC",
+                         "load_1min": [0.4, 1.6, 0.9]})  # fmt: skip
+    assert r["ratio_median"] == pytest.approx(2.0) and r["ratio_rounds"][1] == pytest.approx(2.25)
+    (line, _) = sve.interleaved_lines(r)
+    assert "interleaved in one process: 2.00×" in line and "rounds 1.33–2.25×" in line
+    assert "Drake 1.58.0; 2 cores (2 usable), AMD EPYC; load 0.4–1.6" in line
+
+
+def test_step_shares_splits_py_spys_samples_by_part(tmp_path):
+    """Four stacks inside the loop's AdvanceTo call (3 in SceneGraph's pose update, 4 in SAP, 1 in
+    the sleep check) and 2 in its metrics fold: C++ 7/8 = 87.5 %, Python 12.5 %, 2/8 = 25 % on
+    top; a stack outside the loop is not counted."""
+    import godobject_drake.simulation as simulation
+
+    ss = load_script("analysis/step_shares.py")
+    function, advance, fold = ss.loop_lines()
+    source = Path(simulation.__file__).read_text().splitlines()
+    assert "AdvanceTo(" in source[advance - 1] and "fold()" in source[fold - 1]
+    loop = "<module> (run.py:1);simulate (godobject_drake/simulation.py:1);" + function
+    loop += " (godobject_drake/simulation.py:{})"
+    raw = tmp_path / "raw.txt"
+    raw.write_text(
+        "\n".join([
+            loop.format(advance) + ";drake::geometry::SceneGraph<double>::CalcPoseUpdate (libdrake.so) 3",
+            loop.format(advance) + ";drake::multibody::internal::SapDriver<double>::Calc (libdrake.so) 4",
+            loop.format(advance) + ";SleepManager.check (godobject_drake/sleeping.py:250) 1",
+            loop.format(fold) + ";SceneMetrics.update (godobject_drake/metrics.py:10) 2",
+            "<module> (run.py:1);build_station (godobject_drake/station/build.py:9) 5",
+        ])
+    )  # fmt: skip
+    s = ss.shares(raw, (function, advance, fold))
+    assert s == {
+        "inside": {
+            "C++: SceneGraph pose update (every geometry)": 3,
+            "C++: SAP (contact problem and solve)": 4,
+            "Python: sleep check": 1,
+        },
+        "outside": 2,
+        "fold": 2,
+    }
+    head = ss.report(raw, s)[0]
+    assert "C++ 87.5 %, Python 12.5 %" in head and "25.0 % on top (the metrics fold 25.0 %)" in head
 
 
 def test_explicit_coupling_refuses_h_10_ms_with_the_limit():

@@ -392,6 +392,10 @@ class Sleep:
         two in a row; a body that stays under 2 mm/s for three is resting, or creeping.
     margin_m : float
         Added to every reach (m).
+    deactivate : bool
+        Also take a sleeping body out of the geometry query while no awake body can reach it,
+        where Drake has ``CollisionFilterManager.Deactivate`` (1.58 on); older Drake keeps it in
+        (the run's log says which). ``false``: locked only, as on older Drake.
     """
 
     enabled: bool = True
@@ -400,6 +404,7 @@ class Sleep:
     spin_rad_s: float = 0.05
     hold_s: float = 0.03
     margin_m: float = 0.005
+    deactivate: bool = True
 
     def check(self) -> None:
         """Raise ``ValueError`` naming a setting out of range."""

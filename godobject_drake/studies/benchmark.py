@@ -23,6 +23,7 @@ from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.scenario import Scenario, scenario_from_yaml, scenario_to_yaml, shipped_scenario
 from godobject_drake.metrics import FREE_SPACE_MARGIN_M, TrueShapeMetrics, _cm_positions
 from godobject_drake.simulation import simulate
+from godobject_drake.sleeping import drake_version
 from godobject_drake.spatial import quat_to_rotation
 from godobject_drake.station.build import build_station
 from godobject_drake.station.kinds import kind_for
@@ -149,6 +150,30 @@ def machine() -> str:
 
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return f"{os.cpu_count()} cores ({usable} usable), {cpu_model()}"
+
+
+def round_robin(scenarios: dict, rounds: int = 3) -> dict:
+    """Each scenario's simulation-loop CPU time per simulated second (``simulate``'s
+    ``cpu_time_s``), the scenarios run in turn in this process, ``rounds`` times over: the runs of
+    a round share its load, so their ratios hold on a shared machine where single costs do not.
+
+    Returns ``cpu_s_per_sim_s`` ({key: one value per round}), ``rounds``, ``drake`` (its
+    version), ``machine`` (:func:`machine`) and ``load_1min`` (the 1-minute load average at the
+    start of each round).
+    """
+    import os  # as machine() does
+
+    if rounds < 1:
+        raise ValueError(f"rounds={rounds}; give at least 1 (a ratio's spread needs 3)")
+    cpu: dict = {key: [] for key in scenarios}
+    loads = []
+    for _ in range(rounds):
+        loads.append(os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan)
+        for key, scenario in scenarios.items():
+            metrics = simulate(build_station(scenario), progress=False).metrics
+            cpu[key].append(metrics["cpu_time_s"] / max(metrics["sim_time_s"], 1e-12))
+    return {"cpu_s_per_sim_s": cpu, "rounds": rounds, "drake": drake_version(), "machine": machine(),
+            "load_1min": loads}  # fmt: skip
 
 
 def god_object_body(scenario: Scenario) -> str:
