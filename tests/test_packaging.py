@@ -96,3 +96,14 @@ def test_every_model_folder_is_a_listed_package():
         name.split(".", 1)[1] for name in SETUPTOOLS["packages"] if name.startswith("godobject_models.")
     }
     assert folders == listed
+
+
+def test_every_code_package_is_listed_and_every_listed_one_exists():
+    """setuptools ships the listed packages only, and stops the install (editable too) at a listed
+    one whose folder is gone: each folder of godobject_drake/ with an __init__.py is listed, and
+    nothing listed under godobject_drake is missing."""
+    root = REPO / "godobject_drake"
+    inits = [p for p in root.rglob("__init__.py") if "__pycache__" not in p.parts]
+    folders = {".".join(p.parent.relative_to(REPO).parts) for p in inits}
+    listed = {name for name in SETUPTOOLS["packages"] if name.startswith("godobject_drake")}
+    assert folders == listed, f"listed, no package: {listed - folders}; not listed: {folders - listed}"
