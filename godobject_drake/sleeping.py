@@ -50,6 +50,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import JointIndex
 
 from godobject_drake.config.scene import Sleep
+from godobject_drake.systems.page import page_of, swatch
 
 SLEEP_RGBA = (0.25, 0.45, 0.95, 0.9)
 
@@ -148,6 +149,9 @@ class SleepManager:
         self._index = np.array([b.index for b in self.bodies], int)
         self._pull = np.array([0.5 * self.held_accel.get(b.index, 0.0) for b in self.bodies])  # a/2
         if meshcat is not None:
+            if self.bodies:
+                why = "blue dot: a body asleep (at rest, out of the simulation until touched)"
+                page_of(meshcat).add("sleep", swatch(SLEEP_RGBA, "dot"), why)
             for b in self.bodies:
                 meshcat.SetObject(f"/godobject/sleep/{b.name}", Sphere(0.0025), _rgba(SLEEP_RGBA))
                 meshcat.SetProperty(f"/godobject/sleep/{b.name}", "visible", False)
