@@ -54,7 +54,8 @@ def build_station(
     views = scenario.per_tool()  # {"": scenario} for a scene of one tool
     kinds = {name: kind_for(view.god_object) for name, view in views.items()}
     devices = {
-        name: add_device(builder, view, meshcat, name=_named(name, "device")) for name, view in views.items()
+        name: add_device(builder, view, meshcat, name=_named(name, "device"), tool=name)
+        for name, view in views.items()
     }
     added = {name: {} for name in views}
 
