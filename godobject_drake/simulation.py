@@ -31,6 +31,7 @@ from godobject_drake.safeguards import DivergenceError, Safeguards, install_safe
 from godobject_drake.station.build import Station
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import save_recording
+from godobject_drake.systems.page import page_of
 
 
 @dataclasses.dataclass
@@ -207,6 +208,9 @@ class _Run:
                 frames_per_second=scenario.recording.frames_per_second,
                 set_visualizations_while_recording=live,
             )
+            page_of(meshcat).start_recording(
+                scenario.recording.max_duration_s, live=live
+            )  # the surfaces' frames
             self.recording_steps = round(scenario.recording.max_duration_s / h)
         self.simulator.Initialize()
         self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,

@@ -62,6 +62,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import JointIndex
 
 from godobject_drake.config.scene import Sleep
+from godobject_drake.systems.page import page_of, swatch
 
 SLEEP_RGBA = (0.25, 0.45, 0.95, 0.9)
 # Drake 1.58 added geometry (de)activation; 1.51 has neither method.
@@ -194,6 +195,9 @@ class SleepManager:
         else:
             logger.info("sleeping bodies: locked only, still in the geometry query (sleep.deactivate: false)")
         if meshcat is not None:
+            if self.bodies:
+                why = "blue dot: a body asleep (at rest, out of the simulation until touched)"
+                page_of(meshcat).add("sleep", swatch(SLEEP_RGBA, "dot"), why)
             for b in self.bodies:
                 meshcat.SetObject(f"/godobject/sleep/{b.name}", Sphere(0.0025), _rgba(SLEEP_RGBA))
                 meshcat.SetProperty(f"/godobject/sleep/{b.name}", "visible", False)

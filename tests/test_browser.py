@@ -224,50 +224,157 @@ def test_tether_keeps_the_ghost_at_the_wall(browser, tmp_path):
     assert red["mouse_untethered"] > red["mouse_tethered"] + 500, red
 
 
+def pink(image: np.ndarray) -> np.ndarray:
+    """The organ's pixels: TISSUE_RGBA (0.85, 0.45, 0.5) lit and shaded, red well above green and
+    blue, not the bricks' saturated red (green under 60) nor the grey tools (r ≈ g ≈ b)."""
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    return (r > 90) & (r > g + 35) & (g > 0.25 * r) & (b > 0.3 * r)
+
+
+SURFACE = "() => viewer.scene_tree.find(['uterus_tissue', 'surface', '<object>']).object"
+ONLY_THE_ORGAN = """() => { for (const n of [['drake'], ['godobject']]) {
+    viewer.set_property(n, 'visible', false); } viewer.set_dirty(); }"""
+BRICK_0_VISIBLE = (
+    "(v) => { viewer.set_property(['drake', 'visualizer', 'brick_0'], 'visible', v); viewer.set_dirty(); }"
+)
+SCREEN = """(points) => { const c = viewer.renderer.domElement, out = [];
+    for (const p of points) { const v = viewer.camera.position.clone().set(p[0], p[1], p[2]);
+        viewer.scene.localToWorld(v); v.project(viewer.camera);
+        out.push([(v.x + 1) / 2 * c.clientWidth, (1 - v.y) / 2 * c.clientHeight]); }
+    return out; }"""
+
+
+def surface_at(page, t: float):
+    """The organ surface's vertices as the page's script set them at recording time ``t`` (m, W)."""
+    page.evaluate("(t) => { viewer.animator.pause(); viewer.animator.seek(t); viewer.set_dirty(); }", t)
+    page.wait_for_function("() => window.godobjectSurfaces && window.godobjectSurfaces.ready", timeout=30_000)
+    time.sleep(0.5)
+    return np.array(
+        page.evaluate(f"() => Array.from(({SURFACE})().geometry.attributes.position.array)")
+    ).reshape(-1, 3)
+
+
 def test_fem_tissue_recording_shows_the_surface_pressed_where_the_tool_is(browser, tmp_path):
     """The laparoscopy scene with FEM tissue (organs.model fem, 6 cells a side), the interface
-    pushing straight down on the uterus's top (models/laparoscopy/deep_press_path.yaml). In the
-    recording the tissue's surface markers are where the viewer draws them: between the first
-    and the last frame the ones that moved most on screen are the ones around the organ's top,
-    where the tool presses (the screen point of (0, 0, 25 mm), projected by the page's own
-    camera), and far from it they barely moved (the whole organ sags under gravity, ~0.5 mm)."""
+    pushing straight down on the uterus's top (models/laparoscopy/deep_press_path.yaml). The
+    recording draws the organ as one triangle surface whose vertices its own script moves:
+    in the page, at the last frame, they are where the simulation had them (to the 10 µm of the
+    stored steps); the vertices that moved most on screen are around the organ's top, where the
+    tool presses (the screen point of (0, 0, 25 mm), projected by the page's own camera), and far
+    from it they barely moved (the whole organ sags under gravity, ~0.5 mm); with only the organ
+    shown, the pink pixels that changed between the first and the last frame lie around that point."""
     from godobject_drake.config import scenario as sc
     from godobject_drake.simulation import simulate
     from godobject_drake.station.build import build_station, make_meshcat
+    from godobject_drake.systems.page import page_of
 
     html = tmp_path / "tissue.html"
     s = sc.shipped_scenario("laparoscopy", "organs: {model: fem, cells: 6}\nsimulation: {duration_s: 0.9}")
     s = sc.replace(s, **{"device.path": str(REPO / "models/laparoscopy/deep_press_path.yaml"),
                          "recording.file": str(html)})  # fmt: skip
-    m = simulate(build_station(s, make_meshcat(s)), progress=False).metrics
+    station = build_station(s, make_meshcat(s))
+    m = simulate(station, progress=False).metrics
     assert m["tissue_max_displacement_m"] > 3e-3  # the run pressed it (millimetres)
+    stored = page_of(station.meshcat).surfaces["/uterus_tissue/surface"]
     page = browser.new_page(viewport=VIEW)
     page.goto(html.as_uri())
     page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
     end = page.evaluate("() => viewer.animator.duration")
-    project = """(p) => { const v = viewer.camera.position.clone().set(p[0], p[1], p[2]);
-        viewer.scene.localToWorld(v); v.project(viewer.camera); const c = viewer.renderer.domElement;
-        return [(v.x + 1) / 2 * c.clientWidth, (1 - v.y) / 2 * c.clientHeight]; }"""
-    markers = """() => { const node = viewer.scene_tree.find(["uterus_tissue"]); const out = [];
-        const c = viewer.renderer.domElement;
-        for (const name of Object.keys(node.children)) {
-            const v = viewer.camera.position.clone(); node.children[name].object.getWorldPosition(v);
-            v.project(viewer.camera);
-            out.push([(v.x + 1) / 2 * c.clientWidth, (1 - v.y) / 2 * c.clientHeight]); }
-        return out; }"""
-    screens, frames = [], []
+    assert end == pytest.approx(stored.times[-1], abs=0.02)
+    surfaces, frames = [], []
     for at in (0.0, end):
-        page.evaluate("(t) => { viewer.animator.pause(); viewer.animator.seek(t); viewer.set_dirty(); }", at)
-        time.sleep(0.5)
+        surfaces.append(surface_at(page, at))
         frames.append(shot(page, f"recording_tissue_at_{at:g}s"))
-        screens.append(np.array(page.evaluate(markers)))
+    simulated = stored.rest + stored.frames[-1]
+    assert np.abs(surfaces[1] - simulated).max() < 1e-5  # half a 10 µm step, and float32
+    assert np.abs(surfaces[1] - surfaces[0]).max() > 3e-3  # the page shows the press (mm)
     assert changed(*frames).mean() > 0.0005  # the picture changed
-    tool = np.array(page.evaluate(project, [0.0, 0.0, 0.025]))
-    moved = np.linalg.norm(screens[1] - screens[0], axis=1)  # px, per marker
+    tool = np.array(page.evaluate(SCREEN, [[0.0, 0.0, 0.025]])[0])
+    screens = [np.array(page.evaluate(SCREEN, surface.tolist())) for surface in surfaces]
+    moved = np.linalg.norm(screens[1] - screens[0], axis=1)  # px, per vertex
     near = np.linalg.norm(screens[0] - tool, axis=1) < 0.05 * VIEW["width"]  # within 64 px of the top
     assert near.any() and (~near).any()
-    # The markers that moved most are around the tool; those away from it moved far less.
-    top = np.argsort(moved)[-3:]
+    top = np.argsort(moved)[-3:]  # the vertices that moved most are around the tool ...
     assert near[top].all(), (moved[top], np.linalg.norm(screens[0][top] - tool, axis=1))
+    # ... and those away from it moved far less
     assert moved[near].max() > 3.0 * np.median(moved[~near]), (moved[near].max(), np.median(moved[~near]))
+    page.evaluate(ONLY_THE_ORGAN)
+    organ = []
+    for at in (0.0, end):
+        surface_at(page, at)
+        organ.append(pink(shot(page, f"recording_tissue_organ_at_{at:g}s")))
+    differ = organ[0] != organ[1]
+    rows, cols = np.nonzero(differ)
+    centre = np.array([cols.mean(), rows.mean()])
+    assert differ.sum() > 200, differ.sum()  # a dent a person can see: hundreds of pixels
+    assert np.linalg.norm(centre - tool) < 0.08 * VIEW["width"], (centre, tool)  # within ~100 px of the tool
+    page.close()
+
+
+def held_brick_pixels(page, t: float, name: str) -> int:
+    """How many pixels of brick_0 (the held brick) are seen at recording time ``t``: the view with
+    it, against the view with it hidden (paused, so nothing else moves)."""
+    page.evaluate("(t) => { viewer.animator.pause(); viewer.animator.seek(t); viewer.set_dirty(); }", t)
+    time.sleep(0.3)
+    shown = shot(page, name)
+    page.evaluate(BRICK_0_VISIBLE, False)
+    time.sleep(0.3)
+    hidden = shot(page, f"{name}_hidden")
+    page.evaluate(BRICK_0_VISIBLE, True)
+    return int(changed(shown, hidden).sum())
+
+
+def test_the_recording_explains_itself_and_keeps_the_held_brick_in_view(browser, tmp_path):
+    """The brick scene's recording: a legend in the page says what each mark means (the solid
+    tool, the ghost, the spring and its red, the device ball, the sleeping bricks' blue dots); no
+    grid (its far lines crossed the sky) and no axes (0.5 m lines through a scene of centimetres);
+    and the held brick is seen whole in the first frame and at the wall (1.8 s): with the camera
+    on the wall's other side (before) only its top showed over the wall, 339 pixels at 1.8 s (889
+    at the start); from the bricks' side (diagrams/lego.yaml's camera) 1818 (2693)."""
+    html = tmp_path / "lego.html"
+    run_scene("lego", "--duration", "2", "--record", str(html))
+    page = browser.new_page(viewport=VIEW)
+    page.goto(html.as_uri())
+    page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
+    legend = page.inner_text("#godobject-legend")
+    for words in ("solid: the simulated tool", "faint ghost", "coupling spring", "turning red", "small ball",
+                  "blue dot"):  # fmt: skip
+        assert words in legend, legend
+    grid, axes = page.evaluate(
+        "() => [['Grid'], ['Axes']].map((p) => viewer.scene_tree.find(p).object.visible)"
+    )
+    assert not grid and not axes
+    seen = {t: held_brick_pixels(page, t, f"recording_lego_held_{t:g}s") for t in (0.0, 1.8)}
+    assert min(seen.values()) > 600, seen  # a 32 x 16 mm brick at ~0.3 m: over a thousand pixels
+    page.close()
+
+
+@pytest.mark.slow(seconds=120)
+def test_bimanual_recording_shows_both_tools_and_the_organ_dented_and_lifted(browser, tmp_path):
+    """laparoscopy_bimanual's recording (7 s, FEM uterus): the legend names both tools; at 5 s
+    the left grasper has lifted the uterus's edge and the right one presses its top. With only
+    the organ shown, its pink area at 5 s differs from the first frame's by hundreds of pixels,
+    and the highest vertex the page draws is up by the lift (the docs' pictures:
+    GODOBJECT_SCREENSHOTS=docs)."""
+    html = tmp_path / "bimanual.html"
+    run_scene("laparoscopy_bimanual", "--duration", "5.2", "--record", str(html))
+    page = browser.new_page(viewport=VIEW)
+    page.goto(html.as_uri())
+    page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
+    legend = page.inner_text("#godobject-legend")
+    assert "tool left" in legend and "tool right" in legend and "FEM organ" in legend, legend
+    surfaces = {t: surface_at(page, t) for t in (0.0, 5.0)}
+    shot(page, "browser_bimanual_5s")
+    page.evaluate(ONLY_THE_ORGAN)
+    organ = {}
+    for t in (0.0, 5.0):
+        surface_at(page, t)
+        organ[t] = pink(shot(page, f"browser_bimanual_organ_{t:g}s"))
+    lift = surfaces[5.0][:, 2].max() - surfaces[0.0][:, 2].max()
+    rise = (surfaces[5.0] - surfaces[0.0])[:, 2]
+    assert rise.max() > 2e-3 and rise.min() < -1e-3, (
+        rise.max(),
+        rise.min(),
+    )  # lifted here, pressed there (mm)
+    assert int((organ[0.0] != organ[5.0]).sum()) > 300, lift
     page.close()

@@ -142,3 +142,52 @@ def test_a_joint_slider_value_past_its_range_is_held_to_it(meshcat):
 def test_live_workspace_must_contain_the_start(meshcat):
     with pytest.raises(ValueError, match=r"workspace .* must be a box containing the start point \[0\.5"):
         MeshcatDevice(meshcat, RigidTransform([0.5, 0, 0]), WORKSPACE)
+
+
+def test_two_live_tools_each_have_their_own_sliders_and_only_theirs_move_them():
+    """lego_two_hands with both hands on live sliders (each holding its brick from the start):
+    each tool's controls carry its name (left_x, right_x, ...; the keys on the first only), and
+    moving left_z up 2 cm lifts brick_2 (left's) by about that while brick_1 (right's) stays
+    within 0.1 mm; then right_z lifts brick_1 and brick_2 stays put."""
+    from godobject_drake.config import scenario as sc
+    from godobject_drake.station.build import build_station
+
+    live = (
+        "{{device: !MeshcatSliders {{grasp: {b}, start_xyz: [-0.06, {y}, 0.0048], rate_hz: 60.0}}, "
+        "workspace: {{lower_m: [-0.15, -0.10, 0.0], upper_m: [0.15, 0.10, 0.12]}}}}"
+    )
+    s = sc.shipped_scenario(
+        "lego_two_hands",
+        f"tools:\n  left: {live.format(b='brick_2', y=-0.05)}\n  right: {live.format(b='brick_1', y=0.05)}\n"
+        "sleep: {enabled: false}",
+    )
+    meshcat = start_meshcat(port=0)
+    station = build_station(s, meshcat)
+    names = meshcat.GetSliderNames()
+    for tool in ("left", "right"):
+        assert {f"{tool}_{a}" for a in ("roll", "pitch", "yaw", "x", "y", "z")} <= set(names), names
+    assert not {"x", "y", "z"} & set(names)  # no slider of the same name for two tools
+    assert station.tools["left"].source.keys and not station.tools["right"].source.keys
+    plant = station.plant
+    simulator = Simulator(station.diagram)
+    simulator.Initialize()
+    context = plant.GetMyContextFromRoot(simulator.get_context())
+
+    model = plant.GetModelInstanceByName
+    bricks = {b: plant.GetBodyByName("brick", model(b)) for b in ("brick_1", "brick_2")}
+
+    def heights():
+        return {b: plant.EvalBodyPoseInWorld(context, body).translation()[2] for b, body in bricks.items()}
+
+    simulator.AdvanceTo(0.3)
+    z0 = heights()
+    meshcat.SetSliderValue("left_z", 0.0048 + 0.02)
+    simulator.AdvanceTo(1.0)
+    z1 = heights()
+    assert z1["brick_2"] - z0["brick_2"] == pytest.approx(0.02, abs=0.002), (z0, z1)
+    assert abs(z1["brick_1"] - z0["brick_1"]) < 1e-4, (z0, z1)
+    meshcat.SetSliderValue("right_z", 0.0048 + 0.03)
+    simulator.AdvanceTo(1.7)
+    z2 = heights()
+    assert z2["brick_1"] - z1["brick_1"] == pytest.approx(0.03, abs=0.002), (z1, z2)
+    assert abs(z2["brick_2"] - z1["brick_2"]) < 1e-4, (z1, z2)

@@ -46,9 +46,10 @@ def device_factory(config_type: type):
 
 
 def make_device(
-    config, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf
+    config, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf, tool: str = ""
 ) -> DeviceSource | JointDevice:
-    """The system of a device config (not yet added to a builder), checked first."""
+    """The system of a device config (not yet added to a builder), checked first. ``tool``: the
+    tool it drives in a scene of several (a live device names its sliders and buttons by it)."""
     kind = dk.kind_of(config)
     factory = FACTORIES.get(type(config))
     if factory is None:
@@ -59,7 +60,8 @@ def make_device(
     config.check()
     if kind.live and meshcat is None:
         raise ValueError(f"device: !{type(config).__name__} needs the scene's Meshcat")
-    return factory(config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s)
+    scene = dict(seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s)
+    return factory(config, **scene, **({"tool": tool} if kind.live else {}))
 
 
 def _box(workspace):
@@ -85,11 +87,13 @@ def relative(config: dk.Relative, *, seed, meshcat, workspace, duration_s) -> Re
 
 
 @device_factory(dk.MeshcatSliders)
-def meshcat_sliders(config: dk.MeshcatSliders, *, seed, meshcat, workspace, duration_s) -> MeshcatDevice:
+def meshcat_sliders(
+    config: dk.MeshcatSliders, *, seed, meshcat, workspace, duration_s, tool=""
+) -> MeshcatDevice:
     if workspace is None:
         raise ValueError("device: !MeshcatSliders needs the scene's workspace (its sliders' range)")
     return MeshcatDevice(meshcat, config.start_pose(), _box(workspace), grasp=config.grasp or None,
-                         **config.sampling(), aids=config.aids())  # fmt: skip
+                         **config.sampling(), aids=config.aids(), tool=tool)  # fmt: skip
 
 
 @device_factory(dk.Lcm)
@@ -118,9 +122,9 @@ def replay_joints(config: dk.ReplayJoints, *, seed, meshcat, workspace, duration
 
 
 @device_factory(dk.MeshcatJointSliders)
-def meshcat_joint_sliders(config, *, seed, meshcat, workspace, duration_s) -> MeshcatJointDevice:
+def meshcat_joint_sliders(config, *, seed, meshcat, workspace, duration_s, tool="") -> MeshcatJointDevice:
     limits = [tuple(lim) for lim in config.limits]
-    return MeshcatJointDevice(meshcat, config.channels, limits, config.start, **config.sampling())
+    return MeshcatJointDevice(meshcat, config.channels, limits, config.start, **config.sampling(), tool=tool)
 
 
 @device_factory(dk.LcmJoints)

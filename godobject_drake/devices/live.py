@@ -15,6 +15,11 @@ of a scripted one with a human in it:
   one slider per channel, each with a key pair.
 
 Both add a **Stop** button (Escape) that ends the run.
+
+In a scene of several tools each live device names its controls by its tool (``tool``): the
+sliders ``left_x``, ``left_yaw``, ..., the button ``left: Grasp / release``, so each tool is
+driven on its own. The keys and the gamepad drive the first live device added to the page; the
+others are driven by their sliders and buttons (one key pressed must not move two tools).
 """
 
 from __future__ import annotations
@@ -48,6 +53,16 @@ def add_stop_button(meshcat: Meshcat) -> None:
         meshcat.AddButton(STOP_BUTTON, "Escape")
 
 
+def keys_are_free(meshcat: Meshcat) -> bool:
+    """No live device is on the page yet (each adds Stop): this one takes the keys and the gamepad."""
+    return STOP_BUTTON not in meshcat.GetButtonNames()
+
+
+def grasp_button(tool: str = "") -> str:
+    """The grasp button's name: ``Grasp / release``, ``left: Grasp / release`` for the tool left."""
+    return f"{tool}: {GRASP_BUTTON}" if tool else GRASP_BUTTON
+
+
 class MeshcatDevice(DeviceSource):
     """A pose device driven from the browser: sliders and keys, gamepad, grasp button.
 
@@ -71,6 +86,9 @@ class MeshcatDevice(DeviceSource):
         As for :class:`~godobject_drake.devices.sources.DeviceSource`.
     step_m : float
         Slider and key step (m); rotation steps are 0.05 rad.
+    tool : str
+        The tool it drives in a scene of several: its sliders are ``{tool}_roll``, ...,
+        ``{tool}_z`` and its button ``{tool}: Grasp / release`` (module docstring).
     """
 
     reports_increments = True
@@ -87,6 +105,7 @@ class MeshcatDevice(DeviceSource):
         step_m: float = 0.002,
         interpolation: str = "hold",
         aids: RelativeAids | None = None,
+        tool: str = "",
     ):
         lo, hi = (np.asarray(v, float).reshape(3) for v in workspace)
         p0 = X_WD0.translation()
@@ -97,13 +116,18 @@ class MeshcatDevice(DeviceSource):
             )
         self.meshcat = meshcat
         self._lo, self._hi = lo, hi
+        self.keys = keys_are_free(meshcat)
+        keys = {} if self.keys else {"decrement_keycodes": [""] * 6, "increment_keycodes": [""] * 6}
         self.sliders = MeshcatPoseSliders(
             meshcat,
             initial_pose=X_WD0,
             lower_limit=np.concatenate([[-math.pi] * 3, lo]),
             upper_limit=np.concatenate([[math.pi] * 3, hi]),
             step=np.array([0.05, 0.05, 0.05, step_m, step_m, step_m]),
+            prefix=tool,
+            **keys,
         )
+        self.grasp_button = grasp_button(tool)
         self._sliders_context = self.sliders.CreateDefaultContext()
         self._fixed_grasp = grasp
         self._grasping = False
@@ -113,7 +137,7 @@ class MeshcatDevice(DeviceSource):
         self._commanded = self._shown = None
         self.clamped = 0  # slider poses held back to the workspace
         if grasp is None:
-            meshcat.AddButton(GRASP_BUTTON, "Space")
+            meshcat.AddButton(self.grasp_button, "Space" if self.keys else "")
         add_stop_button(meshcat)
         super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard, aids=aids)
 
@@ -122,7 +146,7 @@ class MeshcatDevice(DeviceSource):
         q, p, _ = pose_arrays(X)
         if self._fixed_grasp is not None:
             return p, q, self._fixed_grasp
-        clicks = self.meshcat.GetButtonClicks(GRASP_BUTTON)
+        clicks = self.meshcat.GetButtonClicks(self.grasp_button)
         if clicks != self._clicks:
             self._grasping ^= (clicks - self._clicks) % 2 == 1
             self._clicks = clicks
@@ -140,7 +164,7 @@ class MeshcatDevice(DeviceSource):
         if self._commanded is None or self._shown is None or not sliders.IsNearlyEqualTo(self._shown, 1e-12):
             self._commanded = sliders  # the user moved a slider or pressed a key
         pad = self.meshcat.GetGamepad()
-        if pad.index is None or len(pad.axes) < 4:
+        if not self.keys or pad.index is None or len(pad.axes) < 4:
             return self._commanded
         axes = np.array(pad.axes[:4], float)
         axes[np.abs(axes) < GAMEPAD_DEADZONE] = 0.0
@@ -200,6 +224,9 @@ class MeshcatJointDevice(JointDevice):
         Default: Q/E, S/W, A/D, J/L, K/I, U/O for the first six channels.
     mix, period_s, latency_s :
         As for :class:`~godobject_drake.devices.sources.JointDevice`.
+    tool : str
+        The tool it drives in a scene of several: its sliders are ``{tool}_{channel}`` (else
+        ``device {channel}``), and only the first live device on the page has keys.
     """
 
     DEFAULT_KEYS = (("KeyQ", "KeyE"), ("KeyS", "KeyW"), ("KeyA", "KeyD"),
@@ -216,6 +243,7 @@ class MeshcatJointDevice(JointDevice):
         period_s: float = 1.0 / DEFAULT_DEVICE_RATE_HZ,
         latency_s: float = 0.0,
         steps: Sequence[float] | None = None,
+        tool: str = "",
     ):
         channels = tuple(channels)
         keys = keys or self.DEFAULT_KEYS
@@ -225,12 +253,14 @@ class MeshcatJointDevice(JointDevice):
                 f"({len(initial)}) and key pairs ({len(keys)})"
             )
         self.meshcat = meshcat
-        self._names = [f"device {c}" for c in channels]
+        self._names = [f"{tool}_{c}" if tool else f"device {c}" for c in channels]
+        self.keys = keys_are_free(meshcat)
         for i, (name, (lo, hi), x0) in enumerate(zip(self._names, limits, initial, strict=True)):
             if not lo <= x0 <= hi:
                 raise ValueError(f"channel {channels[i]} starts at {x0}, outside its range [{lo}, {hi}]")
             step = steps[i] if steps else (hi - lo) / 200.0
-            meshcat.AddSlider(name, lo, hi, step, x0, keys[i][0], keys[i][1])
+            down, up = keys[i] if self.keys else ("", "")
+            meshcat.AddSlider(name, lo, hi, step, x0, down, up)
         add_stop_button(meshcat)
         self._limits = np.array(limits, float).reshape(-1, 2)
         self.clamped = 0  # channel values held back to their range

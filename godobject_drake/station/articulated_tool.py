@@ -116,7 +116,7 @@ class ArticulatedGodObject(GodObject):
         ghost = builder.AddNamedSystem(
             "device_tool_ghost",
             ToolGhostVisualizer(meshcat, self.tool, scene.scene_graph, period,
-                                f"{drawing.prefix}/device_tool", rgb=drawing.ghost_rgb),
+                                f"{drawing.prefix}/device_tool", rgb=drawing.ghost_rgb, name=drawing.tool),
         )  # fmt: skip
         builder.Connect(self.source.GetOutputPort("q_device"), ghost.GetInputPort("q_device"))
 

@@ -17,7 +17,6 @@ import dataclasses
 import logging
 import warnings
 
-import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import Diagram, DiagramBuilder
@@ -37,6 +36,7 @@ from godobject_drake.systems.drawing import (
     add_meshcat_visualization,
     start_meshcat,
 )
+from godobject_drake.systems.page import set_view
 
 
 def build_station(
@@ -53,7 +53,8 @@ def build_station(
     views = scenario.per_tool()  # {"": scenario} for a scene of one tool
     kinds = {name: kind_for(view.god_object) for name, view in views.items()}
     devices = {
-        name: add_device(builder, view, meshcat, name=_named(name, "device")) for name, view in views.items()
+        name: add_device(builder, view, meshcat, name=_named(name, "device"), tool=name)
+        for name, view in views.items()
     }
     added = {name: {} for name in views}
 
@@ -192,7 +193,8 @@ def add_visualization(
     scenario: sc.Scenario,
 ) -> None:
     """Drake's MeshcatVisualizer, each tool kind's own drawing (in its own colour and Meshcat folder
-    in a scene of several), and the scenario's camera."""
+    in a scene of several, each adding its lines to the page's legend), the scenario's camera, and
+    no grid or axes (:func:`~godobject_drake.systems.page.set_view`)."""
     add_meshcat_visualization(builder, meshcat, scene.scene_graph, scenario.visualization.publish_period_s)
     views = scenario.per_tool() if set(tools) == set(scenario.per_tool()) else dict.fromkeys(tools, scenario)
     for k, (name, tool) in enumerate(tools.items()):
@@ -208,8 +210,7 @@ def add_visualization(
             observers[0].GetOutputPort("surface_positions"), drawing.GetInputPort("surface_positions")
         )
     camera = scenario.visualization.camera
-    if camera is not None:
-        meshcat.SetCameraPose(np.asarray(camera.position_m, float), np.asarray(camera.target_m, float))
+    set_view(meshcat, *((camera.position_m, camera.target_m) if camera is not None else ()))
 
 
 def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:

@@ -38,7 +38,7 @@ from godobject_drake.systems.implicit import ImplicitCoupling, ImplicitCouplingE
 
 
 def make_device(
-    config, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf
+    config, *, seed: int = 0, meshcat=None, workspace=None, duration_s: float = math.inf, tool: str = ""
 ) -> DeviceSource | JointDevice:
     """The device a scenario's ``device`` field describes (not yet added to a builder): its
     registered kind's factory (:func:`godobject_drake.devices.factory.make_device`), its errors
@@ -47,7 +47,8 @@ def make_device(
     ``seed`` seeds the pose devices' noise; a live device (``MeshcatSliders``,
     ``MeshcatJointSliders``) needs the ``meshcat`` whose page drives it, and a pose one the
     ``workspace`` its sliders span. ``duration_s``: the run's length, so a log is read only as far
-    as the run reaches (a log of any length costs what the run uses).
+    as the run reaches (a log of any length costs what the run uses). ``tool``: the tool it drives
+    in a scene of several (a live device's sliders and buttons are named by it).
     """
     kind_of(config)  # an unregistered config is refused, naming the known kinds
     try:
@@ -56,7 +57,7 @@ def make_device(
         raise sc.ScenarioError(f"device.{e}") from None
     try:
         return factory.make_device(
-            config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s
+            config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s, tool=tool
         )
     except ValueError as e:
         if str(e).startswith("device:"):  # what the kind needs from the scene (a Meshcat, a workspace)
@@ -64,11 +65,14 @@ def make_device(
         raise
 
 
-def add_device(builder: DiagramBuilder, scenario: sc.Scenario, meshcat=None, *, name: str = "device"):
-    """The scenario's device, added to ``builder`` as ``name`` (:func:`make_device`)."""
+def add_device(
+    builder: DiagramBuilder, scenario: sc.Scenario, meshcat=None, *, name: str = "device", tool: str = ""
+):
+    """The scenario's device, added to ``builder`` as ``name`` (:func:`make_device`); ``tool`` the
+    tool's name in a scene of several (a live device's controls carry it)."""
     device = make_device(
         scenario.device, seed=scenario.random_seed, meshcat=meshcat, workspace=scenario.workspace,
-        duration_s=scenario.simulation.duration_s,
+        duration_s=scenario.simulation.duration_s, tool=tool,
     )  # fmt: skip
     return builder.AddNamedSystem(name, device)
 

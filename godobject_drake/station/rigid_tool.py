@@ -104,7 +104,7 @@ class RigidGodObject(GodObject):
             GodObjectVisualizer(
                 meshcat, scene.plant, scene.scene_graph, period, drawing.prefix,
                 max_stretch_m=self.coupling.max_stretch_m if scenario.visualization.force_cue else None,
-                ghost_rgb=drawing.ghost_rgb, spring_rgb=drawing.spring_rgb,
+                ghost_rgb=drawing.ghost_rgb, spring_rgb=drawing.spring_rgb, tool=drawing.tool,
             ),
         )  # fmt: skip
         for name in ("pose_WT", "pose_WG", "held_body"):

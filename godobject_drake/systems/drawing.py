@@ -49,6 +49,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from godobject_drake.outputs import write_atomically
 from godobject_drake.spatial import pose_from_array
 from godobject_drake.systems.coupling import graspable_bodies
+from godobject_drake.systems.page import DeformingSurface, decorate, page_of, swatch
 
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
@@ -109,6 +110,37 @@ def cue_rgba(level: float, base) -> list[float]:
     return [b + level * (c - b) for b, c in zip(base, CUE_CAP_RGBA, strict=True)]
 
 
+SOLID_SWATCH = swatch((0.55, 0.55, 0.6, 1.0))
+
+
+def add_legend(meshcat: Meshcat, tool: str = "", *, ghost=None, spring=None, dot=None, wire=None,
+               cue: bool = False) -> None:  # fmt: skip
+    """The page's legend lines for a tool's drawing (:mod:`~godobject_drake.systems.page`): what
+    each mark means, once; in a scene of several tools a line per tool naming its colours."""
+    page = page_of(meshcat)
+    page.add(
+        "solid",
+        SOLID_SWATCH,
+        "solid: the simulated tool and what it holds (the god-object: contact stops it)",
+    )
+    if ghost is not None:
+        page.add("ghost", ghost, "faint ghost: where the device puts the held body (the target)")
+        page.add(
+            "spring",
+            spring,
+            "line: the coupling spring, from the body to its target; its stretch is the force",
+        )
+        page.add("dot", dot, "small ball: the device point, while nothing is held")
+    if wire is not None:
+        page.add("wire", wire, "wireframe: where the device puts the tool (the target)")
+    if cue:
+        page.add("cue", swatch(CUE_CAP_RGBA), "turning red: the pull nears the force cap (the device is "
+                 "where the tool cannot go)")  # fmt: skip
+    if tool:
+        marks = [m for m in (ghost, spring, wire) if m is not None]
+        page.add(f"tool {tool}", marks, f"tool {tool}")
+
+
 class GodObjectVisualizer(LeafSystem):
     """Draws the target ghost, the coupling spring and the device marker.
 
@@ -134,11 +166,14 @@ class GodObjectVisualizer(LeafSystem):
         max_stretch_m: float | None = None,
         ghost_rgb=GHOST_RGBA.rgba[:3],
         spring_rgb=SPRING_RGBA.rgba[:3],
+        tool: str = "",
     ):
         super().__init__()
         self._meshcat = meshcat
         self._prefix = prefix
         ghost = Rgba(*ghost_rgb, GHOST_RGBA.a())
+        add_legend(meshcat, tool, ghost=swatch(ghost, "ghost"), spring=swatch(spring_rgb, "line"),
+                   dot=swatch(ghost_rgb, "dot"), cue=max_stretch_m is not None)  # fmt: skip
         cue_ghost, cue_spring = (*ghost_rgb, CUE_GHOST_RGBA[3]), (*spring_rgb, CUE_SPRING_RGBA[3])
         # The force cue: None (off) or the stretch at the coupling's force cap (m).
         self._cue_stretch = max_stretch_m if max_stretch_m and np.isfinite(max_stretch_m) else None
@@ -279,10 +314,12 @@ class ToolGhostVisualizer(LeafSystem):
         publish_period_s: float = 1.0 / DEFAULT_FPS,
         prefix: str = "/godobject/device_tool",
         rgb=GHOST_RGBA.rgba[:3],
+        name: str = "",
     ):
         super().__init__()
         self._meshcat, self._tool, self._prefix = meshcat, tool, prefix
         wire = Rgba(*rgb, GHOST_RGBA.a())
+        add_legend(meshcat, name, wire=swatch(rgb, "wire"))
         self._q = self.DeclareVectorInputPort("q_device", tool.nq_device)
         self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish)
@@ -361,6 +398,9 @@ class ShellVisualizer(LeafSystem):
         meshcat.SetProperty(f"{pre}/core", "visible", False)
         V, F = wire_mesh(Sphere(spec.radius_m))
         meshcat.SetTriangleMesh(f"{pre}/device", V, F, GHOST_RGBA, wireframe=True)
+        page_of(meshcat).add("shell", swatch(SHELL_RGBA, "dot"),
+                             "red dots: the deformable tool's surface, as contact dents it")  # fmt: skip
+        add_legend(meshcat, "", wire=swatch(GHOST_RGBA, "wire"))
 
     def _publish(self, context):
         t = context.get_time()
@@ -381,29 +421,34 @@ class TissueVisualizer(LeafSystem):
         input_ports:
         - surface_positions
 
-    As :class:`ShellVisualizer`: recordings do not replay changing triangle meshes (Drake
-    issue #23206), so each surface vertex above the attachment is a small sphere moved every
-    frame, under ``/{organ name}_tissue/``.
+    The organ's surface is one triangle mesh at ``/{organ name}_tissue/surface``, drawn at rest
+    and then moved each frame as a
+    :class:`~godobject_drake.systems.page.DeformingSurface`: re-sent live, and replayed in a
+    recording by the script :func:`~godobject_drake.systems.drawing.save_recording` adds (Meshcat
+    recordings replay transforms and properties, not moving vertices: Drake issue #23206).
     """
 
     def __init__(self, meshcat: Meshcat, organ, publish_period_s: float = 1.0 / DEFAULT_FPS):
         super().__init__()
         self._meshcat, self._prefix = meshcat, f"/{organ.name}_tissue"
         self._surface = self.DeclareVectorInputPort("surface_positions", 3 * len(organ.surface))
-        rest = organ.rest_W[organ.surface]
-        cut = rest[:, 2].max() - organ.spec.attached_below_m
-        self._drawn = np.flatnonzero(rest[:, 2] > cut)  # the held part does not move
-        marker = 0.3 * float(np.ptp(organ.rest_W[:, 2])) / organ.spec.cells  # a third of a cell
-        for i in self._drawn:
-            meshcat.SetObject(f"{self._prefix}/{i}", Sphere(marker), TISSUE_RGBA)
+        # The surface's triangles index rest_W; the port carries the surface vertices in order.
+        index = np.full(len(organ.rest_W), -1)
+        index[organ.surface] = np.arange(len(organ.surface))
+        faces = index[organ.triangles]
+        if (faces < 0).any():
+            raise ValueError(f"{organ.name}: a surface triangle has a vertex that is not a surface vertex")
+        self.surface = DeformingSurface(
+            meshcat, f"{self._prefix}/surface", organ.rest_W[organ.surface], faces, TISSUE_RGBA
+        )
+        page_of(meshcat).add(
+            "tissue", swatch(TISSUE_RGBA), "pink surface: the FEM organ, dented and lifted by the tools"
+        )
         self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish)
 
     def _publish(self, context):
-        t = context.get_time()
-        p = self._surface.Eval(context).reshape(-1, 3)
-        for i in self._drawn:
-            self._meshcat.SetTransform(f"{self._prefix}/{i}", RigidTransform(p[i]), t)
+        self.surface.publish(context.get_time(), self._surface.Eval(context).reshape(-1, 3))
 
 
 TISSUE_RGBA = Rgba(0.85, 0.45, 0.5, 1.0)
@@ -447,8 +492,11 @@ def add_meshcat_visualization(
 
 
 def save_recording(meshcat: Meshcat, path: str | Path) -> int:
-    """Stop and publish the recording, write Meshcat's self-contained HTML; return its size (bytes)."""
+    """Stop and publish the recording, write Meshcat's self-contained HTML with the page's legend
+    and its deforming surfaces (:func:`~godobject_drake.systems.page.decorate`); return its size
+    (bytes)."""
     meshcat.StopRecording()
     meshcat.PublishRecording()
-
-    return write_atomically(path, meshcat.StaticHtml())  # all at once: never half a page
+    page = page_of(meshcat)
+    page.recording = False
+    return write_atomically(path, decorate(meshcat.StaticHtml(), page))  # all at once: never half a page
