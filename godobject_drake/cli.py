@@ -27,7 +27,7 @@ from godobject_drake.config.flags import Flag, on_off
 from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
 from godobject_drake.metrics import format_table, write_metrics
-from godobject_drake.outputs import OutputError
+from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted, simulate
 from godobject_drake.station.build import build_station, make_meshcat
@@ -416,18 +416,16 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True):
     ``metrics.checkpoint_period_s`` of wall time, marked ``partial``, so a killed run leaves its
     last ones."""
 
-    for field, output in (
-        ("metrics.file", scenario.metrics.file),
-        ("recording.file", scenario.recording.file),
-    ):
-        if output and not Path(output).resolve().parent.is_dir():
-            raise sc.ScenarioError(
-                f"{field}: {output}: the folder {Path(output).resolve().parent} does not exist; create it "
-                "or write elsewhere"
-            )
+    for field, output in outputs(scenario):
+        check_output(output, field)  # a folder, a missing folder: refused now, not after the run
     meshcat = make_meshcat(scenario)
     station = build_station(scenario, meshcat)
     path = scenario.metrics.file
+    if path and is_stream(path):  # a pipe or a device gets the final metrics once, no checkpoints
+        logger.info(
+            "metrics.file %s is not a regular file: no checkpoints, the metrics once at the end", path
+        )
+        path = None
     failed = []
 
     def checkpoint(metrics):
@@ -442,6 +440,20 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True):
         station, progress=progress, keep_logs=False, checkpoint=checkpoint if path else None,
         checkpoint_period_s=scenario.metrics.checkpoint_period_s,
     )  # fmt: skip
+
+
+def outputs(scenario: sc.Scenario) -> list[tuple[str, str]]:
+    """The run's output files, ``(field, path)``: the metrics and the recording, those given."""
+    given = (("metrics.file", scenario.metrics.file), ("recording.file", scenario.recording.file))
+    return [(field, path) for field, path in given if path]
+
+
+def claim_outputs(scenario: sc.Scenario, locks: OutputLock) -> None:
+    """Check the run's output files (:func:`~godobject_drake.outputs.check_output`) and lock each
+    for the run: another run writing one of them is refused now, before this one starts."""
+    for field, path in outputs(scenario):
+        check_output(path, field)
+        locks.acquire(path, field)
 
 
 def report(results: list[dict], metrics_path: str | Path | None) -> bool:
@@ -554,7 +566,13 @@ def scene_main(scenario: str | Path, argv=None, *, prog: str, description: str |
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    """``run``: build, simulate, print the metrics table, write what was asked."""
+    """``run``: build, simulate, print the metrics table, write what was asked; the output files
+    locked from before the build to after the last write (:class:`~godobject_drake.outputs.OutputLock`)."""
+    with OutputLock() as locks:
+        return _run_locked(args, parser, locks)
+
+
+def _run_locked(args: argparse.Namespace, parser: argparse.ArgumentParser, locks: OutputLock) -> int:
     path = args.scenario
     interrupted = None
     previous = (
@@ -566,6 +584,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
             s = apply_arguments(load_with_sets(path, args.set_fields), args)
+            claim_outputs(s, locks)
             result = run_scenario(s, progress=not args.no_progress)
     except USER_ERRORS as e:
         refuse_input(parser, e)
@@ -581,6 +600,8 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     written = report([metrics], s.metrics.file or None)
     if s.recording.file and "recording_error" not in metrics:
         logger.info("recording written to %s", s.recording.file)
+    elif "recording_error" in metrics:  # on stderr too, not only a row of the table
+        logger.error("recording not written: %s", metrics["recording_error"])
     if interrupted is not None:
         by = "SIGTERM" if isinstance(interrupted, Terminated) else "Ctrl-C"
         logger.warning(
