@@ -95,7 +95,7 @@ COMMON_FLAGS = (
     Flag("--device-log", "device.log",
          "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
          "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)", type=Path,
-         value=lambda given, s: str(given.resolve())),
+         value=lambda given, s: str(sc.absolute(given))),
     Flag("--device-rate", "device.rate_hz", "device rate (Hz)", type=float),
     Flag("--device-latency", "device.latency_s", "device latency (s)", type=float),
     Flag("--device-interpolation", "device.interpolation",
@@ -242,7 +242,7 @@ def _sets_from_here(items: list[str]) -> list[str]:
         v = value.strip()
         field = re.sub(r"^tools\.[^.]+\.", "", key.strip())  # a tool's own: tools.NAME.device.path
         if eq and field in _PATH_KEYS and v and "://" not in v and not Path(v).is_absolute():
-            item = f"{key.strip()}={Path(v).resolve()}"
+            item = f"{key.strip()}={sc.absolute(v)}"
         out.append(item)
     return out
 
@@ -378,7 +378,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
     cls = kinds[name]
     if isinstance(old, cls):
         if log is not None:
-            old.log = str(log.resolve())
+            old.log = str(sc.absolute(log))
         return old
     if DEVICE_KINDS[cls].needs_log and log is None:
         raise sc.ScenarioError(
@@ -389,7 +389,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
         common.pop(field, None)
     new = cls(**common)
     if hasattr(new, "log"):
-        new.log = str(log.resolve())
+        new.log = str(sc.absolute(log))
     if hasattr(new, "start_xyz"):
         X0 = old.start_pose()
         new.start_xyz = X0.translation().tolist()
