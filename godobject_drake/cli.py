@@ -129,6 +129,10 @@ COMMON_FLAGS = (
     Flag("--meshcat-host", "visualization.host",
          "the interface Meshcat listens on; default localhost (this machine only). Another host lets "
          "anyone who reaches it drive the device: it is announced loudly; prefer an SSH tunnel"),
+    Flag("--trust-local-pages", "visualization.trust_local_pages",
+         "serve the live page with a haptic device (--haptic impedance|admittance, --device lcm) although "
+         "any web page open on this machine can drive it (Drake's Meshcat checks no Origin): refused "
+         "without this", action="store_true"),
     Flag("--force-cue", "visualization.force_cue",
          "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
          choices=("on", "off"), value=on_off),
@@ -164,7 +168,8 @@ def all_flags() -> tuple[Flag, ...]:
 # Flags of a run that ``analyze`` has no use for: it writes no recording or metrics file, serves
 # no page, and stands a scripted device in for the scenario's (studies.analyze.analysis_scenario).
 RUN_ONLY_FLAGS = frozenset({
-    "--record", "--meshcat", "--meshcat-host", "--force-cue", "--metrics", "--no-progress", "--device",
+    "--record", "--meshcat", "--meshcat-host", "--trust-local-pages", "--force-cue", "--metrics",
+    "--no-progress", "--device",
     "--device-log", "--lcm-url", "--device-interpolation", "--max-device-speed", "--device-noise", "--seed",
     "--tether", "--tether-angle", "--cd-ratio", "--cd-onset",
 })  # fmt: skip
