@@ -27,7 +27,7 @@ from godobject_drake.config.flags import Flag, on_off
 from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
 from godobject_drake.metrics import format_table, write_metrics
-from godobject_drake.outputs import OutputError
+from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted, simulate
 from godobject_drake.station.build import build_station, make_meshcat
@@ -95,7 +95,7 @@ COMMON_FLAGS = (
     Flag("--device-log", "device.log",
          "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
          "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)", type=Path,
-         value=lambda given, s: str(given.resolve())),
+         value=lambda given, s: str(sc.absolute(given))),
     Flag("--device-rate", "device.rate_hz", "device rate (Hz)", type=float),
     Flag("--device-latency", "device.latency_s", "device latency (s)", type=float),
     Flag("--device-interpolation", "device.interpolation",
@@ -129,6 +129,10 @@ COMMON_FLAGS = (
     Flag("--meshcat-host", "visualization.host",
          "the interface Meshcat listens on; default localhost (this machine only). Another host lets "
          "anyone who reaches it drive the device: it is announced loudly; prefer an SSH tunnel"),
+    Flag("--trust-local-pages", "visualization.trust_local_pages",
+         "serve the live page with a haptic device (--haptic impedance|admittance, --device lcm) although "
+         "any web page open on this machine can drive it (Drake's Meshcat checks no Origin): refused "
+         "without this", action="store_true"),
     Flag("--force-cue", "visualization.force_cue",
          "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
          choices=("on", "off"), value=on_off),
@@ -164,7 +168,8 @@ def all_flags() -> tuple[Flag, ...]:
 # Flags of a run that ``analyze`` has no use for: it writes no recording or metrics file, serves
 # no page, and stands a scripted device in for the scenario's (studies.analyze.analysis_scenario).
 RUN_ONLY_FLAGS = frozenset({
-    "--record", "--meshcat", "--meshcat-host", "--force-cue", "--metrics", "--no-progress", "--device",
+    "--record", "--meshcat", "--meshcat-host", "--trust-local-pages", "--force-cue", "--metrics",
+    "--no-progress", "--device",
     "--device-log", "--lcm-url", "--device-interpolation", "--max-device-speed", "--device-noise", "--seed",
     "--tether", "--tether-angle", "--cd-ratio", "--cd-onset",
 })  # fmt: skip
@@ -242,7 +247,7 @@ def _sets_from_here(items: list[str]) -> list[str]:
         v = value.strip()
         field = re.sub(r"^tools\.[^.]+\.", "", key.strip())  # a tool's own: tools.NAME.device.path
         if eq and field in _PATH_KEYS and v and "://" not in v and not Path(v).is_absolute():
-            item = f"{key.strip()}={Path(v).resolve()}"
+            item = f"{key.strip()}={sc.absolute(v)}"
         out.append(item)
     return out
 
@@ -378,7 +383,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
     cls = kinds[name]
     if isinstance(old, cls):
         if log is not None:
-            old.log = str(log.resolve())
+            old.log = str(sc.absolute(log))
         return old
     if DEVICE_KINDS[cls].needs_log and log is None:
         raise sc.ScenarioError(
@@ -389,7 +394,7 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
         common.pop(field, None)
     new = cls(**common)
     if hasattr(new, "log"):
-        new.log = str(log.resolve())
+        new.log = str(sc.absolute(log))
     if hasattr(new, "start_xyz"):
         X0 = old.start_pose()
         new.start_xyz = X0.translation().tolist()
@@ -416,18 +421,16 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True):
     ``metrics.checkpoint_period_s`` of wall time, marked ``partial``, so a killed run leaves its
     last ones."""
 
-    for field, output in (
-        ("metrics.file", scenario.metrics.file),
-        ("recording.file", scenario.recording.file),
-    ):
-        if output and not Path(output).resolve().parent.is_dir():
-            raise sc.ScenarioError(
-                f"{field}: {output}: the folder {Path(output).resolve().parent} does not exist; create it "
-                "or write elsewhere"
-            )
+    for field, output in outputs(scenario):
+        check_output(output, field)  # a folder, a missing folder: refused now, not after the run
     meshcat = make_meshcat(scenario)
     station = build_station(scenario, meshcat)
     path = scenario.metrics.file
+    if path and is_stream(path):  # a pipe or a device gets the final metrics once, no checkpoints
+        logger.info(
+            "metrics.file %s is not a regular file: no checkpoints, the metrics once at the end", path
+        )
+        path = None
     failed = []
 
     def checkpoint(metrics):
@@ -442,6 +445,20 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True):
         station, progress=progress, keep_logs=False, checkpoint=checkpoint if path else None,
         checkpoint_period_s=scenario.metrics.checkpoint_period_s,
     )  # fmt: skip
+
+
+def outputs(scenario: sc.Scenario) -> list[tuple[str, str]]:
+    """The run's output files, ``(field, path)``: the metrics and the recording, those given."""
+    given = (("metrics.file", scenario.metrics.file), ("recording.file", scenario.recording.file))
+    return [(field, path) for field, path in given if path]
+
+
+def claim_outputs(scenario: sc.Scenario, locks: OutputLock) -> None:
+    """Check the run's output files (:func:`~godobject_drake.outputs.check_output`) and lock each
+    for the run: another run writing one of them is refused now, before this one starts."""
+    for field, path in outputs(scenario):
+        check_output(path, field)
+        locks.acquire(path, field)
 
 
 def report(results: list[dict], metrics_path: str | Path | None) -> bool:
@@ -554,7 +571,13 @@ def scene_main(scenario: str | Path, argv=None, *, prog: str, description: str |
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    """``run``: build, simulate, print the metrics table, write what was asked."""
+    """``run``: build, simulate, print the metrics table, write what was asked; the output files
+    locked from before the build to after the last write (:class:`~godobject_drake.outputs.OutputLock`)."""
+    with OutputLock() as locks:
+        return _run_locked(args, parser, locks)
+
+
+def _run_locked(args: argparse.Namespace, parser: argparse.ArgumentParser, locks: OutputLock) -> int:
     path = args.scenario
     interrupted = None
     previous = (
@@ -566,6 +589,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
             s = apply_arguments(load_with_sets(path, args.set_fields), args)
+            claim_outputs(s, locks)
             result = run_scenario(s, progress=not args.no_progress)
     except USER_ERRORS as e:
         refuse_input(parser, e)
@@ -581,6 +605,8 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     written = report([metrics], s.metrics.file or None)
     if s.recording.file and "recording_error" not in metrics:
         logger.info("recording written to %s", s.recording.file)
+    elif "recording_error" in metrics:  # on stderr too, not only a row of the table
+        logger.error("recording not written: %s", metrics["recording_error"])
     if interrupted is not None:
         by = "SIGTERM" if isinstance(interrupted, Terminated) else "Ctrl-C"
         logger.warning(

@@ -236,8 +236,11 @@ class _Run:
         chunks = self.logs.drain()
         if self.measured is not None and self.metrics_error is None:
             try:
-                for name, chunk in chunks.items():
-                    self.measured[name].update(chunk)
+                # A diverged state's huge numbers overflow: what they give is non-finite, and the
+                # metrics say so (non_finite), the diagnosis why; numpy's own warning said nothing more.
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    for name, chunk in chunks.items():
+                        self.measured[name].update(chunk)
             except Exception as e:  # reported, never lost: the common metrics and the logs stand
                 self.metrics_error = f"{type(e).__name__}: {e}"
 
@@ -358,10 +361,70 @@ class _Run:
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
         metrics.update(self.tool_metrics(with_devices=True))
+        metrics.update(penetration_verdict(metrics, self.scenario))
         result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
         return result
+
+
+def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
+    """The run's deepest penetration against its budget (``metrics.penetration_budget_m``): the keys
+    ``penetration_budget_m`` and ``over_penetration_budget``, and a
+    :class:`~godobject_drake.station.rigid_tool.PenetrationBudgetWarning` past it naming what is near
+    its limit, whatever got it there (the build's warning only covers the capped pull's static
+    depth: a coupling ringing near its explicit limit goes deeper with no warning at build). A run
+    that measures no penetration (None) gives nothing."""
+    depth, budget = metrics.get("max_penetration_m"), scenario.metrics.penetration_budget_m
+    if depth is None or not math.isfinite(depth):
+        return {}
+    out = {"penetration_budget_m": budget, "over_penetration_budget": bool(depth > budget)}
+    if depth > budget:
+        from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
+
+        predicted = metrics.get("predicted_static_penetration_m")
+        near = _what_is_near_its_limit(scenario)
+        said = (
+            f" (the capped pull's static depth predicted at build: {predicted * 1e3:.3g} mm)"
+            if predicted
+            else ""
+        )
+        warnings.warn(
+            f"the run went {depth * 1e3:.3g} mm into an obstacle, past its budget "
+            f"metrics.penetration_budget_m = {budget * 1e3:.3g} mm{said}. {near}",
+            PenetrationBudgetWarning,
+            stacklevel=3,
+        )
+    return out
+
+
+def _what_is_near_its_limit(scenario: Scenario) -> str:
+    """Each tool's coupling bandwidths as a share of their explicit limit at the run's step: a gain
+    near 100 % rings, and its overshoot is what drives the god-object deeper."""
+    from godobject_drake.limits import explicit_limit_omega_h
+
+    h, parts = scenario.time_step, []
+    for name, view in scenario.per_tool().items():
+        gains = getattr(view.god_object, "gains", None)
+        if not all(hasattr(gains, a) for a in ("omega_n", "omega_r", "zeta", "zeta_r")):
+            continue
+        for label, w, z in (
+            ("omega_n", gains.omega_n, gains.zeta),
+            ("omega_n_rot", gains.omega_r, gains.zeta_r),
+        ):
+            share = w * h / explicit_limit_omega_h(z)
+            parts.append(
+                (share, f"{name + ': ' if name else ''}{label} {w:g} rad/s is at {100 * share:.4g} %")
+            )
+    if not parts:
+        return "Lower the time step or the coupling's gains, or stiffen the contact"
+    parts.sort(reverse=True)
+    worst = parts[0][0]
+    ringing = " (near 100 % the coupling rings and overshoots into what it meets)" if worst > 0.8 else ""
+    return (
+        f"At time_step {h:g} s, {'; '.join(p for _, p in parts)} of its explicit stability limit{ringing}. "
+        "Lower the time step or that gain, or raise the budget if the depth is acceptable"
+    )
 
 
 FALL_WATCH_S = 1.0  # a free body that drops this early on its own was left unsupported

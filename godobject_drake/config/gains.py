@@ -64,12 +64,14 @@ class CouplingGains:
         return mass * self.omega_n**2, 2.0 * self.zeta * mass * self.omega_n
 
     def check(self, time_step: float) -> None:
-        """Raise :class:`CouplingGainError` past the explicit stability limit.
+        """Raise :class:`CouplingGainError` past the explicit stability limit, naming every gain
+        past it (the translation's and the rotation's) and the step that would take them all.
 
         Also warns (:class:`CouplingGainWarning`) when a damping ratio is
         outside the paper's ``[0.7, 1]``. ``time_step = 0`` (continuous plant)
         skips the step-size check.
         """
+        past = []
         for label, w, z in (
             ("omega_n", self.omega_n, self.zeta),
             ("omega_n_rot", self.omega_r, self.zeta_r),
@@ -87,16 +89,24 @@ class CouplingGains:
                     CouplingGainWarning,
                     stacklevel=3,
                 )
-            if time_step > 0.0:
+            follows = label == "omega_n_rot" and self.omega_n_rot is None and z == self.zeta
+            if time_step > 0.0 and not follows:  # a rotation that follows omega_n is fixed with it
                 limit = explicit_limit_omega_h(z)
                 if w * time_step >= limit:
-                    raise CouplingGainError(
-                        f"{label}={w:g} rad/s at time_step={time_step:g} s gives "
-                        f"ωn·h={w * time_step:.4g}, past the explicit (symplectic Euler) "
-                        f"stability limit 2(√(1+ζ²)−ζ)={limit:.4g} for ζ={z:g}. Use "
-                        f"{label} < {limit / time_step:.4g} rad/s or time_step < "
-                        f"{limit / w:.4g} s."
-                    )
+                    past.append((label, w, z, limit))
+        if not past:
+            return
+        said = []
+        for i, (label, w, z, limit) in enumerate(past):
+            at = f" at time_step={time_step:g} s" if i == 0 else ""
+            said.append(
+                f"{label}={w:g} rad/s{at} gives ωn·h={w * time_step:.4g}, past the explicit (symplectic "
+                f"Euler) stability limit 2(√(1+ζ²)−ζ)={limit:.4g} for ζ={z:g}"
+            )
+        gains = " and ".join(f"{label} < {limit / time_step:.4g} rad/s" for label, _, _, limit in past)
+        h_max = min(limit / w for _, w, _, limit in past)
+        sep = ", or" if len(past) > 1 else " or"
+        raise CouplingGainError(f"{'; '.join(said)}. Use {gains}{sep} time_step < {h_max:.4g} s.")
 
 
 DEFAULT_MAX_STRETCH_M = 0.2

@@ -24,6 +24,7 @@ import copy
 import dataclasses
 import importlib.resources
 import math
+import os
 import re
 import types
 import typing
@@ -56,6 +57,7 @@ from godobject_drake.config.devices import (  # noqa: F401
     on_register,
 )
 from godobject_drake.config.gains import CouplingGains, FeedbackGains  # noqa: F401
+from godobject_drake.config.inputs import InputFileError, check_input_file, check_inputs
 from godobject_drake.config.scene import (  # noqa: F401
     CONTACT_GEOMETRIES,
     HAPTIC_MODES,
@@ -266,6 +268,10 @@ def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenari
     Raises :class:`ScenarioError` naming the file (and the key) on any problem.
     """
     path = Path(filename)
+    try:
+        check_input_file(path, "scenario file")  # a FIFO, a loop, a huge file: before reading it
+    except InputFileError as e:
+        raise ScenarioError(str(e)) from None
     if not path.is_file():
         raise ScenarioError(f"scenario file {path} does not exist")
     where = str(path)
@@ -398,13 +404,22 @@ _AnyTagLoader.add_multi_constructor(
 PACKAGE_URL = "package://godobject_models/"
 
 
+def absolute(path: str | Path) -> Path:
+    """``path`` made absolute, its links resolved where they can be: a symlink loop is kept as it is
+    written (``Path.resolve`` raised ``RuntimeError``), for :func:`check_inputs` to name it."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError):
+        return Path(os.path.abspath(path))
+
+
 def _resolve(value: str, base: Path) -> str:
     """A path relative to ``base`` made absolute; ``package://godobject_models/`` to the models."""
     if value.startswith(PACKAGE_URL):
         return str(MODELS_DIR / value[len(PACKAGE_URL) :])
     if not value or "://" in value or Path(value).is_absolute():
         return value
-    return str((base / value).resolve())
+    return str(absolute(base / value))
 
 
 def _resolve_url(value: str, base: Path) -> str:
@@ -473,6 +488,10 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
             default = getattr(MultibodyPlantConfig(), field)
             _fail(where, f"plant.{field}", f"{value!r} must be a finite number {'>' if strict else '≥'} 0 "
                   f"(Drake's default: {default:g})")  # fmt: skip
+    try:  # every file Drake or a device will read: a FIFO, a device, a loop, a huge file (config.inputs)
+        check_inputs(s, MODELS_DIR, where)
+    except InputFileError as e:
+        raise ScenarioError(str(e)) from None
     for part in SCENE_PARTS:
         try:
             getattr(s, part).check()

@@ -210,6 +210,13 @@ class Visualization:
     force_cue : bool
         Rigid god-objects: the target ghost and the spring turn from faint to solid red as the
         coupling's stretch reaches its force cap (pseudo-haptics for a non-haptic device).
+    trust_local_pages : bool
+        The opt-in to serve the live page with a haptic device (``haptic.mode`` impedance or
+        admittance, or a device that renders the feedback: ``!Lcm``). Drake's Meshcat checks
+        no websocket Origin and takes no secret, so any web page open on this machine (a
+        ``file://`` page, a page from another local port) can read the scene, move the
+        sliders, grasp and stop the run, and so command the forces on a hand; without this the
+        run is refused (``--trust-local-pages``; docs/guide/live.md).
     """
 
     serve: bool = False
@@ -218,6 +225,7 @@ class Visualization:
     publish_period_s: float = 1.0 / 64.0
     camera: Camera | None = None
     force_cue: bool = True
+    trust_local_pages: bool = False
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""

@@ -213,6 +213,46 @@ def add_visualization(
     set_view(meshcat, *((camera.position_m, camera.target_m) if camera is not None else ()))
 
 
+logger = logging.getLogger("godobject_drake")
+
+# Drake's Meshcat (a C++ uWebSockets server: ``.ws("/*", ...)`` with no upgrade handler) accepts a
+# websocket from any Origin on any path, and MeshcatParams has no secret: nothing in front of it
+# can be added from here. What that lets a page do is said before the page is served.
+LOCAL_PAGES_WARNING = (
+    "WARNING: the live page takes commands from ANY web page open on this machine, not only its own "
+    "tab: Drake's Meshcat checks no Origin and no secret, so a page from a file or from another local "
+    "site can read the scene, stop the run and, with a browser device, move its sliders, grasp and "
+    "release. Open no page you do not trust while it runs (docs/guide/live.md)."
+)
+
+
+def haptic_tools(scenario: sc.Scenario) -> list[str]:
+    """The tools whose feedback reaches a hand: a simulated haptic device (``haptic.mode``) or a
+    device that renders the feedback (``!Lcm``), each as ``what (field)``."""
+    found = []
+    for name, view in scenario.per_tool().items():
+        at = f"tools.{name}." if name else ""
+        if view.haptic.mode != "none":
+            found.append(f"--haptic {view.haptic.mode} ({at}haptic.mode)")
+        if kind_of(view.device).renders_feedback:
+            found.append(f"!{type(view.device).__name__} renders the feedback ({at}device)")
+    return found
+
+
+def check_page_with_haptics(scenario: sc.Scenario) -> None:
+    """Refuse to serve the live page with a haptic device unless ``visualization.trust_local_pages``
+    (``--trust-local-pages``) says so: any page on the machine could drive the forces on a hand."""
+    haptics = haptic_tools(scenario)
+    if haptics and not scenario.visualization.trust_local_pages:
+        raise sc.ScenarioError(
+            f"visualization: a live page with a haptic device ({'; '.join(haptics)}): any web page open on "
+            "this machine can connect to the page's websocket (Drake's Meshcat checks no Origin and no "
+            "secret) and move the device, grasp and stop the run, and so command the forces on the hand "
+            "holding the device. Run without the page (no --meshcat, a non-browser device), or opt in with "
+            "--trust-local-pages (visualization.trust_local_pages: true)"
+        )
+
+
 def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     """The scenario's Meshcat, on ``visualization.host`` (this machine only, by default): at
     ``visualization.port`` when it is live (``visualization.serve`` or a browser device), on
@@ -220,6 +260,8 @@ def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     (:func:`~godobject_drake.systems.drawing.start_meshcat`)."""
     vis = scenario.visualization
     if vis.serve or any(kind_of(view.device).live for view in scenario.per_tool().values()):
+        check_page_with_haptics(scenario)
+        logger.warning(LOCAL_PAGES_WARNING)  # before Drake's "Meshcat listening": the run's first line
         return start_meshcat(vis.host, vis.port)
     if not scenario.recording.file:
         return None

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import control as ct
 import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import Role
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.tree import BodyIndex
@@ -123,6 +124,14 @@ def _quiet_build(scenario: sc.Scenario):
         warnings.simplefilter("ignore", PenetrationBudgetWarning)
         warnings.simplefilter("ignore", CouplingGainWarning)
         return build_station(scenario, meshcat=None, check_gains=False)
+
+
+def _probe(station):
+    """One of the analysis's own runs in Drake: they push into obstacles and past the limits on
+    purpose, so the run-end :class:`PenetrationBudgetWarning` (meant for the user's run) is not said."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PenetrationBudgetWarning)
+        return simulate(station, progress=False)
 
 
 def analysis_scenario(scenario: sc.Scenario) -> sc.Scenario:
@@ -477,7 +486,7 @@ def _verify_tissue(station, scenario, out: dict) -> list[Check]:
     s.device = sc.ScriptedJoints(channels=list(device.channels), mix=device.mix, limits=device.limits,
                                  rate_hz=device.rate_hz, waypoints=path)  # fmt: skip
     s.simulation.duration_s = t
-    result = simulate(_quiet_build(s), progress=False)
+    result = _probe(_quiet_build(s))
     h = station.plant.time_step()
     rows_out, checks = [], []
     for push, u_pred, t_hold in zip(pushes, displacements, holds, strict=True):
@@ -801,7 +810,7 @@ def _verify_penetration(station, scenario, out: dict) -> Check | None:
     s = _hold_scenario(_without_haptics(analysis_scenario(scenario)), body.name, X0, X1, settle)
 
     run_station = _quiet_build(s)
-    result = simulate(run_station, progress=False)
+    result = _probe(run_station)
     states = result.data["state"][-1:]
     shapes = TrueShapeMetrics(run_station.plant, run_station.scene_graph, run_station.diagram)
     simulated = float(np.max(shapes.overlaps(body.index, states)))
@@ -847,24 +856,7 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
         return runs[c]
 
     def _stable_at(c: float) -> bool:
-        s = _hold_scenario(base, body.name, X0, X1, duration)
-        s.god_object.gains = _scaled(gains, c)
-        try:
-            result = simulate(_quiet_build(s), progress=False)
-        except RuntimeError:  # Drake gave up on a blown-up state: unstable
-            return False
-        if result.metrics["diverged"]:
-            return False
-        start = round(0.05 / h) + 1  # from the end of the move
-        if "terms" in result.data:  # rigid: the coupling's body pose G
-            pose_G = result.data["terms"][start:, 14:21]
-        else:  # deformable: the core
-            pose_G = result.data["pose_WC"][start:]
-        # Motion per step, not the error: a steady offset (a carried shell's sag) never grows,
-        # a decaying transient shrinks, and a growing mode or a capped limit cycle does not.
-        dp = np.linalg.norm(np.diff(pose_G[:, 4:], axis=0), axis=1)
-        dq = np.linalg.norm(np.diff(pose_G[:, :4], axis=0), axis=1)
-        return not (is_growing(dp) or is_growing(dq))
+        return hold_is_stable(base, body.name, X0, X1, _scaled(gains, c), duration)
 
     simulated = _bisect_widening(stable, predicted, rel_tol, out, "verify_explicit_limit_error")
     err = abs(simulated / predicted - 1.0)
@@ -875,17 +867,55 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
         "runs": [{"scale": c, "stable": ok} for c, ok in sorted(runs.items())],
     }  # fmt: skip
     g = gains
+    # What run accepts (CouplingGains.check): never advise past it, whatever Drake's boundary says.
+    run_n, run_r = explicit_limit_omega_h(g.zeta) / h, explicit_limit_omega_h(g.zeta_r) / h
+    beyond = math.isfinite(simulated) and simulated > predicted
     fix = (
         "model and Drake agree"
         if err <= 0.02
         else f"trust Drake's boundary: omega_n ≤ {_le(g.omega_n * simulated)}, omega_n_rot ≤ "
         f"{_le(g.omega_r * simulated)} rad/s (the one-body model misses how the scene moves with the body)"
-        if math.isfinite(simulated)
+        if math.isfinite(simulated) and not beyond
+        else f"Drake's boundary is past the model's; run refuses past the model's explicit limit: omega_n < "
+        f"{run_n:.4g}, omega_n_rot < {run_r:.4g} rad/s at this time_step"
+        if beyond
         else "no boundary found in Drake: " + out.get("verify_explicit_limit_error", "")
     )
     return Check("verify", f"explicit limit: gain scale at the boundary ({binding})", body.name,
                  "ok" if err <= 0.02 else "warn", err, 0.02, "relative error", fix,
                  predicted=predicted, simulated=simulated)  # fmt: skip
+
+
+def hold_is_stable(base: sc.Scenario, body: str, X0: RigidTransform, X1: RigidTransform,
+                   gains: CouplingGains, duration: float) -> bool:  # fmt: skip
+    """Whether ``body``, grasped at ``X0`` and moved to ``X1`` over 0.05 s with ``gains``, settles
+    there in Drake (the explicit limit's verification, :func:`_verify_explicit_limit`)."""
+    s = _hold_scenario(base, body, X0, X1, duration)
+    s.god_object.gains = gains
+    try:
+        result = _probe(_quiet_build(s))
+    except RuntimeError:  # Drake gave up on a blown-up state: unstable
+        return False
+    if result.metrics["diverged"]:
+        return False
+    h = s.time_step
+    start = round(0.05 / h) + 1  # from the end of the move
+    if "terms" in result.data:  # rigid: the coupling's body pose G
+        pose_G = result.data["terms"][start:, 14:21]
+    else:  # deformable: the core
+        pose_G = result.data["pose_WC"][start:]
+    # Motion per step, not the error: a steady offset (a carried shell's sag) never grows,
+    # a decaying transient shrinks, and a growing mode or a capped limit cycle does not.
+    dp = np.linalg.norm(np.diff(pose_G[:, 4:], axis=0), axis=1)
+    dq = np.linalg.norm(np.diff(pose_G[:, :4], axis=0), axis=1)
+    if is_growing(dp) or is_growing(dq):
+        return False
+    # ... and the body must have got to its target. Past the limit a body can blow up, be thrown
+    # into the table and stop there, still, far from its target (the brick at 1.06x the limit:
+    # 3.9 cm off after a 3 cm pull, its quaternion projected back to unit norm); "no motion" read
+    # as stable put Drake's boundary past the limit run enforces (omega_n 1004 rad/s advised on
+    # the brick scene with omega_n_rot 40, where run refuses past 828.4).
+    return _reached(pose_G[-1], X1)
 
 
 IMPLICIT_STEP_M = 0.03  # the implicit coupling's verification steps the target this far
@@ -930,7 +960,7 @@ def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
             path = s.device.waypoints
             s.device = sc.Scripted(rate_hz=s.device.rate_hz, waypoints=[path[0], lifted,
                                    dataclasses.replace(lifted, t=jump), *path[2:]])  # fmt: skip
-        result = simulate(_quiet_build(s), progress=False)
+        result = _probe(_quiet_build(s))
         target = float(np.dot(X_to.translation(), direction))
         x_sim = result.data["terms"][:, 18:21] @ direction - target  # the body's G along the step
         x0, v0 = x_sim[start], (x_sim[start] - x_sim[start - 1]) / h
@@ -1006,7 +1036,7 @@ def _verify_joint_space_limit(station, scenario, out: dict, rel_tol: float) -> C
         s = copy.deepcopy(base)
         s.god_object.gains = _scaled(gains, c)
         try:
-            result = simulate(_quiet_build(s), progress=False)
+            result = _probe(_quiet_build(s))
             ok = not result.metrics["diverged"]
         except RuntimeError:  # Drake gave up on a blown-up state: unstable
             ok = False
@@ -1084,7 +1114,7 @@ def _verify_device_boundary(station, scenario, out: dict, rel_tol: float) -> Che
         s = copy.deepcopy(base)
         s.feedback.kd = kd
         try:
-            result = simulate(_quiet_build(s), progress=False)
+            result = _probe(_quiet_build(s))
             ok = not result.metrics["diverged"]
         except RuntimeError:
             ok = False
@@ -1118,6 +1148,21 @@ def _decays(signal: np.ndarray, factor: float = 0.5, floor: float = 1e-9) -> boo
     n = len(a) // 4
     first, second, last = a[:n].max(), a[n : 2 * n].max(), a[-n:].max()
     return bool(last < floor * first or last < factor * second)
+
+
+REACH_FRACTION = 0.5  # a stable hold ends within this share of the 3 cm, 10° move from its target
+
+
+def _reached(pose: np.ndarray, X_target: RigidTransform) -> bool:
+    """Whether ``pose`` (``[qw qx qy qz x y z]``) is within :data:`REACH_FRACTION` of the verify's
+    3 cm, 10° move from ``X_target`` (a steady sag stays well inside it)."""
+    if not np.all(np.isfinite(pose)):
+        return False
+    q = pose[:4] / np.linalg.norm(pose[:4])
+    R = RotationMatrix(Quaternion(q))
+    angle = R.InvertAndCompose(X_target.rotation()).ToAngleAxis().angle()
+    off = float(np.linalg.norm(pose[4:] - X_target.translation()))
+    return off < REACH_FRACTION * 0.03 and angle < REACH_FRACTION * math.radians(10.0)
 
 
 def _scaled(gains: CouplingGains, c: float) -> CouplingGains:
