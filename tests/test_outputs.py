@@ -195,3 +195,17 @@ def test_the_errno_of_a_failed_write_is_kept(tmp_path):
     with pytest.raises(OutputError) as raised:
         write_atomically(tmp_path / "no_such_folder" / "m.json", "{}")
     assert raised.value.errno == errno.ENOENT and "Write elsewhere" in str(raised.value)
+
+
+def test_a_recording_that_cannot_be_written_is_said_on_stderr(tmp_path, capsys):
+    """The recording's error went only to a row of the metrics table (stdout). A FIFO nobody reads,
+    given as the recording: the run ends, its metrics are printed, and stderr says why the recording
+    was not written (exit 1); the FIFO is still a FIFO."""
+    fifo = tmp_path / "live.html"
+    os.mkfifo(fifo)
+    assert cli.main(["run", "lego", *SHORT, "--record", str(fifo)]) == 1
+    out, err = capsys.readouterr()
+    assert "recording_error" in out and "sim_time_s" in out
+    assert f"recording not written: [Errno 6] could not write {fifo}" in err
+    assert "no process has the FIFO open for reading; start its reader first" in err
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
