@@ -26,9 +26,11 @@ from pydrake.systems.analysis import Simulator
 
 from godobject_drake.config.devices import kind_of
 from godobject_drake.config.scenario import Scenario
+from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.metrics import SceneMetrics
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
 from godobject_drake.station.build import Station
+from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import save_recording
 from godobject_drake.systems.page import page_of
@@ -380,8 +382,6 @@ def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
         return {}
     out = {"penetration_budget_m": budget, "over_penetration_budget": bool(depth > budget)}
     if depth > budget:
-        from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
-
         predicted = metrics.get("predicted_static_penetration_m")
         near = _what_is_near_its_limit(scenario)
         said = (
@@ -401,8 +401,6 @@ def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
 def _what_is_near_its_limit(scenario: Scenario) -> str:
     """Each tool's coupling bandwidths as a share of their explicit limit at the run's step: a gain
     near 100 % rings, and its overshoot is what drives the god-object deeper."""
-    from godobject_drake.limits import explicit_limit_omega_h
-
     h, parts = scenario.time_step, []
     for name, view in scenario.per_tool().items():
         gains = getattr(view.god_object, "gains", None)

@@ -86,7 +86,10 @@ class _Resolver:
     def __init__(self, models_dir: Path):
         from pydrake.multibody.parsing import PackageMap
 
-        self.map = PackageMap()
+        try:
+            self.map = PackageMap()
+        except RuntimeError:  # drake_models not downloadable (no network): Drake's parse says so, better
+            self.map = PackageMap.MakeEmpty()
         xml = models_dir / "package.xml"
         if xml.is_file():
             self.map.AddPackageXml(str(xml))
