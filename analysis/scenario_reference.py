@@ -2,7 +2,7 @@
 """Write docs/scenario.md, the scenario reference, from the config dataclasses themselves.
 
     python analysis/scenario_reference.py            # rewrite docs/scenario.md
-    python analysis/scenario_reference.py --check    # exit 1 if it is stale or an example fails
+    python analysis/scenario_reference.py --check    # exit 1: stale, an example fails, a field has no meaning
 
 Every dataclass a scenario file can hold, reached from ``Scenario`` through its fields (the tool
 and device kinds through their registries, so a kind registered later appears too), gets a table
@@ -280,6 +280,7 @@ def main(argv=None) -> int:
     text = page()
     if args.check:
         failures = check_examples()
+        failures += [f"{name}: no meaning (an Attributes entry in its docstring)" for name in undocumented()]
         if OUT.read_text() != text:
             failures.append(f"{OUT} is stale: run python analysis/scenario_reference.py")
         print("\n".join(failures) or f"{OUT}: fresh, every example loads")

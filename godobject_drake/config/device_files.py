@@ -73,6 +73,17 @@ class SampleGuard:
     While a sample is held the reported velocity is zero, and
     ``device_longest_gap_s`` is the longest run of held samples (s).
     ``max_speed_m_s = inf`` turns the jump check off.
+
+    Attributes
+    ----------
+    max_speed_m_s : float
+        The fastest a device can move (m/s): a sample farther from the last accepted one than
+        this speed could carry it is held back as a glitch; ``.inf`` turns the check off.
+    confirm_samples : int
+        How many consecutive samples must agree at a new place before it is accepted (a
+        relocation).
+    quaternion_tolerance : float
+        How far off 1 a sample's quaternion norm may be before the sample is invalid.
     """
 
     max_speed_m_s: float = 10.0
@@ -422,7 +433,16 @@ def rotation_from_vector(r) -> np.ndarray:
 
 @dataclasses.dataclass
 class JointWaypoint:
-    """One waypoint of a scripted joint-space path: time (s) and channel values (rad, m)."""
+    """One waypoint of a scripted joint-space path.
+
+    Attributes
+    ----------
+    t : float
+        Its time (s).
+    values : dict[str, float]
+        Each channel's value at ``t`` (rad for a revolute joint, m for a prismatic one); every
+        waypoint gives every channel.
+    """
 
     t: float = 0.0
     values: dict[str, float] = dataclasses.field(default_factory=dict)

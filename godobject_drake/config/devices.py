@@ -185,10 +185,32 @@ class DeviceConfig:
 class _PoseDevice(DeviceConfig):
     """What every pose device has: its rate, latency, interpolation, noise and sample guard;
     and, for the increment devices (``!Relative``, ``!MeshcatSliders``) only, the pseudo-haptic
-    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.sources.RelativeAids`):
-    ``tether_m`` (m) and ``tether_angle_rad`` (rad), ``.inf`` for none; ``cd_ratio`` (the
-    control/display ratio at the force cap, 1 for none) and ``cd_onset_m`` (m, where it starts
-    to grow)."""
+    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.sources.RelativeAids`).
+
+    Attributes
+    ----------
+    rate_hz : float
+        How often the device is sampled (Hz); the target holds between samples.
+    latency_s : float
+        How late each sample reaches the scene (s); 0 for none.
+    interpolation : str
+        ``hold`` (the last sample until the next) or ``linear`` (towards the next, one period late).
+    noise_m : float
+        Gaussian noise added to each position sample (m, standard deviation; seeded by the
+        scenario's ``random_seed``); 0 for none.
+    guard : SampleGuard
+        What the device does with samples it cannot use (non-finite, dropped, absurd jumps).
+    tether_m : float
+        Increment devices only: how far (m) the target may lead the god-object before the
+        increments are re-indexed (a tether); ``.inf`` for none.
+    tether_angle_rad : float
+        The same for orientation (rad); ``.inf`` for none.
+    cd_ratio : float
+        Increment devices only: the control/display ratio reached at the force cap (the
+        increments shrink as the god-object pushes); 1 for none.
+    cd_onset_m : float
+        Where that ratio starts to grow: the target's lead on the god-object (m).
+    """
 
     rate_hz: float = 60.0
     latency_s: float = 0.0
@@ -285,7 +307,14 @@ class Scripted(_PoseDevice):
 @device_kind("replay", space="pose", needs_log=True, summary="a CSV log")
 @dataclasses.dataclass
 class Replay(_PoseDevice):
-    """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``)."""
+    """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``).
+
+    Attributes
+    ----------
+    log : str
+        The CSV file (relative to the scenario's folder); times in s, positions in m, the grasp a
+        body's name or empty.
+    """
 
     log: str = ""
 
@@ -310,7 +339,14 @@ class Replay(_PoseDevice):
 class Relative(_PoseDevice):
     """Increments with a clutch, the paper's mouse (CSV ``t,dx,dy,dz,drx,dry,drz,clutch,grasp``).
 
-    ``start_xyz`` (m) and ``start_rpy_deg`` (degrees) are where the target starts.
+    Attributes
+    ----------
+    log : str
+        The CSV file of increments (m, rad) with the clutch (1: held, the increments ignored).
+    start_xyz : list[float]
+        Where the target starts (m, world frame).
+    start_rpy_deg : list[float]
+        Its starting orientation (roll, pitch, yaw in degrees).
     """
 
     log: str = ""
@@ -329,10 +365,17 @@ class Relative(_PoseDevice):
 @dataclasses.dataclass
 class MeshcatSliders(_PoseDevice):
     """Driven live from the browser: pose sliders and keys, a gamepad, Grasp and Stop buttons.
+    The sliders span the scenario's ``workspace``.
 
-    ``grasp``: empty for the Grasp button (it takes the nearest free body), or a body the
-    device always holds. The sliders span the scenario's ``workspace``; the target starts at
-    ``start_xyz`` (m), ``start_rpy_deg`` (degrees).
+    Attributes
+    ----------
+    grasp : str
+        Empty for the Grasp button (it takes the nearest free body), or a body the device always
+        holds.
+    start_xyz : list[float]
+        Where the target starts (m, world frame).
+    start_rpy_deg : list[float]
+        Its starting orientation (roll, pitch, yaw in degrees).
     """
 
     grasp: str = ""
@@ -350,7 +393,17 @@ class DeviceToWorld:
     """Where a real device's frame Dev sits in the world, and its scale (docs/haptic_devices.md
     "Calibration"): ``p_W = X_WDev (scale p_Dev)`` with ``X_WDev`` from ``xyz`` (m) and
     ``rpy_deg`` (degrees); the feedback wrench goes back as ``f_Dev = scale R_WDevᵀ f_W``,
-    ``τ_Dev = R_WDevᵀ τ_W``. The defaults are the identity."""
+    ``τ_Dev = R_WDevᵀ τ_W``. The defaults are the identity.
+
+    Attributes
+    ----------
+    xyz : list[float]
+        Where the device frame's origin is in the world (m).
+    rpy_deg : list[float]
+        The device frame's orientation in the world (roll, pitch, yaw in degrees).
+    scale : float
+        World metres per device metre (> 0): 2 makes a small device's handle reach twice as far.
+    """
 
     xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -407,6 +460,10 @@ class Lcm(_PoseDevice):
     rate_hz, latency_s, interpolation, guard :
         The rate the driver is expected to publish at, and the sampling as for any device
         (``noise_m`` must stay 0: the samples are the device's own).
+    noise_m : float
+        Must stay 0: a real device's samples are its own.
+    tether_m, tether_angle_rad, cd_ratio, cd_onset_m :
+        Not for this device (its poses are absolute): leave them at their defaults.
     """
 
     url: str = ""
@@ -494,7 +551,15 @@ class _JointDevice(DeviceConfig):
 @device_kind("scripted", space="joint", summary="the scenario's path")
 @dataclasses.dataclass
 class ScriptedJoints(_JointDevice):
-    """A scripted joint-space path (``path`` YAML with ``channels`` and ``waypoints``, or inline)."""
+    """A scripted joint-space path.
+
+    Attributes
+    ----------
+    path : str
+        A YAML file with ``channels`` and ``waypoints`` (each ``t`` in s and a value per channel).
+    waypoints : list[JointWaypoint]
+        Inline waypoints (when ``path`` is empty).
+    """
 
     path: str = ""
     waypoints: list[JointWaypoint] = dataclasses.field(default_factory=list)
@@ -519,7 +584,13 @@ class ScriptedJoints(_JointDevice):
 @device_kind("replay", space="joint", needs_log=True, summary="a CSV log")
 @dataclasses.dataclass
 class ReplayJoints(_JointDevice):
-    """A joint-space device log replayed (CSV ``t,<channels>``)."""
+    """A joint-space device log replayed (CSV ``t,<channels>``).
+
+    Attributes
+    ----------
+    log : str
+        The CSV file: a time column (s) and one column per channel (rad or m).
+    """
 
     log: str = ""
 
@@ -536,7 +607,13 @@ class ReplayJoints(_JointDevice):
 @device_kind("meshcat", space="joint", live=True, real_time=True, summary="live from the browser")
 @dataclasses.dataclass
 class MeshcatJointSliders(_JointDevice):
-    """Joint channels driven live from the browser, one slider and key pair each; ``start``: values."""
+    """Joint channels driven live from the browser, one slider and key pair each.
+
+    Attributes
+    ----------
+    start : list[float]
+        Each channel's value at the start (rad or m), one per channel in the tool's order.
+    """
 
     start: list[float] = dataclasses.field(default_factory=list)
 
@@ -550,8 +627,22 @@ class MeshcatJointSliders(_JointDevice):
 @dataclasses.dataclass
 class LcmJoints(_JointDevice):
     """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,
-    ``joint_name`` = ``channels``). ``url``, ``key_file``, ``channel``, ``timeout_periods`` as for
-    :class:`Lcm`; ``start``: the channel values until the first message."""
+    ``joint_name`` = ``channels``).
+
+    Attributes
+    ----------
+    url : str
+        Drake's LCM URL, as for ``!Lcm``: ``memq://`` in the process, ``udp://HOST:PORT`` for a
+        paired driver process; empty: Drake's default (multicast).
+    key_file : str
+        ``udp://`` only: the file of the key the scene and its driver pair with, as for ``!Lcm``.
+    channel : str
+        The LCM channel the ``lcmt_robot_state`` samples come on.
+    timeout_periods : int
+        Samples without a message after which the device holds where it is (a driver unplugged).
+    start : list[float]
+        The channel values until the first message (rad or m), one per channel.
+    """
 
     url: str = ""
     key_file: str = ""

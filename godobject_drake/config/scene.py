@@ -168,7 +168,15 @@ class Simulation:
 
 @dataclasses.dataclass
 class Workspace:
-    """Where the device may go (m, world frame): the live sliders' range and the camera's frame."""
+    """Where the device may go (m, world frame): the live sliders' range and the camera's frame.
+
+    Attributes
+    ----------
+    lower_m : list[float]
+        The box's lowest corner (x, y, z in m).
+    upper_m : list[float]
+        Its highest corner (m); each coordinate above ``lower_m``'s.
+    """
 
     lower_m: list[float] = dataclasses.field(default_factory=lambda: [-0.1, -0.1, 0.0])
     upper_m: list[float] = dataclasses.field(default_factory=lambda: [0.1, 0.1, 0.1])
@@ -178,11 +186,25 @@ class Workspace:
         for attribute in ("lower_m", "upper_m"):
             if len(getattr(self, attribute)) != 3:
                 raise ValueError(f"{attribute}: needs 3 values (x, y, z in m)")
+        for axis, lo, hi in zip("xyz", self.lower_m, self.upper_m, strict=True):
+            if not lo < hi:
+                raise ValueError(
+                    f"upper_m: {self.upper_m} is not above lower_m: {self.lower_m} in {axis} "
+                    f"({hi!r} <= {lo!r}); give the box's lowest corner as lower_m, its highest as upper_m"
+                )
 
 
 @dataclasses.dataclass
 class Camera:
-    """Where Meshcat's camera stands and what it looks at (m, world frame, z up)."""
+    """Where Meshcat's camera stands and what it looks at (world frame, z up).
+
+    Attributes
+    ----------
+    position_m : list[float]
+        Where the camera stands (m).
+    target_m : list[float]
+        The point it looks at (m).
+    """
 
     position_m: list[float] = dataclasses.field(default_factory=lambda: [0.3, -0.4, 0.3])
     target_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -242,11 +264,18 @@ class Visualization:
 
 @dataclasses.dataclass
 class Recording:
-    """A self-contained Meshcat HTML recording of the run (``file`` empty: none).
+    """A self-contained Meshcat HTML recording of the run.
 
-    ``max_duration_s``: the recording covers the run's first this many seconds (the rest runs
-    unrecorded), so its size is known in advance: about 2.2 MB of viewer plus the frames, some
-    0.1 MB per second for the brick scene at 64 frames per second (README "Recordings").
+    Attributes
+    ----------
+    file : str
+        The HTML file to write (``--record``); empty: no recording.
+    frames_per_second : float
+        How many frames a second of simulated time the recording keeps.
+    max_duration_s : float
+        The recording covers the run's first this many seconds (the rest runs unrecorded), so its
+        size is known in advance: about 2.2 MB of viewer plus the frames, some 0.1 MB per second
+        for the brick scene at 64 frames per second (README "Recordings").
     """
 
     file: str = ""
@@ -269,17 +298,24 @@ class Recording:
 
 @dataclasses.dataclass
 class Metrics:
-    """Where the metrics JSON goes (``file`` empty: printed only) and what the run may cost.
+    """Where the metrics JSON goes and what the run may cost.
 
-    ``penetration_budget_m``: how deep a god-object may go into an obstacle (m). At build,
-    a god-object whose capped pull could push it deeper (capped force / contact stiffness)
-    gets a :class:`~godobject_drake.station.build.PenetrationBudgetWarning`.
-    ``checkpoint_period_s``: while a run goes, the command line rewrites ``file`` with the
-    metrics so far (marked ``partial``) every this many seconds of wall time, so even a killed
-    run leaves them.
-    ``impossible_pose_distance_m``: a target farther than this from the god-object (m) is in a
-    pose the god-object cannot take (it is blocked); ``impossible_pose_time_s`` is the time
-    spent so. The default, 5 mm, is four times the shipped scenes' free-space tracking lag.
+    Attributes
+    ----------
+    file : str
+        The JSON file to write (``--metrics``); empty: the metrics are printed only.
+    penetration_budget_m : float
+        How deep a god-object may go into an obstacle (m). At build, a god-object whose capped
+        pull could push it deeper (capped force / contact stiffness) gets a
+        :class:`~godobject_drake.station.rigid_tool.PenetrationBudgetWarning`; a run that went
+        deeper says so at its end (``over_penetration_budget``).
+    checkpoint_period_s : float
+        While a run goes, the command line rewrites ``file`` with the metrics so far (marked
+        ``partial``) every this many seconds of wall time, so even a killed run leaves them.
+    impossible_pose_distance_m : float
+        A target farther than this from the god-object (m) is in a pose the god-object cannot
+        take (it is blocked); ``impossible_pose_time_s`` is the time spent so. The default, 5 mm,
+        is four times the shipped scenes' free-space tracking lag.
     """
 
     file: str = ""
