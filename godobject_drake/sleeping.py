@@ -113,9 +113,9 @@ class SleepManager:
     plant, scene_graph :
         The finalized discrete plant and its SceneGraph.
     config : Sleep
-    coupling : GodObjectCoupling | None
-        The rigid coupling: its ``held_body`` and ``pose_WT`` say what is held and where the
-        device is; its force cap bounds how fast the held body can be pulled. None: no device.
+    coupling : GodObjectCoupling | sequence of them | None
+        Each tool's rigid coupling: its ``held_body`` and ``pose_WT`` say what it holds and where
+        its device is; its force cap bounds how fast a held body can be pulled. None: no device.
     meshcat : Meshcat | None
         Draws a blue marker over each sleeping body (and into a recording).
     """
@@ -125,7 +125,13 @@ class SleepManager:
         h = plant.time_step()
         if not h > 0.0:
             raise ValueError(f"sleeping bodies need a discrete plant (time_step={h!r} s)")
-        self.plant, self.config, self.coupling = plant, config, coupling
+        self.plant, self.config = plant, config
+        if coupling is None:
+            self.couplings = ()
+        elif isinstance(coupling, list | tuple):
+            self.couplings = tuple(coupling)
+        else:
+            self.couplings = (coupling,)
         self.scene_graph = scene_graph
         self.every = max(1, round(config.check_period_s / h))
         self.period_s = self.every * h
@@ -213,14 +219,14 @@ class SleepManager:
         self._asleep_sum = 0
 
     def _held_accel(self) -> dict[int, float]:
-        """The largest acceleration (m/s²) the coupling can give each body it may hold."""
-        if self.coupling is None:
-            return {}
+        """The largest acceleration (m/s²) a coupling can give each body it may hold (with two
+        tools that may hold one body, the larger)."""
         g = float(np.linalg.norm(self.plant.gravity_field().gravity_vector()))
         out = {}
-        for index, body in self.coupling._by_index.items():
-            force_cap, _ = self.coupling.force_caps(body)
-            out[int(index)] = force_cap / body.mass + g
+        for coupling in self.couplings:
+            for index, body in coupling._by_index.items():
+                force_cap, _ = coupling.force_caps(body)
+                out[int(index)] = max(out.get(int(index), 0.0), force_cap / body.mass + g)
         return out
 
     # -- the check ------------------------------------------------------------------------------
@@ -231,24 +237,24 @@ class SleepManager:
         centers = x[self._p_index]  # (n, 3): each body's sphere is about Bo
         v, w = x[self._v_index], x[self._w_index]
         speed, spin = np.sqrt(np.sum(v * v, axis=1)), np.sqrt(np.sum(w * w, axis=1))
-        held, device = -1, None
-        if self.coupling is not None:
+        is_held = np.zeros(len(self.bodies), bool)
+        points, reaches = [], []
+        for coupling in self.couplings:
             # read off the coupling's state and the device's outputs: nothing here recomputes the
             # coupling's terms (a Lock or Unlock changes the plant's parameters: they would be stale)
-            held, p_WD, v_WD = self.coupling.device_and_grasp(
-                self.coupling.GetMyContextFromRoot(root_context)
-            )
+            held, p_WD, v_WD = coupling.device_and_grasp(coupling.GetMyContextFromRoot(root_context))
+            is_held |= self._index == held
             # the device point: where a grasp would take a body (within grasp_reach_m) if nothing is held
-            device = (p_WD, v_WD * P + cfg.margin_m + (self.coupling.grasp_reach_m if held < 0 else 0.0))
-        is_held = self._index == held
+            points.append(p_WD)
+            reaches.append(v_WD * P + cfg.margin_m + (coupling.grasp_reach_m if held < 0 else 0.0))
         calm = (speed < cfg.speed_m_s) & (spin < cfg.spin_rad_s) & ~is_held
         self.calm_s = np.where(calm | self.asleep, self.calm_s + P, 0.0)
         active = ~self.asleep & (~calm | is_held)
         # how far each active body's fastest point can go before the next check
         reach = self._radius + (speed + spin * self._radius) * P + cfg.margin_m + is_held * self._pull * P * P
         c, r = centers[active], reach[active]
-        if device is not None:
-            c, r = np.vstack([c, device[0]]), np.append(r, device[1])
+        if points:
+            c, r = np.vstack([c, *points]), np.append(r, reaches)
         d2 = np.sum((centers[:, None, :] - c[None, :, :]) ** 2, axis=2)  # (n, m)
         near = np.any(d2 < (self._radius[:, None] + r[None, :]) ** 2, axis=1) | is_held
         wake = self.asleep & near

@@ -25,6 +25,7 @@ from conftest import REPO
 from drake import lcmt_force_torque, lcmt_robot_state
 from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.analysis import Simulator
 from test_link import driver_link, pair, pump, scene_link
 
@@ -524,3 +525,54 @@ def test_a_key_others_can_read_or_a_link_that_cannot_be_paired_is_refused_before
     )
     with pytest.raises(sc.ScenarioError, match=r"device.key_file: 'k' pairs a udp:// link only.*url: udp://"):
         sc.load_scenario(LEGO, "device: !Lcm {url: 'memq://', key_file: k}")
+
+
+TWO_HANDS = REPO / "diagrams" / "lego_two_hands.yaml"
+
+
+def test_two_tools_each_driven_by_its_own_driver_process(tmp_path):
+    """The two-hand brick scene with each tool on a ``udp://`` LCM device of its own and two
+    driver processes, one per device (docs/guide/two_tools.md "Devices for several tools"). The
+    same emulated hand path in each device's frame, the frames 5 cm apart in the world: the left
+    hand grasps brick_0 at (-0.10, 0, 0.0048), the right one brick_3 at (-0.10, 0.05, 0.0048), and
+    each lifts its own brick; each driver paired with its own scene port and rendered its tool's
+    feedback only (no datagram of the other reached it)."""
+    ports = {"left": free_port(), "right": free_port()}
+    while ports["right"] == ports["left"]:
+        ports["right"] = free_port()
+    frames = {"left": [-0.05, 0.0, 0.02], "right": [-0.05, 0.05, 0.02]}
+    tools = "\n".join(
+        f"""  {name}:
+    device: !Lcm
+      url: udp://127.0.0.1:{port}
+      rate_hz: 1000.0
+      start_xyz: [-0.10, {frames[name][1]}, 0.0048]
+      device_to_world: {{xyz: {frames[name]}, rpy_deg: [0, 0, {YAW}]}}
+    feedback: {{kd: {KD}}}"""
+        for name, port in ports.items()
+    )
+    s = sc.load_scenario(TWO_HANDS, f"tools:\n{tools}\nsimulation: {{duration_s: 1.5}}\n")
+    drivers = {}
+    for name, port in ports.items():
+        folder = tmp_path / name
+        folder.mkdir()
+        drivers[name] = start_driver(folder, f"udp://127.0.0.1:{port}", "--exit-on-stop", "--duration", "600")
+    try:
+        result = simulate(build_station(s), progress=False)
+        for name, driver in drivers.items():
+            assert driver.wait(timeout=120) == 0, (name, driver.stderr.read())
+    finally:
+        for driver in drivers.values():
+            driver.kill()
+    m = result.metrics
+    assert not m["diverged"], m["diagnosis"]
+    plant, held = result.station.plant, {}
+    for name, tool in result.station.tools.items():
+        index, _, _ = tool.coupling.device_and_grasp(tool.coupling.GetMyContextFromRoot(result.context))
+        held[name] = plant.GetModelInstanceName(plant.get_body(BodyIndex(index)).model_instance())
+    assert held == {"left": "brick_0", "right": "brick_3"}
+    for name in ports:
+        link = json.loads((tmp_path / name / "driver.json").read_text())["link"]
+        assert m["tools"][name]["driver_loops"] > 0, (name, m["tools"][name])
+        assert link["udp_pairings"] == 1, link
+        assert link["udp_foreign"] == link["udp_unauthenticated"] == 0, link

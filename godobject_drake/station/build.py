@@ -134,12 +134,8 @@ def finish(
             predicted.append(depth)
     sleeper = None
     if scenario.sleep.enabled and all(tool.sleeps_others for tool in tools.values()):
-        couplings = [tool.coupling for tool in tools.values()]
-        sleeper = (
-            SleepManager(scene.plant, scene.scene_graph, scenario.sleep, couplings[0], meshcat)
-            if len(couplings) == 1
-            else None
-        )
+        couplings = [tool.coupling for tool in tools.values()]  # every tool's device wakes what it nears
+        sleeper = SleepManager(scene.plant, scene.scene_graph, scenario.sleep, couplings, meshcat)
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
         max(predicted) if predicted else None, sleeper, tool_loggers,
