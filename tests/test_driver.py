@@ -45,20 +45,13 @@ from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 
 LEGO = REPO / "diagrams" / "lego.yaml"
+LEGO_DRIVER = REPO / "diagrams" / "lego_driver.yaml"  # the quick start's scene
 STAND_INS = REPO / "tests" / "stand_ins"
 KD = 50.0  # N/m
 YAW = 90.0  # the device's frame turned a quarter turn in the world: its −y is the world's +x
-# The emulated hand in the device's frame (m): over brick_0, press the grasp, lift, then push
-# 6 cm past the wall's far face (the world's x = +0.01) and stay.
-WALL_HAND = {
-    "waypoints": [
-        {"t": 0.0, "xyz": [0.0, 0.05, -0.0152], "grasp": False},
-        {"t": 0.3, "xyz": [0.0, 0.05, -0.0152], "grasp": True},
-        {"t": 0.8, "xyz": [0.0, 0.05, 0.0], "grasp": True},
-        {"t": 2.3, "xyz": [0.0, -0.06, 0.0], "grasp": True},
-        {"t": 600.0, "xyz": [0.0, -0.06, 0.0], "grasp": True},
-    ]
-}
+# The emulated hand the quick start ships (docs/haptic_devices.md): in the device's frame (m), over
+# brick_0, press the grasp, lift, then push 6 cm past the wall's far face (the world's x = +0.01) and stay.
+WALL_HAND = json.loads((REPO / "models" / "haptic" / "wall_press.json").read_text())
 
 
 def free_port() -> int:
@@ -85,17 +78,11 @@ def free_port() -> int:
 
 
 def lcm_scenario(url: str, duration_s: float, scale: float = 1.0):
-    return sc.load_scenario(
-        LEGO,
-        f"""
-device: !Lcm
-  url: {url}
-  rate_hz: 1000.0
-  start_xyz: [-0.10, 0.0, 0.0048]
-  device_to_world: {{xyz: [-0.05, 0.0, 0.02], rpy_deg: [0, 0, {YAW}], scale: {scale}}}
-feedback: {{kd: {KD}}}
-simulation: {{duration_s: {duration_s}}}
-""",
+    """The quick start's scene (diagrams/lego_driver.yaml) on ``url``."""
+    s = sc.load_scenario(LEGO_DRIVER)
+    assert s.feedback.kd == KD and s.device.device_to_world.rpy_deg == [0, 0, YAW]
+    return sc.replace(
+        s, **{"device.url": url, "simulation.duration_s": duration_s, "device.device_to_world.scale": scale}
     )
 
 

@@ -25,6 +25,7 @@ an omega.3).
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 import math
 from pathlib import Path
@@ -96,6 +97,14 @@ class HapticIO:
 # -- the emulated device: a handle on springs, moved by a simulated hand ----------------------------------
 
 
+HANDS = Path(str(importlib.resources.files("godobject_models") / "haptic"))  # the shipped hand paths
+
+
+def shipped_hands() -> list[str]:
+    """The names ``--hand`` takes for the shipped hand paths."""
+    return sorted(p.stem for p in HANDS.glob("*.json"))
+
+
 @dataclasses.dataclass
 class HandPath:
     """Where a simulated hand takes the handle: waypoints ``t`` (s), ``xyz`` (m, the device's
@@ -108,6 +117,10 @@ class HandPath:
 
     @classmethod
     def load(cls, path: str | Path) -> HandPath:
+        """A hand path from a JSON file, or a shipped one by name (:func:`shipped_hands`,
+        ``models/haptic/NAME.json``) where no such file exists."""
+        if not Path(path).exists() and str(path) in shipped_hands():
+            path = HANDS / f"{path}.json"
         try:
             data = json.loads(Path(path).read_text())
             rows = data["waypoints"]
@@ -116,7 +129,7 @@ class HandPath:
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise ValueError(
                 f"--hand {path}: {e}; give JSON {{'waypoints': [{{'t': 0, 'xyz': [x, y, z], 'grasp': false, "
-                "'clutch': false}, ...]}} (s, m)"
+                f"'clutch': false}}, ...]}} (s, m), or a shipped hand: {', '.join(shipped_hands())}"
             ) from None
         if len(t) == 0 or xyz.shape != (len(t), 3) or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(xyz)):
             raise ValueError(f"--hand {path}: waypoints need increasing t and 3 finite xyz each")
