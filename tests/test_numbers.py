@@ -4,15 +4,17 @@ no numpy warning leaked."""
 
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
-from conftest import shared_run
+from conftest import scenario, shared_run
 from pydrake.math import RigidTransform, RotationMatrix
 
 from godobject_drake import cli
 from godobject_drake.config.scenario import shipped_scenario
 from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.simulation import penetration_verdict
 from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.studies import analyze as A
 
@@ -43,6 +45,18 @@ def test_a_run_past_its_penetration_budget_says_so_at_the_end(tmp_path):
         in text
     )
     assert "Lower the time step or that gain" in text
+
+
+def test_the_position_baseline_is_over_its_budget_without_a_warning():
+    """The position baseline imposes the device's pose: it goes into the wall by design (the
+    paper's Fig. 5; 21 mm on the brick path). The metrics say it is over the budget; no warning
+    tells the user to lower a gain that does not act."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any warning fails
+        verdict = penetration_verdict({"max_penetration_m": 0.021}, scenario("lego", "--mode", "position"))
+    assert verdict == {"penetration_budget_m": 0.001, "over_penetration_budget": True}
+    with pytest.warns(PenetrationBudgetWarning):
+        penetration_verdict({"max_penetration_m": 0.021}, scenario("lego"))
 
 
 def test_a_run_within_its_budget_says_so_in_the_metrics():
