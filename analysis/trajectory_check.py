@@ -124,8 +124,9 @@ def compare(before: Path, after: Path, names: list[str]) -> int:
             }
             for z in (a, b)
         )
-        if set(ma) != set(mb):
-            problems.append(f"metric keys differ: {sorted(set(ma) ^ set(mb))}")
+        if set(ma) - set(mb):  # a metric lost; one added is said, and is no difference in the run
+            problems.append(f"metric keys lost: {sorted(set(ma) - set(mb))}")
+        added = sorted(set(mb) - set(ma))
         differ = [
             k
             for k in set(ma) & set(mb)
@@ -149,6 +150,8 @@ def compare(before: Path, after: Path, names: list[str]) -> int:
                 problems.append(f"{key}: differs")
         failures += bool(problems)
         verdict = "bit-identical" if not problems else "DIFFERS: " + "; ".join(problems)
+        if added:
+            verdict += f" (metric keys added: {', '.join(added)})"
         print(f"{name:28s} {len(a['log_state']):6d} steps  {verdict}")
     print(f"{len(names) - failures} of {len(names)} variants bit-identical")
     return 1 if failures else 0
