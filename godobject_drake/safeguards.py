@@ -27,6 +27,13 @@ do), and checks the diagram's wiring first (:func:`check_wiring`)::
 
 The checks run every ``check_period_s`` of simulated time, at multiples of
 the plant step, so a run is the same whatever chunks it is advanced in.
+
+``install_safeguards(..., polled=True)`` puts no monitor on the simulator when
+nothing must happen before every step: the caller advances in chunks of
+:attr:`Safeguards.poll_every` plant steps and calls :meth:`Safeguards.poll`
+after each (:func:`~godobject_drake.simulation.simulate` does), which runs the
+same checks at the same steps, so the run is the same bit for bit, without a
+Python call at every step.
 """
 
 from __future__ import annotations
@@ -98,6 +105,8 @@ class Safeguards:
         Checks made so far.
     projections : int
         Checks at which some free body's quaternion had drifted off unit norm and was projected back.
+    polled : bool
+        No monitor: the caller calls :meth:`poll` (``install(..., polled=True)``).
     """
 
     def __init__(
@@ -126,7 +135,7 @@ class Safeguards:
         self.sleeper = sleeper
         self.watch = watch
         self.diagnosis: str | None = None
-        self.stopped = False
+        self.stopped = self.polled = False
         self.checks = self.projections = 0
         self._quaternion_starts = [
             plant.get_body(i).floating_positions_start()
@@ -138,8 +147,9 @@ class Safeguards:
         self._plant_context = None
         self._root = None
 
-    def install(self, simulator: Simulator) -> Safeguards:
-        """Become ``simulator``'s monitor (replacing any other)."""
+    def install(self, simulator: Simulator, polled: bool = False) -> Safeguards:
+        """Become ``simulator``'s monitor (replacing any other); ``polled`` and nothing to do before
+        each step: no monitor, the caller calls :meth:`poll` (module docstring)."""
         self._simulator = simulator
         self._root = simulator.get_mutable_context()
         self._plant_context = self.plant.GetMyMutableContextFromRoot(self._root)
@@ -148,14 +158,42 @@ class Safeguards:
         if self.sleeper is not None:
             self.sleeper.reset()  # a new simulator's context: every body awake
             self._next_sleep = self.sleeper.every
-        simulator.set_monitor(self._monitor)
+        self.polled = polled and self.before_step is None
+        if self.polled:
+            simulator.clear_monitor()
+        else:
+            simulator.set_monitor(self._monitor)
         return self
+
+    @property
+    def poll_every(self) -> int:
+        """Plant steps between two calls of :meth:`poll` that reach every check at its step."""
+        return math.gcd(self.every, self.sleeper.every) if self._next_sleep is not None else self.every
+
+    def poll(self) -> bool:
+        """The checks due at the simulator's time, for a run with no monitor (``polled``): call it
+        after each ``AdvanceTo`` to a multiple of :attr:`poll_every` plant steps. Raises
+        :class:`DivergenceError`; True when the Stop button ended the run."""
+        t = self._root.get_time()
+        n = round(t / self.time_step)
+        if n * self.time_step == t:
+            self._checks_at(n, t)
+        return self.stopped
 
     def _monitor(self, context) -> EventStatus:
         t = context.get_time()
         n = round(t / self.time_step)
         if n * self.time_step != t:
             return EventStatus.DidNothing()  # between plant steps (a device or drawing event)
+        if self._checks_at(n, t):
+            system = self._simulator.get_system()
+            return EventStatus.ReachedTermination(system, f"Stop pressed at t={t:.3f} s")
+        if self.before_step is not None:
+            self.before_step(self._plant_context, self._root)
+        return EventStatus.DidNothing()
+
+    def _checks_at(self, n: int, t: float) -> bool:
+        """The checks due at plant step ``n`` (time ``t``); True when Stop was pressed."""
         if n >= self._next_check:
             self._next_check = n + self.every
             self.checks += 1
@@ -164,15 +202,11 @@ class Safeguards:
                 self._project()
             if self.stop is not None and self.stop():
                 self.stopped = True
-                return EventStatus.ReachedTermination(
-                    self._simulator.get_system(), f"Stop pressed at t={t:.3f} s"
-                )
+                return True
         if self._next_sleep is not None and n >= self._next_sleep:
             self._next_sleep = n + self.sleeper.every
             self.sleeper.check(self._plant_context, self._root)
-        if self.before_step is not None:
-            self.before_step(self._plant_context, self._root)
-        return EventStatus.DidNothing()
+        return False
 
     def check(self, t: float | None = None) -> None:
         """Raise :class:`DivergenceError` if the plant's state is non-finite or too fast, or if
@@ -256,6 +290,7 @@ def install_safeguards(
     sleeper=None,
     wiring_checked: bool = False,
     watch: Callable | None = None,
+    polled: bool = False,
 ) -> Safeguards:
     """Check ``simulator``'s diagram's wiring, then watch the run (module docstring).
 
@@ -284,6 +319,10 @@ def install_safeguards(
     watch : callable | None
         ``watch(root_context, max_speed)`` → ``(part, what)`` when a part outside the plant (a
         simulated haptic device) diverged, else None; asked at every check, before the plant.
+    polled : bool
+        No monitor where nothing must happen before each step: the caller advances
+        :attr:`Safeguards.poll_every` plant steps at a time and calls :meth:`Safeguards.poll`
+        after each (the same checks at the same steps, without a Python call every step).
     """
     diagram = simulator.get_system()
     plant = plant or find_plant(diagram)
@@ -306,7 +345,7 @@ def install_safeguards(
         sleeper=sleeper,
         watch=watch,
     )
-    return guard.install(simulator)
+    return guard.install(simulator, polled=polled)
 
 
 MODES = ("god_object", "position")

@@ -199,7 +199,7 @@ class _Run:
             self.simulator, self.plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
             meshcat=meshcat if live else None, before_step=before_step, mode=self.god.mode,
             sleeper=station.sleeper, wiring_checked=True,  # when the station was built (station.build.finish)
-            watch=self.god.diverged_part,
+            watch=self.god.diverged_part, polled=True,  # no Python call every step where none is needed
         )  # fmt: skip
         self.recording_steps = None
         if self.record:
@@ -275,11 +275,14 @@ class _Run:
         bar = _progress(self.n_steps, progress)
         k, next_fold = 0, self.fold_every
         last_checkpoint = time.perf_counter()
+        chunk = guard.poll_every if guard.polled else guard.every  # polled: each check's step ends a chunk
         try:
             while k < self.n_steps and not guard.stopped:
-                k_next = min(k + guard.every, self.n_steps)
+                k_next = min(k + chunk, self.n_steps)
                 t0, c0 = time.perf_counter(), time.process_time()
                 self.simulator.AdvanceTo(k_next * h)
+                if guard.polled:
+                    guard.poll()
                 self.wall += time.perf_counter() - t0
                 self.cpu += time.process_time() - c0
                 bar.update(k_next - k)
