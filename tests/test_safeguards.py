@@ -15,11 +15,13 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
+from godobject_drake import simulation
 from godobject_drake.config.device_files import Waypoint
 from godobject_drake.config.gains import CouplingGains
 from godobject_drake.config.scenario import shipped_scenario
 from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.safeguards import DivergenceError, WiringError, install_safeguards
+from godobject_drake.station.build import build_station
 from godobject_drake.station.plant import add_plant
 from godobject_drake.station.rigid_tool import add_god_object
 from godobject_drake.systems.coupling import GodObjectCoupling
@@ -197,3 +199,25 @@ def test_before_step_runs_before_every_plant_step():
     )
     simulator.AdvanceTo(0.1)
     np.testing.assert_allclose(times, np.arange(101) * 1e-3, atol=1e-12)  # t = 0 (at Initialize) to 0.1
+
+
+def test_a_polled_run_is_the_monitored_run_bit_for_bit(monkeypatch):
+    """``simulate`` runs the checks from its loop (no per-step monitor) where nothing must happen
+    before each step. The brick scene's first 1.2 s (the grasp, sleep checks every 10 ms and
+    safeguard checks every 50 ms) with the checks polled and with the per-step monitor: every
+    state bit for bit, the same number of checks and of bodies put to sleep."""
+    real = simulation.install_safeguards
+
+    def run(polled: bool):
+        def install(*args, **kwargs):
+            return real(*args, **{**kwargs, "polled": polled})
+
+        monkeypatch.setattr(simulation, "install_safeguards", install)
+        s = shipped_scenario("lego")
+        return simulation.simulate(build_station(s), duration_s=1.2, progress=False)
+
+    polled, monitored = run(True), run(False)
+    assert polled.safeguards.polled and not monitored.safeguards.polled
+    np.testing.assert_array_equal(polled.states.view(np.uint64), monitored.states.view(np.uint64))
+    assert polled.safeguards.checks == monitored.safeguards.checks == 24
+    assert polled.metrics["sleep_falls"] == monitored.metrics["sleep_falls"] > 0
