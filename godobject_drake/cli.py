@@ -28,6 +28,7 @@ from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
 from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
+from godobject_drake.protocol import StderrHandler
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import RunInterrupted, simulate
 from godobject_drake.station.build import build_station, make_meshcat
@@ -272,14 +273,15 @@ def load_with_sets(path: str | Path, items: list[str]) -> sc.Scenario:
         raise sc.ScenarioError(f"--set {' '.join(items)}: {e}") from None
 
 
-class _Handler(logging.StreamHandler):
-    """The command line's handler of the ``godobject_drake`` logger (one at a time)."""
+class _Handler(StderrHandler):
+    """The command line's handler of the ``godobject_drake`` logger (one at a time), to the
+    ``sys.stderr`` of the moment."""
 
 
 def configure_logging(verbose: int = 0, quiet: int = 0) -> None:
     """The ``godobject_drake`` logger to stderr as plain lines: info by default, debug with
     ``-v``, warnings and errors only with ``-q``."""
-    handler = _Handler(sys.stderr)
+    handler = _Handler()
     handler.setFormatter(logging.Formatter("%(message)s"))
     for old in [h for h in logger.handlers if isinstance(h, _Handler)]:
         logger.removeHandler(old)

@@ -91,6 +91,7 @@ import secrets
 import socket
 import stat
 import struct
+import sys
 import tempfile
 import time
 import urllib.parse
@@ -144,6 +145,16 @@ LCM_STATUS_KEYS = (
 )
 
 log = logging.getLogger("godobject_drake.link")
+
+
+class StderrHandler(logging.StreamHandler):
+    """A handler that writes to ``sys.stderr`` as it is when a line is written, not as it was when
+    the handler was made: a handler kept past a replaced stderr (the driver's ``main`` run in a
+    process that swaps it, as a test's capture does) wrote to a closed stream ("Logging error")."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.stream = sys.stderr
+        super().emit(record)
 
 
 def make_lcm(url: str = "", key_file: str | Path = ""):

@@ -80,6 +80,7 @@ from godobject_drake.protocol import (
     POSE_CHANNEL,
     STOP_SUFFIX,
     KeyFileError,
+    StderrHandler,
     decode,
     driver_lcm,
     is_udp_url,
@@ -379,7 +380,7 @@ def _log_to_stderr() -> None:
     """The link's messages (paired, refused) on stderr, as the driver's own lines."""
     logger = logging.getLogger("godobject_drake")
     if not any(getattr(h, "driver_lines", False) for h in logger.handlers):
-        handler = logging.StreamHandler(sys.stderr)
+        handler = StderrHandler()
         handler.setFormatter(logging.Formatter("godobject-driver: %(message)s"))
         handler.driver_lines = True
         logger.addHandler(handler)
