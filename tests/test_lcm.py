@@ -238,9 +238,14 @@ def test_replay_publishes_each_row_at_its_time(tmp_path):
     np.testing.assert_allclose([m.joint_position[2] for m in got], [0.05, 0.06, 0.07], atol=1e-7)
 
 
+def _bin_width(lag: float) -> float:
+    """RealtimeLag's resolution at ``lag``: 10 µs below 10 ms, 0.1 % above."""
+    return RealtimeLag.BIN_S if lag < RealtimeLag.FINE_S else RealtimeLag.REL * lag * 1.001
+
+
 def test_lag_quantiles_equal_numpy_to_a_bin():
-    """The histogram's p50 and p99 against numpy's on the same lags (second method): within one
-    10 µs bin; the maximum and the late count exactly."""
+    """The binned p50 and p99 against numpy's on the same lags (second method): within one bin
+    (10 µs, or 0.1 % above 10 ms); the maximum and the late count exactly."""
     rng = np.random.default_rng(3)
     lags = np.abs(rng.gamma(2.0, 2e-4, 5000))
     lag = RealtimeLag(rate=1.0, late_s=1e-3)
@@ -252,6 +257,70 @@ def test_lag_quantiles_equal_numpy_to_a_bin():
         assert abs(r[key] - np.quantile(shifted, q, method="inverted_cdf")) <= RealtimeLag.BIN_S + 1e-12
     assert r["realtime_lag_max_s"] == pytest.approx(shifted.max(), abs=1e-12)
     assert r["realtime_late_steps"] == int(np.sum(shifted > 1e-3))
+
+
+def test_lags_past_a_second_are_not_capped():
+    """A scene at half real time for 40 simulated seconds: step k at t = k h arrives at 2 t, so
+    its lag is t (by hand); the lags run to 40 s, and p50 and p99 are numpy's on them to 0.1 %
+    (the old histogram printed exactly 1 s for both)."""
+    h, n = 1e-3, 40_000
+    lag = RealtimeLag(rate=1.0, late_s=h)
+    t = np.arange(n) * h
+    for tk in t:
+        lag.record(tk, now=5.0 + 2.0 * tk)
+    r = lag.result()
+    for q, key in ((0.5, "realtime_lag_p50_s"), (0.99, "realtime_lag_p99_s")):
+        exact = np.quantile(t, q, method="inverted_cdf")
+        assert exact > 1.0 and abs(r[key] - exact) <= _bin_width(exact)
+    assert r["realtime_lag_max_s"] == pytest.approx(t[-1], abs=1e-9)
+    assert r["realtime_lag_end_s"] == pytest.approx(t[-1], abs=1e-9)
+
+
+def _paced(rtf: float, seconds: float, h: float = 1e-3, stall=None, **options) -> RealtimeLag:
+    """A RealtimeLag fed a run whose plant steps come at ``rtf`` of real time (synthetic clock:
+    what load on this machine does cannot change it); ``stall = (at_s, s)`` pauses the wall clock
+    once; the simulator catches up as fast as 10× real time when behind, as Drake's does."""
+    lag = RealtimeLag(rate=1.0, late_s=h, step_s=h, warn=True, fixes="Fixes: X", **options)
+    now, t = 0.0, 0.0
+    while t < seconds:
+        lag.record(t, now=now)
+        if stall is not None and stall[0] <= t < stall[0] + h:
+            now += stall[1]
+        behind = now - t > 0
+        now += h / (10.0 if behind and rtf >= 1.0 else rtf)
+        t += h
+    return lag
+
+
+def test_a_run_that_cannot_hold_real_time_says_so_within_a_second(caplog):
+    with caplog.at_level("WARNING", logger="godobject_drake.realtime"):
+        lag = _paced(0.8, 3.0)
+    warned = [r for r in caplog.records if r.name == "godobject_drake.realtime"]
+    assert len(warned) == 1  # once
+    text = warned[0].getMessage()
+    # two 0.4 s windows of wall time: warned 0.8 s into the run (sim time 0.64 s at 0.8)
+    assert "0.80 s into the run" in text and "0.80 of real time" in text
+    assert "each 1 ms step took 1.25 ms of wall time" in text  # 1 ms / 0.8
+    assert "0.160 s behind" in text and "Fixes: X" in text  # 0.8 s − 0.64 s
+    summary = lag.summary(3.0, 3.0 / 0.8)
+    assert "ran at 0.80 of real time" in summary and "ended 0.750 s behind" in summary  # 3.75 − 3
+
+
+def test_a_run_that_keeps_up_says_nothing(caplog):
+    """Real time held, and one 200 ms stall at 0.5 s that the simulator catches up: one slow
+    window is not two, and 0.2 s is under BEHIND_S: no warning, no summary."""
+    with caplog.at_level("WARNING", logger="godobject_drake.realtime"):
+        lag = _paced(1.0, 3.0, stall=(0.5, 0.2))
+    assert not [r for r in caplog.records if r.name == "godobject_drake.realtime"]
+    assert lag.summary(3.0, 3.0) is None and lag.max_s == pytest.approx(0.2, abs=2e-3)
+
+
+def test_a_slow_drift_warns_when_a_second_behind(caplog):
+    """At 0.95 of real time no window is below 0.9, but the lag passes 1 s at 20 s of wall time
+    (1 − 0.95 of it): warned there."""
+    with caplog.at_level("WARNING", logger="godobject_drake.realtime"):
+        lag = _paced(0.95, 25.0)
+    assert lag.warned is not None and "20.0" in lag.warned.split(" s into")[0]
 
 
 def test_lcm_flags_are_checked():
