@@ -222,6 +222,7 @@ class _Run:
                 scenario.recording.max_duration_s, live=live
             )  # the surfaces' frames
             self.recording_steps = round(scenario.recording.max_duration_s / h)
+        wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
         self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,
                                min(FALL_WATCH_S, duration))  # fmt: skip
@@ -519,6 +520,41 @@ class FallWatch:
             if b in tools:
                 out.add(a)
         return out
+
+
+class DeviceNotHeardError(RuntimeError):
+    """A device's driver sent nothing within ``device.wait_s`` before the run."""
+
+
+def wait_for_devices(station: Station, clock=time.monotonic) -> None:
+    """Wait for each LCM device's first sample (``device.wait_s``: the run's clock starts when its
+    device is first heard, so starting the scene or the driver first gives the same run); saying
+    so while waiting, and raising :class:`DeviceNotHeardError` naming the fix past the wait."""
+    log = logging.getLogger("godobject_drake.realtime")
+    views = station.scenario.per_tool()
+    for name, tool in station.tools.items():
+        source = getattr(tool.source, "pose_device", tool.source)  # a pose device on a grasper: its own
+        receiver = getattr(source, "receiver", None)
+        config = views[name].device
+        wait_s = config.first_wait_s() if hasattr(config, "first_wait_s") else 0.0
+        if receiver is None or wait_s <= 0 or receiver.latest is not None:
+            continue
+        url = source.lcm.get_lcm_url()
+        who = f"tools.{name}: " if name else ""
+        log.info(
+            "%swaiting up to %g s for the device's first sample on %s (channel %s); the run's clock starts "
+            "then. Start its driver: godobject-driver run KIND --lcm-url %s",
+            who, wait_s, url, receiver.channel, url,
+        )  # fmt: skip
+        t0 = clock()
+        if not receiver.wait_first(wait_s, clock):
+            raise DeviceNotHeardError(
+                f"{who}no sample from the device's driver on {url} (channel {receiver.channel}) in "
+                f"device.wait_s = {wait_s:g} s: start the driver (godobject-driver run KIND --lcm-url {url}, "
+                "with the scene's key file), check its URL and channel, or raise device.wait_s "
+                "(0: start without it, the device at its start pose)"
+            )
+        log.info("%sdevice heard after %.2f s: the run starts", who, clock() - t0)
 
 
 class RealtimeLag:

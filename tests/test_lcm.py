@@ -18,7 +18,7 @@ from godobject_drake.devices.lcm import LcmDevice, LcmJointDevice
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.driver.replay import replay
 from godobject_drake.protocol import FEEDBACK_CHANNEL, JOINT_CHANNEL, POSE_CHANNEL, pose_message
-from godobject_drake.simulation import RealtimeLag, simulate
+from godobject_drake.simulation import DeviceNotHeardError, RealtimeLag, simulate
 
 T = 0.01  # the device's expected period (s)
 Q = (1.0, 0.0, 0.0, 0.0)
@@ -331,3 +331,39 @@ def test_lcm_flags_are_checked():
         build_scene("lego", "--lcm-url", "memq://")
     with pytest.raises(ScenarioError, match=r"haptic.mode.*'impedance'.*set haptic.mode: none"):
         build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--haptic", "impedance")
+
+
+def test_a_scene_started_first_waits_for_its_driver(caplog):
+    """``--lcm-wait``: the run's clock starts when the device is first heard. A driver thread
+    publishes one pose 0.2 s after the run was asked for and nothing more: the t = 0 sample is
+    already that pose (no silent sample then), every later one is silent, so the silent count is
+    the samples after the first exactly, whatever the machine's load (without the wait the first
+    sample, before the driver, is silent too)."""
+    import threading
+
+    station = build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--lcm-wait", "20",
+                          "--duration", "0.1")  # fmt: skip
+    device = station.device
+    pose = [0.02, 0.01, 0.06]
+    timer = threading.Timer(0.2, lambda: device.lcm.Publish(POSE_CHANNEL, pose_message(7, pose, Q).encode()))
+    timer.start()
+    with caplog.at_level("INFO", logger="godobject_drake.realtime"):
+        m = simulate(station, progress=False).metrics
+    timer.join()
+    n = math.floor(0.1 / device.period_s + 1e-9) + 1  # samples at 0, T, ..., 0.1 s
+    assert m["lcm_messages"] == 1 and m["lcm_silent_samples"] == n - 1
+    text = " ".join(r.getMessage() for r in caplog.records)
+    assert "waiting up to 20 s for the device's first sample on memq://" in text
+    assert "device heard after" in text
+
+
+def test_a_scene_whose_driver_never_comes_says_how_to_start_it():
+    station = build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--lcm-wait", "0.2")
+    message = (
+        r"no sample from the device's driver on memq:// \(channel GODOBJECT_DEVICE_POSE\) in device.wait_s = "
+        r"0.2 s: start the driver \(godobject-driver run KIND --lcm-url memq://.*or raise device.wait_s"
+    )
+    with pytest.raises(DeviceNotHeardError, match=message):
+        simulate(station, progress=False)
+    with pytest.raises(ScenarioError, match=r"device.wait_s: -1.0; give the seconds to wait"):
+        build_scene("lego", "--device", "lcm", "--lcm-wait", "-1")

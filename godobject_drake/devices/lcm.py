@@ -56,6 +56,7 @@ what it drops is counted as ``lcm_udp_*`` in the metrics (``lcm_udp_unauthentica
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -135,6 +136,19 @@ class LcmReceiver:
         if not accepted:
             self.counts["lcm_silent_samples"] += 1
         return accepted > 0
+
+    def wait_first(self, timeout_s: float, clock: Callable[[], float] = time.monotonic) -> bool:
+        """Wait up to ``timeout_s`` (wall time) until a first message is accepted; whether one was.
+        A run calls it before its clock starts, so the scene started first waits for its driver."""
+        deadline = clock() + timeout_s
+        while self.latest is None:
+            left = deadline - clock()
+            if left <= 0:
+                return False
+            self.lcm.HandleSubscriptions(max(1, min(100, int(left * 1e3))))
+            if self._pending:
+                self.poll()
+        return True
 
     @property
     def timed_out(self) -> bool:
