@@ -103,6 +103,11 @@ FOLD_PERIOD_S = 1.0  # simulated seconds of logs kept before they are folded int
 # At real time the fold is a pause in the loop (~15 ms for a second of the brick scene's logs):
 # folding at every safeguard check instead keeps each pause near 1 ms, under a device period.
 REAL_TIME_FOLD_PERIOD_S = 0.05
+# ... unless a fold costs more than this share of the simulated time it covers: a fold's cost is
+# mostly per call (the brick scene's true-shape penetration: ~15 numpy calls per box pair), ~50 ms
+# on a loaded 2-core machine, which at every 50 ms held a 5 ms step's scene at half real time. The
+# period then grows (up to FOLD_PERIOD_S) until the folds take at most this share.
+REAL_TIME_FOLD_SHARE = 0.05
 # What a live run that cannot hold real time is told to change (RealtimeLag's warning).
 REALTIME_FIXES = (
     "Fixes: a larger plant step with the implicit coupling (--time-step 0.005 --coupling implicit; "
@@ -241,6 +246,15 @@ class _Run:
         )
         self.diagnosis, self.interrupted, self.zeroed = None, None, False
 
+    def real_time_fold_every(self, cost_s: float) -> int:
+        """Steps between folds at real time after a fold that took ``cost_s`` of wall time: every
+        :data:`REAL_TIME_FOLD_PERIOD_S`, or as much longer (up to :data:`FOLD_PERIOD_S`) as keeps the
+        folds within :data:`REAL_TIME_FOLD_SHARE` of the simulated time."""
+        period = min(
+            max(REAL_TIME_FOLD_PERIOD_S, cost_s * self.lag.rate / REAL_TIME_FOLD_SHARE), FOLD_PERIOD_S
+        )
+        return max(self.guard.every, round(period / self.h))
+
     def fold(self) -> None:
         """The logs drained into each tool's running metrics; a metric that fails is reported,
         never lost."""
@@ -301,7 +315,10 @@ class _Run:
                 if k >= next_fold:
                     t0 = time.perf_counter()
                     self.fold()
-                    self.folding += time.perf_counter() - t0
+                    cost = time.perf_counter() - t0
+                    self.folding += cost
+                    if self.lag is not None:  # at real time: folds take at most their share of it
+                        self.fold_every = self.real_time_fold_every(cost)
                     next_fold = k + self.fold_every
                 if checkpoint is not None and time.perf_counter() - last_checkpoint >= checkpoint_period_s:
                     checkpoint({**self.common(True), **self.tool_metrics(with_devices=False)})
