@@ -585,12 +585,14 @@ class RealtimeLag:
     to a bin (10 µs, or 0.1 % of the lag above 10 ms), the maximum and the final lag exactly, and
     memory stays bounded (at most ~20 000 bins for lags up to 10⁶ s, only those used are kept).
 
-    **The warning** (``warn``): every ``WINDOW_S`` of wall time the real-time factor of that
-    window is measured (simulated time advanced / (rate × wall time)); two windows in a row below
-    ``SLOW_RTF``, or a lag past ``BEHIND_S``, log one warning (logger ``godobject_drake.realtime``)
-    with what was measured and ``fixes``, within ``2 × WINDOW_S`` (0.8 s) of wall time of the
-    slowdown. The run does not drop simulated time to catch up: it goes on in slow motion and
-    says so (:meth:`summary` at the end).
+    **The warning** (``warn``): every ``WINDOW_S`` of wall time the real-time factor of the last
+    two windows is measured (simulated time advanced / (rate × wall time), over 0.8 s); below
+    ``SLOW_RTF``, or a lag past ``BEHIND_S``, one warning is logged (logger
+    ``godobject_drake.realtime``) with what was measured and ``fixes``: a run slower than 0.9 of
+    real time from its start is told at 0.8 s of wall time, a slowdown later within 1.2 s of it.
+    A pause that the run then catches up (a fold of the logs, a collection) does not warn. The
+    run does not drop simulated time to catch up: it goes on in slow motion and says so
+    (:meth:`summary` at the end).
     """
 
     BIN_S = 1e-5
@@ -609,8 +611,8 @@ class RealtimeLag:
         self._bins: dict[int, int] = {}
         self._wall0: float | None = None
         self.max_s, self.last_s, self.late_steps, self.steps = 0.0, 0.0, 0, 0
-        self._window: tuple[float, float] | None = None
-        self._slow_windows = 0
+        self._window: tuple[float, float] | None = None  # (wall, t) where this window began
+        self._previous: tuple[float, float] | None = None  # ... and where the one before it began
         self.slowest_window_rtf: float | None = None
         self.warned: str | None = None  # the warning's text, once logged
 
@@ -641,9 +643,16 @@ class RealtimeLag:
             self.slowest_window_rtf = (
                 rtf if self.slowest_window_rtf is None else min(self.slowest_window_rtf, rtf)
             )
-            self._slow_windows = self._slow_windows + 1 if rtf < self.SLOW_RTF else 0
             self._window = (now, t)
-            if self.warned is None and self.warn and (self._slow_windows >= 2 or lag > self.BEHIND_S):
+            # the last two windows together (0.8 s): a steady slowdown shows there, a pause of
+            # a fold or a collection (tens of ms) does not
+            previous, self._previous = self._previous, (wall_start, t_start)
+            if previous is not None:
+                wall_two, t_two = previous
+                two = (t - t_two) / (self.rate * (now - wall_two))
+                if self.warned is None and self.warn and two < self.SLOW_RTF:
+                    self._warn(two, lag, now - self._wall0)
+            if self.warned is None and self.warn and lag > self.BEHIND_S:
                 self._warn(rtf, lag, now - self._wall0)
         elif self.warned is None and self.warn and lag > self.BEHIND_S:
             self._warn((t / self.rate) / (now - self._wall0), lag, now - self._wall0)

@@ -307,12 +307,26 @@ def test_a_run_that_cannot_hold_real_time_says_so_within_a_second(caplog):
 
 
 def test_a_run_that_keeps_up_says_nothing(caplog):
-    """Real time held, and one 200 ms stall at 0.5 s that the simulator catches up: one slow
-    window is not two, and 0.2 s is under BEHIND_S: no warning, no summary."""
+    """Real time held, and one 200 ms pause at 0.5 s that the simulator catches up (at 10 times
+    real time, 22 ms later): over every 0.8 s the run kept real time, so no warning and no
+    summary; the pause is in the lag's maximum."""
     with caplog.at_level("WARNING", logger="godobject_drake.realtime"):
         lag = _paced(1.0, 3.0, stall=(0.5, 0.2))
     assert not [r for r in caplog.records if r.name == "godobject_drake.realtime"]
     assert lag.summary(3.0, 3.0) is None and lag.max_s == pytest.approx(0.2, abs=2e-3)
+
+
+def test_a_slowdown_mid_run_is_said_within_a_second():
+    """Real time for 5 s, then 0.8 of it: warned within 1.2 s of wall time of the change (here at
+    the window ending 5.6 s: [4.8, 5.6] ran at (0.2 + 0.6 × 0.8) / 0.8 = 0.85)."""
+    lag = RealtimeLag(rate=1.0, late_s=1e-3, step_s=1e-3, warn=True)
+    now, t = 0.0, 0.0
+    while lag.warned is None and t < 10.0:
+        lag.record(t, now=now)
+        now += 1e-3 if t < 5.0 else 1e-3 / 0.8
+        t += 1e-3
+    at = float(lag.warned.split(" s into")[0].rsplit(" ", 1)[1])
+    assert at == pytest.approx(5.6, abs=0.02) and "0.85 of real time" in lag.warned
 
 
 def test_a_slow_drift_warns_when_a_second_behind(caplog):
