@@ -259,3 +259,26 @@ def test_the_hand_feels_the_fem_uterus_stiffness_analyze_predicts():
     assert 0.5e-3 < u < 2e-3
     assert np.linalg.norm(F[3:5]) < 0.05 * F[5]  # up the tube (the organ's mesh tilts it by ~2 %)
     assert F[5] / u == pytest.approx(k, rel=0.15), f"F = {F[5]:.4g} N, u = {u * 1e3:.4g} mm, k = {k:.4g} N/m"
+
+
+def test_an_absurd_jump_of_the_pose_device_is_held_back_until_confirmed(plant_and_trocar):
+    """The pose device's own guard acts on the mapped samples: a 3 cm jump in one 60 Hz sample
+    (1.8 m/s, past the guard's 0.5 m/s) is held back twice, then taken once 3 samples agree
+    (confirm_samples), as the pose device itself would (SampleGuard)."""
+    from godobject_drake.config.device_files import SampleGuard
+    from godobject_drake.devices.factory import make_device
+
+    _, _, kin = plant_and_trocar
+    config = dk.Scripted(
+        waypoints=[Waypoint(t=0.0, xyz=[0.0, 0.0, 0.06]), Waypoint(t=0.5, xyz=[0.0, 0.0, 0.06]),
+                   Waypoint(t=0.501, xyz=[0.03, 0.0, 0.06]), Waypoint(t=2.0, xyz=[0.03, 0.0, 0.06])],
+        rate_hz=60.0, guard=SampleGuard(max_speed_m_s=0.5),
+    )  # fmt: skip
+    names = ["yaw", "pitch", "insertion", "roll", "jaw_upper", "jaw_lower"]
+    device = PoseJointDevice(make_device(config), kin, names, JOINTS, ("jaw_upper", "jaw_lower"))
+    q = [device.sample(k / 60.0) for k in range(29, 35)]
+    before, after = q[1], kin.inverse([0.03, 0.0, 0.06], np.eye(3))
+    np.testing.assert_array_equal(q[2], before)  # k = 31: held
+    np.testing.assert_array_equal(q[3], before)  # k = 32: held
+    np.testing.assert_allclose(q[4][:4], after, atol=1e-12)  # k = 33: three agree, taken
+    assert (device.rejected_jumps, device.relocations, device.held) == (2, 1, 2)

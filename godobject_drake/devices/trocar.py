@@ -138,8 +138,9 @@ class PoseJointDevice(JointDevice):
     trocar's joints, in ``device_joints`` order; each of ``jaw_joints`` turns by half of
     ``jaw_open_rad`` while the device's button (its grasp) is up, and closes (0) while it is down.
     A sample that is missing, invalid (the pose device's own checks: NaN, a non-unit quaternion),
-    at the pivot or outside ``limits`` (the joints' ranges) is not used: the tool's target holds
-    its last one, counted in ``pose_to_joints_held_samples``.
+    at the pivot, outside ``limits`` (the joints' ranges) or an absurd jump (the pose device's
+    ``guard``: :meth:`_plausible`) is not used: the tool's target holds its last one, counted in
+    ``pose_to_joints_held_samples``.
     """
 
     def __init__(
@@ -158,8 +159,10 @@ class PoseJointDevice(JointDevice):
         self._jaws = [self.device_joints.index(name) for name in jaw_joints]
         self.jaw_open_rad = float(jaw_open_rad)
         self.limits = {i: limits[name] for i, name in enumerate(trocar_joints) if name in (limits or {})}
-        self.held = 0
+        self.held = self.rejected_jumps = self.relocations = 0
         self._last: np.ndarray | None = None
+        self._p_last: np.ndarray | None = None  # the tip position of the last accepted sample
+        self._gap, self._candidates, self._candidate = 0, 0, None
         self._last = self._map(pose_device._sample(0.0), None)
         if self._last is None:
             first = pose_device._sample(0.0)
@@ -191,12 +194,36 @@ class PoseJointDevice(JointDevice):
         return out
 
     def _value(self, t: float) -> np.ndarray:
-        mapped = self._map(self.pose_device._sample(t), self._last)
+        sample = self.pose_device._sample(t)
+        mapped = self._map(sample, self._last)
+        if mapped is not None and not self._plausible(np.asarray(sample[0], float)):
+            mapped = None
         if mapped is None:
             self.held += 1
+            self._gap += 1
             return self._last
-        self._last = mapped
+        self._last, self._p_last, self._gap = mapped, np.asarray(sample[0], float), 0
         return mapped
+
+    def _plausible(self, p: np.ndarray) -> bool:
+        """The pose device's jump guard (:class:`~godobject_drake.config.device_files.SampleGuard`)
+        on the tip's position: farther from the last accepted than ``max_speed_m_s`` carries it
+        is held back (``pose_to_joints_rejected_jumps``) until ``confirm_samples`` samples agree
+        at the new place (``pose_to_joints_relocations``)."""
+        guard = self.pose_device.guard
+        step = guard.max_speed_m_s * self.period_s
+        if self._p_last is None or np.linalg.norm(p - self._p_last) <= step * (self._gap + 1):
+            self._candidates = 0
+            return True
+        agrees = self._candidates > 0 and np.linalg.norm(p - self._candidate) <= step
+        self._candidates = self._candidates + 1 if agrees else 1
+        self._candidate = p
+        if self._candidates >= guard.confirm_samples:
+            self.relocations += 1
+            self._candidates = 0
+            return True
+        self.rejected_jumps += 1
+        return False
 
     def samples(self, duration_s: float) -> np.ndarray:
         """The pose device's samples known before the run (a script's, an LCM device's start),
@@ -209,7 +236,11 @@ class PoseJointDevice(JointDevice):
         return np.array(rows)
 
     def status(self, context) -> dict:
-        out = {"pose_to_joints_held_samples": self.held}
+        out = {
+            "pose_to_joints_held_samples": self.held,
+            "pose_to_joints_rejected_jumps": self.rejected_jumps,
+            "pose_to_joints_relocations": self.relocations,
+        }
         if hasattr(self.pose_device, "lcm_status"):
             out.update(self.pose_device.lcm_status())
         return out
