@@ -109,6 +109,7 @@ class TrocarKinematics:
         model is not a trocar of this form and a ``ValueError`` says so."""
         context = plant.CreateDefaultContext()
         instance = plant.GetModelInstanceByName(model) if isinstance(model, str) else model
+        model = plant.GetModelInstanceName(instance)
         pivot = plant.GetBodyByName(pivot_body, instance)
         tip = plant.GetBodyByName(tip_body, instance)
         kin = cls(plant.EvalBodyPoseInWorld(context, pivot), min_insertion_m)

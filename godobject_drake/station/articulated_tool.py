@@ -193,7 +193,9 @@ def pose_to_joints(plant, scenario, pose_device: DeviceSource) -> PoseJointDevic
         trocar = TrocarKinematics.from_plant(
             plant, model, config.pivot_body, config.tip_body, mapping.joints, mapping.min_insertion_m
         )
-    except (ValueError, RuntimeError) as e:
+    except ValueError as e:  # names the field itself
+        raise sc.ScenarioError(str(e)) from None
+    except RuntimeError as e:  # Drake: a body or joint the model does not have
         raise sc.ScenarioError(f"god_object.pose_to_joints: {e}") from None
     limits = {}
     for name in mapping.joints:
