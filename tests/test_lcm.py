@@ -381,3 +381,29 @@ def test_a_scene_whose_driver_never_comes_says_how_to_start_it():
         simulate(station, progress=False)
     with pytest.raises(ScenarioError, match=r"device.wait_s: -1.0; give the seconds to wait"):
         build_scene("lego", "--device", "lcm", "--lcm-wait", "-1")
+
+
+def test_a_joint_device_waited_for_starts_at_its_drivers_values():
+    """``!LcmJoints`` on the grasper with ``--lcm-wait``: the driver's first message (sent 0.2 s
+    after the run was asked for) is the device's sample at t = 0, not the scenario's start (which
+    the next sample, 1/60 s later, would have replaced)."""
+    import threading
+
+    from godobject_drake.protocol import JOINT_CHANNEL
+
+    station = build_scene("laparoscopy", "--device", "lcm", "--lcm-url", "memq://", "--lcm-wait", "20",
+                          "--duration", "0.05")  # fmt: skip
+    device = station.device
+    values = [0.05, -0.04, 0.045, 0.3, 0.2]  # yaw, pitch, insertion, roll, jaw
+
+    def send():
+        msg = lcmt_robot_state()
+        msg.utime, msg.num_joints, msg.joint_name, msg.joint_position = 5, 5, list(device.channels), values
+        device.lcm.Publish(JOINT_CHANNEL, msg.encode())
+
+    timer = threading.Timer(0.2, send)
+    timer.start()
+    result = simulate(station, progress=False)
+    timer.join()
+    # row 0 is the state built before the run (the start); the sample at t = 0 is the driver's
+    np.testing.assert_allclose(result.data["q_device"][1], device.mix @ values, atol=1e-7)  # float32

@@ -327,21 +327,25 @@ class LcmJointDevice(JointDevice):
     ):
         self.lcm = lcm
         self.receiver = LcmReceiver(lcm, channel, channels, timeout_periods)
-        self._values = np.asarray(start, float).reshape(-1)
+        self._values = self._start = np.asarray(start, float).reshape(-1)
         if self._values.size != len(channels):
             raise ValueError(f"{len(channels)} channels {list(channels)} need as many start values: {start}")
         self._polled_at = -math.inf
         super().__init__(self._read, channels, mix, period_s, latency_s)
 
     def _read(self, t: float) -> np.ndarray:
+        fresh = False
         if t > self._polled_at:
             self._polled_at = t
-            if t > 0.0 and self.receiver.poll():
-                values, _ = self.receiver.latest
-                if np.all(np.isfinite(values)):
-                    self._values = values
-                else:
-                    self.receiver.counts["lcm_bad_messages"] += 1
+            fresh = t > 0.0 and self.receiver.poll()
+        elif t == 0.0 and self.receiver.latest is not None and self._values is self._start:
+            fresh = True  # the run waited for the first message (simulation.wait_for_devices)
+        if fresh:
+            values, _ = self.receiver.latest
+            if np.all(np.isfinite(values)):
+                self._values = values
+            else:
+                self.receiver.counts["lcm_bad_messages"] += 1
         return self._values
 
     def samples(self, duration_s: float) -> np.ndarray:
