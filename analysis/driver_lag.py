@@ -16,6 +16,7 @@ spin the CPU (default: one per core). Reported per phase (p50, p99, max):
 - the driver's watchdog trips (10 ms without feedback: force zeroed) and overruns.
 
     python analysis/driver_lag.py [--duration 10] [--load N] [--rt-priority P] [--idle-only] [--out lag.json]
+        [--scenario diagrams/lego_haptic.yaml]
 
 Not a test: figures depend on the machine. All traffic stays on 127.0.0.1.
 """
@@ -50,16 +51,19 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def phase(work: Path, duration: float, load: int, rt_priority: int = 0) -> dict:
+def phase(work: Path, duration: float, load: int, rt_priority: int = 0, base: Path | None = None) -> dict:
     from godobject_drake.config import scenario as sc
 
     url = f"udp://127.0.0.1:{free_port()}"
+    base = base or ROOT / "diagrams" / "lego.yaml"
+    own = sc.load_scenario(base).device
+    rate = own.rate_hz if type(own).__name__ == "Lcm" else 1000.0  # a recipe's own rate; else 1 kHz
     s = sc.load_scenario(
-        ROOT / "diagrams" / "lego.yaml",
+        base,
         f"""
 device: !Lcm
   url: {url}
-  rate_hz: 1000.0
+  rate_hz: {rate}
   start_xyz: [-0.10, 0.0, 0.0048]
   device_to_world: {{xyz: [-0.05, 0.0, 0.02], rpy_deg: [0, 0, 90]}}
 feedback: {{kd: 50.0}}
@@ -146,6 +150,11 @@ def main(argv=None) -> int:
         "--rt-priority", type=int, default=0, help="the driver's SCHED_FIFO priority (0: none)"
     )
     parser.add_argument("--idle-only", action="store_true", help="skip the phase beside the load (CI)")
+    parser.add_argument(
+        "--scenario", type=Path, default=None,
+        help="the scene's file (default diagrams/lego.yaml; its device is replaced by the driver's, "
+        "at 1 kHz; e.g. diagrams/lego_haptic.yaml, the haptic recipe)",
+    )  # fmt: skip
     parser.add_argument("--out", default="", help="write both phases' figures to FILE.json")
     args = parser.parse_args(argv)
     if not args.duration > 0 or args.load < 0:
@@ -158,7 +167,7 @@ def main(argv=None) -> int:
     phases = (("idle", 0),) if args.idle_only else (("idle", 0), ("loaded", args.load))
     for name, load in phases:
         with tempfile.TemporaryDirectory() as work:
-            r = results[name] = phase(Path(work), args.duration, load, args.rt_priority)
+            r = results[name] = phase(Path(work), args.duration, load, args.rt_priority, args.scenario)
         m, d = r["scene"], r["driver"]
         print(
             f"\n{name}: {load} spinning processes beside; {args.duration:g} s simulated "
@@ -177,7 +186,12 @@ def main(argv=None) -> int:
                 m.get("realtime_lag_max_s"),
             )
         )
-        print(f"  driver rt priority {d.get('rt_priority', 0)}; scene step cost {m['step_cost_us']:.0f} µs")
+        print(
+            f"  driver rt priority {d.get('rt_priority', 0)}; scene step cost {m['step_cost_us']:.0f} µs "
+            f"(h = {m['time_step_s'] * 1e3:g} ms); scene ended "
+            f"{m.get('realtime_lag_end_s', float('nan')):.3f} s behind; "
+            f"warned: {m.get('realtime_warning') is not None}"
+        )
         c = d["counts"]
         print(
             f"  driver: {c['loops']} periods, {c['overruns']} overruns, "

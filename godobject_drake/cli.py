@@ -30,7 +30,7 @@ from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
 from godobject_drake.protocol import StderrHandler
 from godobject_drake.safeguards import WiringError
-from godobject_drake.simulation import RunInterrupted, simulate
+from godobject_drake.simulation import DeviceNotHeardError, RunInterrupted, simulate
 from godobject_drake.station.build import build_station, make_meshcat
 from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 
@@ -93,6 +93,9 @@ COMMON_FLAGS = (
     Flag("--lcm-url", "device.url",
          "a device read over LCM: Drake's LCM URL (default Drake's: UDP multicast; memq:// stays in the "
          "process)"),
+    Flag("--lcm-wait", "device.wait_s",
+         "LCM devices: seconds to wait for the driver's first sample before the run's clock starts "
+         "(default 30 on udp://, 0 on memq://; 0: do not wait)", type=float),
     Flag("--device-log", "device.log",
          "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
          "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)", type=Path,
@@ -170,7 +173,7 @@ def all_flags() -> tuple[Flag, ...]:
 # no page, and stands a scripted device in for the scenario's (studies.analyze.analysis_scenario).
 RUN_ONLY_FLAGS = frozenset({
     "--record", "--meshcat", "--meshcat-host", "--trust-local-pages", "--force-cue", "--metrics",
-    "--no-progress", "--device",
+    "--no-progress", "--device", "--lcm-wait",
     "--device-log", "--lcm-url", "--device-interpolation", "--max-device-speed", "--device-noise", "--seed",
     "--tether", "--tether-angle", "--cd-ratio", "--cd-onset",
 })  # fmt: skip
@@ -497,6 +500,7 @@ USER_ERRORS = (
     WiringError,
     ValueError,
     FileNotFoundError,
+    DeviceNotHeardError,
 )
 
 

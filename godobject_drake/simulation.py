@@ -15,6 +15,7 @@ covers at most ``recording.max_duration_s``.
 """
 
 import dataclasses
+import logging
 import math
 import sys
 import time
@@ -104,6 +105,18 @@ FOLD_PERIOD_S = 1.0  # simulated seconds of logs kept before they are folded int
 # At real time the fold is a pause in the loop (~15 ms for a second of the brick scene's logs):
 # folding at every safeguard check instead keeps each pause near 1 ms, under a device period.
 REAL_TIME_FOLD_PERIOD_S = 0.05
+# ... unless a fold costs more than this share of the simulated time it covers: a fold's cost is
+# mostly per call (the brick scene's true-shape penetration: ~15 numpy calls per box pair), ~50 ms
+# on a loaded 2-core machine, which at every 50 ms held a 5 ms step's scene at half real time. The
+# period then grows (up to FOLD_PERIOD_S) until the folds take at most this share.
+REAL_TIME_FOLD_SHARE = 0.05
+# What a live run that cannot hold real time is told to change (RealtimeLag's warning).
+REALTIME_FIXES = (
+    "Fixes: a larger plant step with the implicit coupling (--time-step 0.005 --coupling implicit; "
+    "articulated tools: joint_pd_sap; the haptic recipe diagrams/lego_haptic.yaml), fewer awake "
+    "bodies (--sleep on, fewer free bodies), a coarser organ (organs.cells 6 or 4); "
+    "docs/guide/haptic_recipe.md"
+)
 
 
 def simulate(
@@ -193,7 +206,9 @@ class _Run:
         self.lag = None
         if rate > 0:  # at real time: how late each plant step comes, against the wall clock
             periods = [getattr(tool.source, "period_s", h) for tool in station.tools.values()]
-            self.lag = RealtimeLag(rate, late_s=min(periods))
+            self.lag = RealtimeLag(
+                rate, late_s=min(periods), step_s=h, warn=on_wall_clock, fixes=REALTIME_FIXES
+            )
             before_step = self.lag.wrap(before_step)
         self.guard = install_safeguards(
             self.simulator, self.plant, check_period_s=sim.check_period_s, max_speed=sim.max_speed,
@@ -214,6 +229,7 @@ class _Run:
                 scenario.recording.max_duration_s, live=live
             )  # the surfaces' frames
             self.recording_steps = round(scenario.recording.max_duration_s / h)
+        wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
         self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,
                                min(FALL_WATCH_S, duration))  # fmt: skip
@@ -231,6 +247,15 @@ class _Run:
             0.0  # cpu: the process's CPU time in the loop (load moves it less)
         )
         self.diagnosis, self.interrupted, self.zeroed = None, None, False
+
+    def real_time_fold_every(self, cost_s: float) -> int:
+        """Steps between folds at real time after a fold that took ``cost_s`` of wall time: every
+        :data:`REAL_TIME_FOLD_PERIOD_S`, or as much longer (up to :data:`FOLD_PERIOD_S`) as keeps the
+        folds within :data:`REAL_TIME_FOLD_SHARE` of the simulated time."""
+        period = min(
+            max(REAL_TIME_FOLD_PERIOD_S, cost_s * self.lag.rate / REAL_TIME_FOLD_SHARE), FOLD_PERIOD_S
+        )
+        return max(self.guard.every, round(period / self.h))
 
     def fold(self) -> None:
         """The logs drained into each tool's running metrics; a metric that fails is reported,
@@ -295,7 +320,10 @@ class _Run:
                 if k >= next_fold:
                     t0 = time.perf_counter()
                     self.fold()
-                    self.folding += time.perf_counter() - t0
+                    cost = time.perf_counter() - t0
+                    self.folding += cost
+                    if self.lag is not None:  # at real time: folds take at most their share of it
+                        self.fold_every = self.real_time_fold_every(cost)
                     next_fold = k + self.fold_every
                 if checkpoint is not None and time.perf_counter() - last_checkpoint >= checkpoint_period_s:
                     checkpoint({**self.common(True), **self.tool_metrics(with_devices=False)})
@@ -348,6 +376,9 @@ class _Run:
         metrics = self.common(partial)
         if self.lag is not None:
             metrics.update(self.lag.result())
+            summary = self.lag.summary(root.get_time(), self.wall) if self.lag.warn else None
+            if summary is not None:
+                logging.getLogger("godobject_drake.realtime").warning("%s", summary)
         if self.guard.stopped:
             metrics["stopped_by_user"] = True
         if self.interrupted is not None:
@@ -511,32 +542,153 @@ class FallWatch:
         return out
 
 
+class DeviceNotHeardError(RuntimeError):
+    """A device's driver sent nothing within ``device.wait_s`` before the run."""
+
+
+def wait_for_devices(station: Station, clock=time.monotonic) -> None:
+    """Wait for each LCM device's first sample (``device.wait_s``: the run's clock starts when its
+    device is first heard, so starting the scene or the driver first gives the same run); saying
+    so while waiting, and raising :class:`DeviceNotHeardError` naming the fix past the wait."""
+    log = logging.getLogger("godobject_drake.realtime")
+    views = station.scenario.per_tool()
+    for name, tool in station.tools.items():
+        source = getattr(tool.source, "pose_device", tool.source)  # a pose device on a grasper: its own
+        receiver = getattr(source, "receiver", None)
+        config = views[name].device
+        wait_s = config.first_wait_s() if hasattr(config, "first_wait_s") else 0.0
+        if receiver is None or wait_s <= 0 or receiver.latest is not None:
+            continue
+        url = source.lcm.get_lcm_url()
+        who = f"tools.{name}: " if name else ""
+        log.info(
+            "%swaiting up to %g s for the device's first sample on %s (channel %s); the run's clock starts "
+            "then. Start its driver: godobject-driver run KIND --lcm-url %s",
+            who, wait_s, url, receiver.channel, url,
+        )  # fmt: skip
+        t0 = clock()
+        if not receiver.wait_first(wait_s, clock):
+            raise DeviceNotHeardError(
+                f"{who}no sample from the device's driver on {url} (channel {receiver.channel}) in "
+                f"device.wait_s = {wait_s:g} s: start the driver (godobject-driver run KIND --lcm-url {url}, "
+                "with the scene's key file), check its URL and channel, or raise device.wait_s "
+                "(0: start without it, the device at its start pose)"
+            )
+        log.info("%sdevice heard after %.2f s: the run starts", who, clock() - t0)
+
+
 class RealtimeLag:
-    """How far each plant step lags behind the wall clock in a run at real-time rate.
+    """How far each plant step lags behind the wall clock in a run at real-time rate, and a warning
+    when the run cannot hold it.
 
     Step k at simulated time t is due at ``t / rate`` of wall time after t = 0; its lag is how
-    much later the simulator reaches it (ahead counts as 0). Kept as a histogram of
-    ``BIN_S`` bins up to ``MAX_S`` (memory does not grow with the run; a lag past ``MAX_S``
-    falls in the last bin), so the quantiles are exact to a bin and the maximum exactly.
+    much later the simulator reaches it (ahead counts as 0). The lags are kept in bins of
+    ``BIN_S`` up to ``FINE_S``, and above it in bins of a relative width ``REL`` without an
+    upper end (a run 23 s behind is counted as 23 s, not in a last bin): the quantiles are exact
+    to a bin (10 µs, or 0.1 % of the lag above 10 ms), the maximum and the final lag exactly, and
+    memory stays bounded (at most ~20 000 bins for lags up to 10⁶ s, only those used are kept).
+
+    **The warning** (``warn``): every ``WINDOW_S`` of wall time the real-time factor of the last
+    two windows is measured (simulated time advanced / (rate × wall time), over 0.8 s); below
+    ``SLOW_RTF``, or a lag past ``BEHIND_S``, one warning is logged (logger
+    ``godobject_drake.realtime``) with what was measured and ``fixes``: a run slower than 0.9 of
+    real time from its start is told at 0.8 s of wall time, a slowdown later within 1.2 s of it.
+    A pause that the run then catches up (a fold of the logs, a collection) does not warn. The
+    run does not drop simulated time to catch up: it goes on in slow motion and says so
+    (:meth:`summary` at the end).
     """
 
     BIN_S = 1e-5
-    MAX_S = 1.0
+    FINE_S = 1e-2
+    REL = 1e-3
+    WINDOW_S = 0.4
+    SLOW_RTF = 0.9
+    BEHIND_S = 1.0
 
-    def __init__(self, rate: float, late_s: float):
+    def __init__(self, rate: float, late_s: float, step_s: float | None = None, warn: bool = False,
+                 fixes: str = ""):  # fmt: skip
         self.rate, self.late_s = float(rate), float(late_s)
-        self._hist = np.zeros(round(self.MAX_S / self.BIN_S) + 1, dtype=np.int64)
+        self.step_s, self.warn, self.fixes = step_s, warn, fixes
+        self._n_fine = round(self.FINE_S / self.BIN_S)
+        self._log_rel = math.log1p(self.REL)
+        self._bins: dict[int, int] = {}
         self._wall0: float | None = None
-        self.max_s, self.late_steps = 0.0, 0
+        self.max_s, self.last_s, self.late_steps, self.steps = 0.0, 0.0, 0, 0
+        self._window: tuple[float, float] | None = None  # (wall, t) where this window began
+        self._previous: tuple[float, float] | None = None  # ... and where the one before it began
+        self.slowest_window_rtf: float | None = None
+        self.warned: str | None = None  # the warning's text, once logged
+
+    def _bin(self, lag: float) -> int:
+        if lag < self.FINE_S:
+            return int(lag / self.BIN_S)
+        return self._n_fine + int(math.log(lag / self.FINE_S) / self._log_rel)
+
+    def _upper(self, i: int) -> float:
+        if i < self._n_fine:
+            return (i + 1) * self.BIN_S
+        return self.FINE_S * math.exp((i - self._n_fine + 1) * self._log_rel)
 
     def record(self, t: float, now: float | None = None) -> None:
         now = time.perf_counter() if now is None else now
         if self._wall0 is None:
             self._wall0 = now - t / self.rate
+            self._window = (now, t)
         lag = max(now - self._wall0 - t / self.rate, 0.0)
-        self._hist[min(int(lag / self.BIN_S), len(self._hist) - 1)] += 1
-        self.max_s = max(self.max_s, lag)
+        i = self._bin(lag)
+        self._bins[i] = self._bins.get(i, 0) + 1
+        self.max_s, self.last_s = max(self.max_s, lag), lag
         self.late_steps += lag > self.late_s
+        self.steps += 1
+        wall_start, t_start = self._window
+        if now - wall_start >= self.WINDOW_S:
+            rtf = (t - t_start) / (self.rate * (now - wall_start))
+            self.slowest_window_rtf = (
+                rtf if self.slowest_window_rtf is None else min(self.slowest_window_rtf, rtf)
+            )
+            self._window = (now, t)
+            # the last two windows together (0.8 s): a steady slowdown shows there, a pause of
+            # a fold or a collection (tens of ms) does not
+            previous, self._previous = self._previous, (wall_start, t_start)
+            if previous is not None:
+                wall_two, t_two = previous
+                two = (t - t_two) / (self.rate * (now - wall_two))
+                if self.warned is None and self.warn and two < self.SLOW_RTF:
+                    self._warn(two, lag, now - self._wall0)
+            if self.warned is None and self.warn and lag > self.BEHIND_S:
+                self._warn(rtf, lag, now - self._wall0)
+        elif self.warned is None and self.warn and lag > self.BEHIND_S:
+            self._warn((t / self.rate) / (now - self._wall0), lag, now - self._wall0)
+
+    def _warn(self, rtf: float, lag: float, wall: float) -> None:
+        cost = ""
+        if self.step_s is not None and rtf > 0:
+            wall_ms = 1e3 * self.step_s / (rtf * self.rate)
+            cost = f" (each {1e3 * self.step_s:g} ms step took {wall_ms:.2f} ms of wall time)"
+        self.warned = (
+            f"the scene cannot hold real time: {wall:.2f} s into the run it ran at {rtf:.2f} of real time"
+            f"{cost} and is {lag:.3f} s behind the wall clock, so the tool moves in slow motion and "
+            "the device's feedback comes late; the run does not drop simulated time to catch up. "
+            f"{self.fixes}"
+        ).strip()
+        logging.getLogger("godobject_drake.realtime").warning("%s", self.warned)
+
+    def summary(self, sim_time_s: float, wall_time_s: float) -> str | None:
+        """The end of a run that warned, or ended more than ``late_s`` behind: what it ran at, how
+        far behind it ended, the worst window; None for a run that kept up."""
+        if self.steps == 0 or (self.warned is None and self.last_s <= max(self.late_s, 0.1)):
+            return None
+        rtf = sim_time_s / (self.rate * wall_time_s) if wall_time_s > 0 else float("nan")
+        worst = (
+            ""
+            if self.slowest_window_rtf is None
+            else f", {self.slowest_window_rtf:.2f} at worst over {self.WINDOW_S:g} s"
+        )
+        return (
+            f"real time not held: the run ran at {rtf:.2f} of real time{worst}, ended "
+            f"{self.last_s:.3f} s behind the wall clock (lag p50 {self.quantile(0.5):.4f} s, p99 "
+            f"{self.quantile(0.99):.4f} s, max {self.max_s:.4f} s)"
+        )
 
     def wrap(self, before_step):
         """``before_step`` (or nothing) with the lag recorded first, at every plant step."""
@@ -549,20 +701,25 @@ class RealtimeLag:
         return step
 
     def quantile(self, q: float) -> float:
-        """The ``q`` quantile of the lags (s), to the bin's upper edge."""
-        n = int(self._hist.sum())
-        if n == 0:
+        """The ``q`` quantile of the lags (s), to its bin's upper edge (never past the maximum)."""
+        if self.steps == 0:
             return float("nan")
-        i = int(np.searchsorted(np.cumsum(self._hist), math.ceil(q * n)))
-        return min((i + 1) * self.BIN_S, self.max_s)
+        need, seen = math.ceil(q * self.steps), 0
+        for i in sorted(self._bins):
+            seen += self._bins[i]
+            if seen >= need:
+                return min(self._upper(i), self.max_s)
+        return self.max_s
 
     def result(self) -> dict:
         return {
             "realtime_lag_p50_s": self.quantile(0.5),
             "realtime_lag_p99_s": self.quantile(0.99),
             "realtime_lag_max_s": self.max_s,
+            "realtime_lag_end_s": self.last_s,
             "realtime_late_steps": int(self.late_steps),
             "realtime_late_threshold_s": self.late_s,
+            "realtime_warning": self.warned,
         }
 
 

@@ -23,6 +23,16 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def cross_rows(a, b) -> np.ndarray:
+    """``np.cross(a, b)`` for 3-vectors or rows of them (``(..., 3)``, broadcast): the same
+    products and differences, so the same bits, without ``np.cross``'s axis handling (16 µs a
+    call; the implicit coupling made ~5 a step)."""
+    a, b = np.asarray(a), np.asarray(b)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def quat_product(a, b) -> tuple:
     """Hamilton product ``a ⊗ b`` of ``[w, x, y, z]`` quaternions, as a 4-tuple.
 

@@ -292,9 +292,10 @@ def test_truncated_datagrams_are_counted_and_the_scene_runs_on():
 
 
 def test_a_scene_sent_truncated_datagrams_runs_to_its_end_and_writes_its_metrics_whole():
-    """The brick scene with a driver's device on udp:// (no driver), sent truncated pose and status
-    messages before and while it runs: before pairing struct.error ended the run (exit 1, no
-    metrics at all); now it runs its 0.2 s and its metrics count each datagram."""
+    """The brick scene with a driver's device on udp:// (no driver, so ``wait_s: 0``), sent
+    truncated pose and status messages before and while it runs: before pairing struct.error
+    ended the run (exit 1, no metrics at all); now it runs its 0.2 s and its metrics count each
+    datagram."""
     from godobject_drake.config import scenario as sc
     from godobject_drake.simulation import simulate
     from godobject_drake.station.build import build_station
@@ -303,7 +304,7 @@ def test_a_scene_sent_truncated_datagrams_runs_to_its_end_and_writes_its_metrics
     port = probe.getsockname()[1]
     probe.close()  # a port free a moment ago, for the scene
     scenario = sc.load_scenario(REPO / "diagrams" / "lego.yaml",
-                                f"device: !Lcm {{url: 'udp://127.0.0.1:{port}', rate_hz: 200.0}}\n"
+                                f"device: !Lcm {{url: 'udp://127.0.0.1:{port}', rate_hz: 200.0, wait_s: 0}}\n"
                                 "simulation: {duration_s: 0.2}")  # fmt: skip
     station = build_station(scenario)
     stranger = udp_socket()

@@ -136,3 +136,14 @@ def test_pose_from_array_is_the_logged_pose():
     X = pose_from_array(np.array([2 * np.cos(a / 2), 0, 2 * np.sin(a / 2), 0, 0.1, -0.2, 0.3]))
     np.testing.assert_allclose(X.rotation().matrix(), RotationMatrix.MakeYRotation(a).matrix(), atol=1e-15)
     np.testing.assert_array_equal(X.translation(), [0.1, -0.2, 0.3])
+
+
+def test_cross_rows_is_numpys_cross_to_the_bit():
+    """The implicit coupling's cross products (``cross_rows``) against ``np.cross`` (a second
+    method): the same bits for 3-vectors, rows, and a vector broadcast against rows."""
+    from godobject_drake.spatial import cross_rows
+
+    rng = np.random.default_rng(7)
+    for sa, sb in (((3,), (3,)), ((6, 3), (6, 3)), ((3,), (5, 3)), ((4, 3), (3,))):
+        a, b = rng.normal(size=sa), rng.normal(size=sb)
+        assert np.array_equal(cross_rows(a, b), np.cross(a, b))

@@ -452,6 +452,13 @@ class Lcm(_PoseDevice):
         published at ``rate_hz``.
     timeout_periods : int
         Samples without a message after which the device holds at rest (a driver unplugged).
+    wait_s : float | None
+        How long a run waits (wall time) for the driver's first sample before its clock starts:
+        started first, the scene waits for its driver, so either order gives the same run
+        (docs/guide/haptic_recipe.md); past it the run stops with an error naming the fix. None:
+        30 s on a link to another process (``udp://``, multicast), 0 on ``memq://`` (the
+        publisher is the scene's own process); 0: start at once, the device at its start pose
+        until its first message.
     start_xyz, start_rpy_deg :
         Where the device stands until its first message (m, degrees).
     grasp : str
@@ -472,6 +479,7 @@ class Lcm(_PoseDevice):
     channel: str = "GODOBJECT_DEVICE_POSE"
     feedback_channel: str = "GODOBJECT_FEEDBACK"
     timeout_periods: int = 5
+    wait_s: float | None = None
     start_xyz: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     start_rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     device_to_world: DeviceToWorld = dataclasses.field(default_factory=DeviceToWorld)
@@ -483,6 +491,11 @@ class Lcm(_PoseDevice):
             raise ValueError("noise_m: a real device's samples are its own; leave it 0")
         self.device_to_world.check()
         _check_link(self.url, self.key_file)
+        _check_wait(self.wait_s)
+
+    def first_wait_s(self) -> float:
+        """``wait_s``, its default resolved."""
+        return first_wait_s(self.wait_s, self.url)
 
 
 def _check_link(url: str, key_file: str) -> None:
@@ -496,6 +509,24 @@ def _check_link(url: str, key_file: str) -> None:
             f"key_file: {key_file!r} pairs a udp:// link only, and url is {url or 'Drake default'!r} "
             "(memq:// stays in this process; udpm:// multicast is not paired): remove key_file, "
             "or give url: udp://HOST:PORT"
+        )
+
+
+DEFAULT_WAIT_S = 30.0  # a driver process's first sample: how long a run waits for it
+
+
+def first_wait_s(wait_s: float | None, url: str) -> float:
+    """How long a run waits for an LCM device's first sample (``Lcm.wait_s``)."""
+    if wait_s is not None:
+        return float(wait_s)
+    return 0.0 if url.startswith("memq://") else DEFAULT_WAIT_S
+
+
+def _check_wait(wait_s) -> None:
+    if wait_s is not None and not (isinstance(wait_s, int | float) and math.isfinite(wait_s) and wait_s >= 0):
+        raise ValueError(
+            f"wait_s: {wait_s!r}; give the seconds to wait for the driver's first sample (≥ 0, e.g. 30; "
+            "0: do not wait)"
         )
 
 
@@ -640,6 +671,9 @@ class LcmJoints(_JointDevice):
         The LCM channel the ``lcmt_robot_state`` samples come on.
     timeout_periods : int
         Samples without a message after which the device holds where it is (a driver unplugged).
+    wait_s : float | None
+        How long the run waits for the driver's first sample before its clock starts, as for
+        ``!Lcm``.
     start : list[float]
         The channel values until the first message (rad or m), one per channel.
     """
@@ -648,11 +682,16 @@ class LcmJoints(_JointDevice):
     key_file: str = ""
     channel: str = "GODOBJECT_DEVICE_JOINTS"
     timeout_periods: int = 5
+    wait_s: float | None = None
     start: list[float] = dataclasses.field(default_factory=list)
 
     def check(self) -> None:
         super().check()
         _check_timeout(self.timeout_periods)
         _check_link(self.url, self.key_file)
+        _check_wait(self.wait_s)
+
+    def first_wait_s(self) -> float:
+        return first_wait_s(self.wait_s, self.url)
         if len(self.start) != len(self.channels):
             raise ValueError(f"start: {self.start} needs one value per channel {self.channels}")

@@ -529,7 +529,20 @@ def _check_tool(s: Scenario, where: str, at: str) -> None:
             prefix = "" if part == "god_object" else f"{part}."  # a god-object names its own fields
             raise ScenarioError(f"{where}: {at}{prefix}{e}") from None
     device, kind, space = s.device, s.kind, s.god_object.DEVICE_SPACE
-    if device_kind.space != space:
+    through = getattr(s.god_object, "POSE_DEVICE_THROUGH", "")  # a pose device mapped to the joints
+    if device_kind.space == "pose" and space == "joint" and through:
+        try:
+            getattr(s.god_object, through).check(s.god_object)
+        except ValueError as e:
+            tags = ", ".join(k.tag for k in DEVICE_KINDS.values() if k.space == space)
+            _fail(
+                where,
+                f"{at}device",
+                f"a{'n' if kind[0] in 'aeiou' else ''} {kind} god-object needs a {SPACE_NAMES[space]} device "
+                f"({tags}), or a pose device mapped through its trocar; got !{type(device).__name__}, and "
+                f"{at}{e}",
+            )
+    elif device_kind.space != space:
         tags = ", ".join(k.tag for k in DEVICE_KINDS.values() if k.space == space)
         _fail(
             where,

@@ -228,6 +228,55 @@ class JawGrasp:
 
 
 @dataclasses.dataclass
+class PoseToJoints:
+    """How a pose device (``!Lcm``, ``!Scripted``, ...) drives an articulated tool through a trocar
+    (``god_object.pose_to_joints``; used when the device is a pose device: docs/guide/laparoscopy.md
+    "From a pose device"). The device's pose is the instrument's tip: its position, and its twist
+    about the instrument's axis as the handle's roll; its button (grasp) closes the jaws.
+
+    Attributes
+    ----------
+    joints : list[str]
+        The trocar's joints: the two rotations about the insertion point (about its x, then y),
+        the insertion (m) and the roll, in that order.
+    jaw_joints : list[str]
+        The jaws' joints: each turns by half of ``jaw_open_rad`` with the button up, 0 with it down.
+    jaw_open_rad : float
+        The jaws' opening with the button up (rad).
+    min_insertion_m : float
+        Closer to the insertion point than this the tip's force cannot be mapped (the trocar's
+        Jacobian is singular at the pivot): the device's wrench is zero there.
+    """
+
+    joints: list[str] = dataclasses.field(default_factory=lambda: ["yaw", "pitch", "insertion", "roll"])
+    jaw_joints: list[str] = dataclasses.field(default_factory=lambda: ["jaw_upper", "jaw_lower"])
+    jaw_open_rad: float = 0.6
+    min_insertion_m: float = 0.01
+
+    def check(self, tool: "Articulated") -> None:
+        """Raise ``ValueError`` as ``"god_object.pose_to_joints.field: value, limit and fix"``."""
+        at = "god_object.pose_to_joints"
+        if len(self.joints) != 4:
+            raise ValueError(
+                f"{at}.joints: {self.joints!r}; give the trocar's 4 joints: yaw, pitch, insertion, roll"
+            )
+        mapped = [*self.joints, *self.jaw_joints]
+        if sorted(mapped) != sorted(tool.device_joints):
+            raise ValueError(
+                f"{at}: joints {self.joints} and jaw_joints {self.jaw_joints} must name every one of "
+                f"god_object.device_joints {tool.device_joints} once; a pose device gives no other joint"
+            )
+        for name, value in (("jaw_open_rad", self.jaw_open_rad), ("min_insertion_m", self.min_insertion_m)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{at}.{name}: {value!r} must be a finite number ≥ 0")
+        if not (tool.tip_body and tool.pivot_body):
+            raise ValueError(
+                f"{at}: a pose device drives the tool's tip about its pivot; give god_object.tip_body and "
+                "god_object.pivot_body (the laparoscopy scene's: tube and port)"
+            )
+
+
+@dataclasses.dataclass
 class Articulated:
     """A tree model whose joints a joint-space device drives (paper Eq. 4–9).
 
@@ -257,6 +306,9 @@ class Articulated:
         from the tip body's z axis. Empty: not measured.
     grasp : JawGrasp
         What the jaws hold when they close on it (nothing by default).
+    pose_to_joints : PoseToJoints
+        With a pose device (``device: !Lcm``, ``!Scripted``): how its pose becomes the joints
+        (through the trocar); unused with a joint-space device.
     """
 
     model: str = ""
@@ -269,8 +321,10 @@ class Articulated:
     tip_body: str = ""
     pivot_body: str = ""
     grasp: JawGrasp = dataclasses.field(default_factory=JawGrasp)
+    pose_to_joints: PoseToJoints = dataclasses.field(default_factory=PoseToJoints)
 
     DEVICE_SPACE: ClassVar[str] = "joint"
+    POSE_DEVICE_THROUGH: ClassVar[str] = "pose_to_joints"  # a pose device is mapped by this field
     FLAGS: ClassVar[tuple[Flag, ...]] = (
         COUPLING_FLAG,
         Flag("--jaws", "god_object.imposed_joints",

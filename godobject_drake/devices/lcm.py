@@ -56,6 +56,7 @@ what it drops is counted as ``lcm_udp_*`` in the metrics (``lcm_udp_unauthentica
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -135,6 +136,19 @@ class LcmReceiver:
         if not accepted:
             self.counts["lcm_silent_samples"] += 1
         return accepted > 0
+
+    def wait_first(self, timeout_s: float, clock: Callable[[], float] = time.monotonic) -> bool:
+        """Wait up to ``timeout_s`` (wall time) until a first message is accepted; whether one was.
+        A run calls it before its clock starts, so the scene started first waits for its driver."""
+        deadline = clock() + timeout_s
+        while self.latest is None:
+            left = deadline - clock()
+            if left <= 0:
+                return False
+            self.lcm.HandleSubscriptions(max(1, min(100, int(left * 1e3))))
+            if self._pending:
+                self.poll()
+        return True
 
     @property
     def timed_out(self) -> bool:
@@ -313,21 +327,25 @@ class LcmJointDevice(JointDevice):
     ):
         self.lcm = lcm
         self.receiver = LcmReceiver(lcm, channel, channels, timeout_periods)
-        self._values = np.asarray(start, float).reshape(-1)
+        self._values = self._start = np.asarray(start, float).reshape(-1)
         if self._values.size != len(channels):
             raise ValueError(f"{len(channels)} channels {list(channels)} need as many start values: {start}")
         self._polled_at = -math.inf
         super().__init__(self._read, channels, mix, period_s, latency_s)
 
     def _read(self, t: float) -> np.ndarray:
+        fresh = False
         if t > self._polled_at:
             self._polled_at = t
-            if t > 0.0 and self.receiver.poll():
-                values, _ = self.receiver.latest
-                if np.all(np.isfinite(values)):
-                    self._values = values
-                else:
-                    self.receiver.counts["lcm_bad_messages"] += 1
+            fresh = t > 0.0 and self.receiver.poll()
+        elif t == 0.0 and self.receiver.latest is not None and self._values is self._start:
+            fresh = True  # the run waited for the first message (simulation.wait_for_devices)
+        if fresh:
+            values, _ = self.receiver.latest
+            if np.all(np.isfinite(values)):
+                self._values = values
+            else:
+                self.receiver.counts["lcm_bad_messages"] += 1
         return self._values
 
     def samples(self, duration_s: float) -> np.ndarray:

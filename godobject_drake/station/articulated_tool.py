@@ -16,7 +16,8 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.devices.sources import JointDevice
+from godobject_drake.devices.sources import DeviceSource, JointDevice
+from godobject_drake.devices.trocar import PoseJointDevice, TrocarKinematics
 from godobject_drake.metrics import TissueMetrics, ToolMetrics
 from godobject_drake.station import loop
 from godobject_drake.station.kinds import GodObject, tool_kind
@@ -78,12 +79,26 @@ class ArticulatedGodObject(GodObject):
 
     @classmethod
     def build(cls, builder, scene, scenario, device, added: dict, *, check_gains=True):
+        pose_device = device if isinstance(device, DeviceSource) else None
+        if pose_device is not None:  # a pose device: its pose through the trocar to the joints
+            device = builder.AddNamedSystem(
+                "pose_to_joints", pose_to_joints(scene.plant, scenario, pose_device)
+            )
         god = add_articulated(
             builder, scene, scenario.god_object, device, duration_s=scenario.simulation.duration_s,
             connect_forces=scenario.simulation.mode == "god_object", check_gains=check_gains,
             feedback_gains=scenario.feedback,
         )  # fmt: skip
         god.grasp = added.get("grasp")
+        if pose_device is not None:  # the joints' feedback forces back to the device (J^T f = tau)
+            plant, tool = scene.plant, god.tool
+            model = plant.GetModelInstanceByName(scenario.god_object.model)
+            v_device = list(tool.v_device)
+            tau_at = [v_device.index(plant.GetJointByName(name, model).velocity_start())
+                      for name in scenario.god_object.pose_to_joints.joints]  # fmt: skip
+            device.connect_joint_feedback(
+                builder, god.feedback.GetOutputPort("tau_device"), device.GetOutputPort("q_device"), tau_at
+            )
         if god.grasp is not None:
             god.grasp.jaw_index = list(scenario.god_object.device_joints).index(god.grasp.config.jaw)
         return god
@@ -166,6 +181,31 @@ class ArticulatedGodObject(GodObject):
     def held_bodies(self, root_context) -> set[int]:
         """What the jaws hold now."""
         return set() if self.grasp is None else {int(index) for index in self.grasp.holding.values()}
+
+
+def pose_to_joints(plant, scenario, pose_device: DeviceSource) -> PoseJointDevice:
+    """The device adapter of a pose device on an articulated tool (``god_object.pose_to_joints``):
+    the trocar's pivot and joint ranges read from the plant."""
+    config = scenario.god_object
+    mapping = config.pose_to_joints
+    model = plant.GetModelInstanceByName(config.model)
+    try:
+        trocar = TrocarKinematics.from_plant(
+            plant, model, config.pivot_body, config.tip_body, mapping.joints, mapping.min_insertion_m
+        )
+    except ValueError as e:  # names the field itself
+        raise sc.ScenarioError(str(e)) from None
+    except RuntimeError as e:  # Drake: a body or joint the model does not have
+        raise sc.ScenarioError(f"god_object.pose_to_joints: {e}") from None
+    limits = {}
+    for name in mapping.joints:
+        joint = plant.GetJointByName(name, model)
+        limits[name] = (float(joint.position_lower_limits()[0]), float(joint.position_upper_limits()[0]))
+    try:
+        return PoseJointDevice(pose_device, trocar, config.device_joints, mapping.joints, mapping.jaw_joints,
+                               mapping.jaw_open_rad, limits)  # fmt: skip
+    except ValueError as e:
+        raise sc.ScenarioError(f"device: {e}") from None
 
 
 class JawHold:

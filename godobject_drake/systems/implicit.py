@@ -59,6 +59,7 @@ from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.gains import CouplingGains
 from godobject_drake.spatial import (
+    cross_rows,
     pose_arrays,
     quat_conjugate,
     quat_multiply,
@@ -289,7 +290,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
         q, p_WG = self._body_state(body, x)
         v = x[body.v_start : body.v_start + 6]
         r = quat_to_rotation(q) @ body.p_BoBcm_B
-        return np.concatenate([q, p_WG]), np.concatenate([v[:3], v[3:] + np.cross(v[:3], r)])
+        return np.concatenate([q, p_WG]), np.concatenate([v[:3], v[3:] + cross_rows(v[:3], r)])
 
     def _update(self, context, discrete_state):
         s = self.state(context).copy()
@@ -325,7 +326,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
             if twisted:
                 s[_CAP] = 1.0
             s[_XT] = np.concatenate([q_WT, p_WT])
-            s[_VT] = np.concatenate([V[:3], V[3:] + np.cross(V[:3], e)])
+            s[_VT] = np.concatenate([V[:3], V[3:] + cross_rows(V[:3], e)])
             s[_GEN] += 1.0  # a new target: the springs move
         discrete_state.get_mutable_vector(self._state).SetFromVector(s)
 
@@ -336,7 +337,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
         layout = self.layouts[held]
         R = quat_to_rotation(pose_WT[:4] / np.linalg.norm(pose_WT[:4]))
         arms = layout.offsets_B @ R.T
-        velocities = V_WT[3:] + np.cross(V_WT[:3], arms)
+        velocities = V_WT[3:] + cross_rows(V_WT[:3], arms)
         lead = layout.lead_s
         return pose_WT[4:] + arms + lead[:, None] * velocities + self.raise_W + LENGTH_M * layout.axis_W
 
@@ -487,7 +488,7 @@ def implicit_terms(
         for j in range(N_SPRINGS):
             arm_T = R_WT @ layout.offsets_B[j]
             P_W = (
-                S[rows][:, _XT][:, 4:] + arm_T + lead[j] * (V_WT[:, 3:] + np.cross(V_WT[:, :3], arm_T))
+                S[rows][:, _XT][:, 4:] + arm_T + lead[j] * (V_WT[:, 3:] + cross_rows(V_WT[:, :3], arm_T))
                 + coupling.raise_W + LENGTH_M * layout.axis_W[j]
             )  # fmt: skip
             r_B = R_WB @ layout.offsets_B[j] + r_cm
@@ -495,12 +496,12 @@ def implicit_terms(
             d_vec = P_W - P_B
             d = np.linalg.norm(d_vec, axis=1)
             u = d_vec / np.maximum(d, 1e-15)[:, None]
-            d_dot = -np.sum(u * (v_Bo + np.cross(w_B, r_B)), axis=1)
+            d_dot = -np.sum(u * (v_Bo + cross_rows(w_B, r_B)), axis=1)
             f = (layout.stiffness[j] * (d - LENGTH_M) + layout.damping[j] * d_dot)[:, None] * u
             F += f
-            T += np.cross(P_B - p_WG, f)
+            T += cross_rows(P_B - p_WG, f)
         out[rows, TERMS_LAYOUT["pose_WG"]] = np.concatenate([q, p_WG], axis=1)
-        out[rows, TERMS_LAYOUT["V_WG"]] = np.concatenate([w_B, v_Bo + np.cross(w_B, r_cm)], axis=1)
+        out[rows, TERMS_LAYOUT["V_WG"]] = np.concatenate([w_B, v_Bo + cross_rows(w_B, r_cm)], axis=1)
         out[rows, TERMS_LAYOUT["F_Go_W"]] = np.concatenate([T, F], axis=1)
     return out
 
