@@ -229,6 +229,8 @@ class _Run:
                 scenario.recording.max_duration_s, live=live
             )  # the surfaces' frames
             self.recording_steps = round(scenario.recording.max_duration_s / h)
+            if station.sleeper is not None:
+                station.sleeper.draw_marks(0.0)  # every body awake in the first frame
         wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
         self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,

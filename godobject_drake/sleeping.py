@@ -302,6 +302,12 @@ class SleepManager:
     def _geometry_set(self, which: np.ndarray) -> GeometrySet:
         return GeometrySet([g for k in np.flatnonzero(which) for g in self.bodies[k].geometries])
 
+    def draw_marks(self, t: float) -> None:
+        """Each marker as its body is now, at time ``t`` of a recording just started: its first
+        keyframe (else the viewer holds a marker's first sleep back to the recording's start)."""
+        for k in range(len(self.bodies)):
+            self._mark(k, bool(self.asleep[k]), t)
+
     def _mark(self, k: int, asleep: bool, t: float, center=None) -> None:
         if self._meshcat is None:
             return

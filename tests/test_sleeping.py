@@ -311,17 +311,23 @@ def test_the_run_says_once_whether_sleeping_bodies_leave_the_geometry_query():
 
 
 def test_sleeping_bodies_are_marked_in_the_recording(tmp_path):
-    """The recording shows a blue marker over each sleeping brick, never over the held one."""
+    """The recording shows a blue marker over each sleeping brick, never over the held one, and
+    none in its first frame, where every body is awake (a marker's first keyframe was its first
+    sleep, and the viewer held that value back to t = 0: every brick looked asleep at the start)."""
     html = tmp_path / "lego.html"
     run_scene("lego", "--duration", "1.0", "--record", str(html))
     (animation,) = [c for c in meshcat_commands(html.read_text()) if b"set_animation" in c]
-    shown = set()
+    shown, first = set(), {}
     for a in msgpack.unpackb(animation, raw=False)["animations"]:
         for track in a["clip"]["tracks"]:
             if a["path"].startswith("/godobject/sleep/") and track["name"] == ".visible":
+                name = a["path"].split("/")[-1]
+                first[name] = min(track["keys"], key=lambda key: key["time"])
                 if any(key["value"] for key in track["keys"]):
-                    shown.add(a["path"].split("/")[-1])
+                    shown.add(name)
     assert "brick_5::brick" in shown and "brick_0::brick" not in shown
+    assert len(first) == 8, first
+    assert all(key["time"] == 0 and key["value"] is False for key in first.values()), first
 
 
 def test_bad_sleep_and_brick_settings_are_refused():
