@@ -139,6 +139,7 @@ def test_a_log_line_goes_to_the_stderr_of_the_moment(capsys, monkeypatch):
     handler = StderrHandler()
     log = logging.getLogger("godobject_drake.test_stderr")
     log.addHandler(handler)
+    monkeypatch.setattr(log, "propagate", False)  # this handler alone, not the package's
     try:
         old.close()  # the earlier capture is gone
         monkeypatch.setattr(sys, "stderr", new := io.StringIO())

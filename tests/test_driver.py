@@ -411,7 +411,8 @@ def test_a_message_that_waited_out_a_stall_is_as_old_as_the_stall():
     link = _LateLink(first=20, stall_s=0.06)
     driver = drv.Driver(device, link, RATED["emulated"], rate_hz=1000.0, watchdog_periods=10,
                         max_force_n=12.0, grasp="always")  # fmt: skip
-    driver.run(0.2)
+    driver.run(2.0)  # 2000 periods asked; 0.2 s gave fewer than the 20 polls to the stall at load 12
+    assert link.polls >= link.first + 10, link.polls
     rows = list(driver.rows)[:-1]
     state = [r[11] for r in rows]
     rendered = np.array([r[7:10] for r in rows])
