@@ -260,6 +260,20 @@ def test_a_model_holds_then_fades_to_zero_within_three_gaps_and_50_ms_and_counts
     assert LocalRenderer().validity(0.0) == 0.0  # no model: nothing
 
 
+def test_the_scene_period_is_its_stated_one_or_the_median_interval_when_longer():
+    """One stall among 16 intervals does not stretch the fade (the median, not the longest); a
+    scene publishing faster than it says is held for the period it says."""
+    r = LocalRenderer()
+    times = [k / 256 for k in range(16)] + [15 / 256 + 0.5]  # 4 ms intervals, then a 0.5 s stall
+    for t in times:
+        r.take(model(period_s=1 / 1024), arrived=t)
+    assert r.gap() == 1 / 256
+    fast = LocalRenderer()
+    for k in range(5):
+        fast.take(model(period_s=1 / 64), arrived=k / 1024)
+    assert fast.gap() == 1 / 64
+
+
 def test_a_scene_slower_than_10_hz_is_held_as_a_10_hz_one():
     r = LocalRenderer()
     r.take(model(period_s=1.0), arrived=0.0)

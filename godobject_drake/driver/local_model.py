@@ -28,10 +28,10 @@ the spring's energy above what the hand put in is rendered only as far as it is 
 check happens when the force is computed, so the bound is exact up to the one period the hand
 moves under the held force (at most ``½ kd |Δh|²`` per period: 1.8 µJ at 1 kN/m and 6 cm/s).
 
-**Validity**: a model holds fully for ``2 gap + 25 ms`` after it arrived (``gap``: the longest of
-the last 16 intervals between models, at least the scene's stated period, at most
-:data:`MAX_GAP_S`), then fades linearly to zero at ``3 gap + 50 ms``: a scene killed between two
-messages leaves no force after that. Each fade to zero is a watchdog trip.
+**Validity**: a model holds fully for ``2 gap + 25 ms`` after it arrived (``gap``: the scene's
+period, its stated one or the median of the last 16 intervals between models when longer, at
+most :data:`MAX_GAP_S`), then fades linearly to zero at ``3 gap + 50 ms``: a scene killed
+between two messages leaves no force after that. Each fade to zero is a watchdog trip.
 """
 
 from __future__ import annotations
@@ -118,9 +118,11 @@ class LocalRenderer:
         self.offset = stretch if kd > 0 else np.zeros(3)
 
     def gap(self) -> float:
+        """The scene's period (s): its stated one, or the median of the last 16 intervals between
+        its models when longer (a scene slower than it says), at most :data:`MAX_GAP_S`."""
         if self.model is None:
             return MAX_GAP_S
-        seen = max(self.gaps) if self.gaps else 0.0
+        seen = float(np.median(self.gaps)) if self.gaps else 0.0
         return min(max(seen, self.model.period_s), MAX_GAP_S)
 
     def fade_end(self) -> float:

@@ -24,8 +24,14 @@ Each device period the loop:
    while held, ``grasp=`` when let go), button 1 the clutch: while held the pose sent stays put
    and no force is rendered; let go, the handle carries on from where the pose stayed;
 2. sends the pose to the scene (``lcmt_robot_state``, ``utime`` the driver's clock in µs);
-3. takes the newest feedback (``lcmt_force_torque``, already in the device's frame: the scene
-   maps it) and renders it through :class:`ForceSafety`:
+3. computes the force: from the scene's newest **local model** once one is heard (a scene of
+   this version publishes one after each step, on ``GODOBJECT_LOCAL_MODEL``): the spring to a
+   proxy kept out of the model's planes, with the handle's pose read this period, paid for by
+   an energy budget, valid for 2 scene periods + 25 ms and faded to zero at 3 scene periods +
+   50 ms (:mod:`~godobject_drake.driver.local_model`, docs/local_model.md; the watchdog below
+   is then the model's validity); else (an older scene, or ``--no-local-model``) the newest
+   feedback wrench (``lcmt_force_torque``, already in the device's frame: the scene maps it),
+   held. Either is rendered through :class:`ForceSafety`:
 
    - **watchdog**: no feedback for ``watchdog_periods`` device periods (the scene stalled, was
      killed or never started): zero force until feedback comes again (``watchdog_trips``). A
@@ -154,6 +160,7 @@ class Driver:
         exit_on_stop: bool = False,
         feedback_channel: str = FEEDBACK_CHANNEL,
         channel: str = POSE_CHANNEL,
+        local_model: bool = True,
     ):
         self.device, self.lcm, self.rated = device, lcm, rated
         self.period = 1.0 / rate_hz
@@ -184,7 +191,8 @@ class Driver:
         self.bad_local_models = 0
         lcm.Subscribe(feedback_channel, self._on_feedback)
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
-        lcm.Subscribe(LOCAL_MODEL_CHANNEL, self._on_local_model)
+        if local_model:
+            lcm.Subscribe(LOCAL_MODEL_CHANNEL, self._on_local_model)
 
     POSES_KEPT = 4096  # 4 s at 1 kHz: the pose a local model was computed from is looked up here
 
@@ -262,6 +270,14 @@ class Driver:
                     self.counts["overruns"] += 1
                     next_tick = now  # start again from now: no burst of catch-up periods
                 self.counts["loops"] += 1
+                # What this poll hands over arrived after the previous poll, at the earliest: its
+                # age is counted from there (fail-safe: a message that sat out a stall is stale).
+                # Its age is taken when the force is rendered, after the poll (the process may be
+                # held up anywhere in the loop). The poll comes first, so the handle's pose is
+                # read just before the force it gives is computed and commanded (issue 44).
+                self._arrived_after, poll = previous_poll, time.monotonic()
+                self.lcm.HandleSubscriptions(0)
+                previous_poll = poll
                 p, q, buttons = self.device.read()
                 read_at = time.monotonic()
                 grasp, clutch = self._buttons(buttons)
@@ -273,17 +289,6 @@ class Driver:
                 elif self.held is not None:  # let go: carry on from where the pose stayed
                     self.offset += self.held - (p + self.offset)
                     sent, self.held = self.held, None
-                utime = round((now - start) * 1e6) + 1
-                self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
-                slot = self.counts["loops"] % self.POSES_KEPT
-                self._sent_utimes[slot], self._sent_poses[slot] = utime, sent
-                # What this poll hands over arrived after the previous poll, at the earliest: its
-                # age is counted from there (fail-safe: a message that sat out a stall is stale).
-                # Its age is taken when the force is rendered, after the poll (the process may be
-                # held up anywhere in the loop).
-                self._arrived_after, poll = previous_poll, time.monotonic()
-                self.lcm.HandleSubscriptions(0)
-                previous_poll = poll
                 state = self.gate.state(time.monotonic(), clutch)
                 if self.local.heard:  # the local model decides what is fresh (module docstring)
                     live = state not in ("stopped", "clutch")
@@ -298,6 +303,10 @@ class Driver:
                 self.device.render(f)
                 self.pose_age.add(time.monotonic() - read_at)
                 self.local.rendered(f)
+                utime = round((now - start) * 1e6) + 1
+                self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
+                slot = self.counts["loops"] % self.POSES_KEPT
+                self._sent_utimes[slot], self._sent_poses[slot] = utime, sent
                 local = self.local
                 scene_time = local.model.scene_utime * 1e-6 if local.heard else self.gate.scene_time
                 self._row((now, *sent, *requested, *f, scene_time, state, int(self.safety.buzzing),
@@ -475,6 +484,7 @@ def _run(args) -> int:
         max_force_n=args.max_force or rated.max_force_n,
         grasp=args.grasp,
         exit_on_stop=args.exit_on_stop,
+        local_model=not args.no_local_model,
     )
     limits = driver.summary()["limits"]
     print(
@@ -632,6 +642,12 @@ def parser() -> argparse.ArgumentParser:
         "device's servo loop should; 0 (default): the normal scheduler",
     )
     run.add_argument("--exit-on-stop", action="store_true", help="exit when the scene says it stopped")
+    run.add_argument(
+        "--no-local-model",
+        action="store_true",
+        help="render the scene's newest wrench, held, as before issue 44 (for comparison): the "
+        "scene's local model is ignored",
+    )
     run.add_argument("--log", default="", help="write every period to FILE.csv at exit")
     run.add_argument("--summary", default="", help="write the counts, limits and timing to FILE.json at exit")
     cal = sub.add_parser("calibrate", help="record the device's reachable box as a scenario's workspace")
