@@ -15,6 +15,7 @@ from test_link import DRIVER_AT, SCENE_AT, ends, handshake
 
 from godobject_drake.driver.families import EmulatedDevice, HandPath
 from godobject_drake.driver.local_model import (
+    ALLOWANCE_J,
     END_EXTRA_S,
     HOLD_EXTRA_S,
     MAX_DAMPING,
@@ -216,9 +217,21 @@ def test_a_re_anchoring_is_rendered_only_as_far_as_the_budget_pays():
     moved = ((0.005, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
     r.take(model(p_G=(0.005, 0, 0), planes=[moved], kd=100.0), arrived=0.002, h_used=(-0.01, 0.0, 0.0))
     f = r.request((-0.01, 0.0, 0.0), now=0.002, period_s=T)
-    beta = math.sqrt(5e-3 / 11.25e-3)
+    paid = 5e-3 + ALLOWANCE_J  # what the hand put in, and the 1 µJ the budget lends
+    beta = math.sqrt(paid / 11.25e-3)
     assert r.beta == pytest.approx(beta, rel=1e-12) and f[0] == pytest.approx(100 * 0.015 * beta, rel=1e-12)
-    assert r.spring == pytest.approx(5e-3, rel=1e-12) and r.unpaid == pytest.approx(11.25e-3 - 5e-3)
+    assert r.spring == pytest.approx(paid, rel=1e-12) and r.unpaid == pytest.approx(11.25e-3 - paid)
+
+
+def test_accounts_standing_at_zero_by_rounding_still_render_the_model():
+    """The controller repays a deficit exactly, so the accounts can stay a rounding error below
+    zero: the budget's 1 µJ allowance renders the model (no deadlock at zero force)."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.energy_in = r.energy_v = -1e-12
+    assert np.allclose(r.request((0.0, 0.0, 0.0), now=T, period_s=T), [-0.05, 0.0, 0.0])
+    r.energy_v = -2 * ALLOWANCE_J
+    assert np.allclose(r.request((0.0, 0.0, 0.0), now=2 * T, period_s=T), 0.0)
 
 
 def test_a_deficit_is_paid_back_by_the_controllers_damper():

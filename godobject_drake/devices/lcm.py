@@ -56,6 +56,7 @@ what it drops is counted as ``lcm_udp_*`` in the metrics (``lcm_udp_unauthentica
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -278,6 +279,10 @@ class LcmDevice(DeviceSource):
             counts["driver_status_messages"] = self.driver_status_messages
             counts["driver_bad_status"] = self.driver_bad_status
             counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})
+            publisher = getattr(self, "local_publisher", None)
+            if publisher is not None:  # the local model's cost on the scene's side (issue 44)
+                counts["lcm_local_models"] = publisher.published
+                counts["lcm_local_model_ms"] = 1e3 * publisher.seconds / max(publisher.published, 1)
         return counts
 
     def status(self, context) -> dict:
@@ -308,6 +313,7 @@ class LcmDevice(DeviceSource):
         plant = builder.GetSubsystemByName("plant")
         scene_graph = builder.GetSubsystemByName("scene_graph")
         publisher = builder.AddNamedSystem("local_model_publisher", LocalModelPublisher(self, plant, gains))
+        self.local_publisher = publisher
         for port in ("held_body", "pose_WT", "V_WT", "pose_WG", "V_WG"):
             builder.Connect(coupling.GetOutputPort(port), publisher.GetInputPort(port))
         builder.Connect(scene_graph.get_query_output_port(), publisher.GetInputPort("query"))
@@ -496,6 +502,7 @@ class LocalModelPublisher(LeafSystem):
         self._bodies: dict = {}  # geometry id -> body index, filled as first seen
         self._stiffness: dict = {}
         self.published = 0
+        self.seconds = 0.0  # spent building and sending the models (the scene's cost)
 
     def _to_dev(self, p_W) -> tuple:
         return tuple((self._R_DevW @ (np.asarray(p_W) - self._p_WDev)) / self._scale)
@@ -568,5 +575,7 @@ class LocalModelPublisher(LeafSystem):
         throttle = self.device.throttle
         if throttle is not None and not throttle.due(context.get_time()):
             return
+        start = time.perf_counter()
         self.device.lcm.Publish(LOCAL_MODEL_CHANNEL, self.model(context).encode())
+        self.seconds += time.perf_counter() - start
         self.published += 1

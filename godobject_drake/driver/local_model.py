@@ -24,7 +24,8 @@ rendered over each period (a device holds its force between two commands):
 ``S = ½ kd |x − h|²``. A passive device keeps ``E_in ≥ S`` (it never gives back more than it was
 given), so the stretch rendered is scaled by ``β = min(1, √(E_in / S))`` (0 when ``E_in ≤ 0``):
 a re-anchoring (a new model that moves the proxy), a fade or anything else that would raise
-the spring's energy above what the hand put in is rendered only as far as it is paid for. The
+the spring's energy above what the hand put in is rendered only as far as it is paid for (the
+budget lends :data:`ALLOWANCE_J`, 1 µJ, so accounts standing at zero by rounding still render). The
 check happens when the force is computed, so the bound is exact up to the one period the hand
 moves under the held force (at most ``½ kd |Δh|²`` per period: 1.8 µJ at 1 kN/m and 6 cm/s).
 
@@ -48,6 +49,7 @@ HOLD_GAPS, HOLD_EXTRA_S = 2.0, 0.025
 END_GAPS, END_EXTRA_S = 3.0, 0.05
 ACTIVE_M = 1e-4  # a plane within this of the god-object holds it (explains its stretch)
 SWEEPS = 8  # passes over the planes when projecting the proxy
+ALLOWANCE_J = 1e-6  # J: the budget lends this much, so accounts standing at zero (rounding) still render
 MAX_DAMPING = 10.0  # N·s/m: the passivity controller's damper at most (a hand's own is ~8)
 
 
@@ -168,7 +170,7 @@ class LocalRenderer:
             y0 = before + self.offset  # the same model: a re-anchoring is no rate
             rate = ((x - h) - (project(y0, self.planes, m.kd) - before)) / period_s
         spring = 0.5 * m.kd * float((x - y) @ (x - y))
-        budget = self.energy_v
+        budget = self.energy_v + ALLOWANCE_J
         if spring <= budget:
             beta = 1.0
         else:
