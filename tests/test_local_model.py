@@ -234,6 +234,24 @@ def test_accounts_standing_at_zero_by_rounding_still_render_the_model():
     assert np.allclose(r.request((0.0, 0.0, 0.0), now=2 * T, period_s=T), 0.0)
 
 
+def test_an_environment_account_below_zero_is_repaid_by_the_damper_then_renders_again():
+    """The device's account in credit, the environment's 3 µJ short (the hand was pulled along
+    by a free force): nothing of the model is rendered, and the damper asks for the 2 µJ past
+    the allowance at the hand's 0.1 m/s (α = 2e-6 / (0.01 × 1e-3) = 0.2 N·s/m); once the hand
+    has paid it, the model renders again."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    r.rendered(np.zeros(3))
+    r._env = None  # nothing rendered before: the trapezoid counts only the held force
+    r.energy_in, r.energy_v = 1e-3, -3e-6
+    f = r.request((1e-4, 0.0, 0.0), now=T, period_s=T)
+    assert r.beta == 0.0 and r.damping == pytest.approx(0.2) and np.allclose(f, [-0.02, 0.0, 0.0])
+    r.rendered(f)
+    f = r.request((2e-4, 0.0, 0.0), now=2 * T, period_s=T)  # the hand paid 0.02 N × 0.1 mm = 2 µJ
+    assert r.energy_v == pytest.approx(-1e-6) and r.beta == 1.0 and f[0] == pytest.approx(-0.05)
+
+
 def test_a_deficit_is_paid_back_by_the_controllers_damper():
     """The hand was given 2 mJ more than it put in and moves at 0.1 m/s: the controller's
     damper is 2 mJ / (v² T) = 200 N·s/m, cut to MAX_DAMPING, opposing the motion; no deficit,

@@ -17,17 +17,27 @@ god-object's lag in free space, a held body's weight). Each period the free prox
 entered (a plane of stiffness ``s`` lets it in by ``kd/(kd + s)`` of the way: rigid planes not at
 all), and the force is ``kd (x − h) + γd`` times the stretch's rate.
 
-**The energy budget** (Hannaford & Ryu's passivity observer, made a bound). ``E_in`` is the work
-the hand has done on the device since the model was first heard, from the force actually
-rendered over each period (a device holds its force between two commands):
-``E_in += −f_prev · (h − h_prev)``. The spring between handle and proxy holds
-``S = ½ kd |x − h|²``. A passive device keeps ``E_in ≥ S`` (it never gives back more than it was
-given), so the stretch rendered is scaled by ``β = min(1, √(E_in / S))`` (0 when ``E_in ≤ 0``):
-a re-anchoring (a new model that moves the proxy), a fade or anything else that would raise
-the spring's energy above what the hand put in is rendered only as far as it is paid for (the
-budget lends :data:`ALLOWANCE_J`, 1 µJ, so accounts standing at zero by rounding still render). The
-check happens when the force is computed, so the bound is exact up to the one period the hand
-moves under the held force (at most ``½ kd |Δh|²`` per period: 1.8 µJ at 1 kN/m and 6 cm/s).
+**The energy budget** (Hannaford & Ryu's passivity observer and controller). Two accounts of
+the work the hand has done on the device since the first model:
+
+- ``E_v``, the *virtual* environment's, by the trapezoid: ``E_v −= ½ (f_prev + f_env(h)) · Δh``,
+  ``f_env(h)`` the force the environment last rendered (its model, its scaling) gives at the
+  handle's new position. For a fixed spring it equals the spring's energy exactly, so pressing
+  into a plane pays for the stretch as it grows; a *new* model (a re-anchoring) is not in it;
+- ``E_in``, the *device's*, by the held force: ``E_in −= f_prev · Δh`` (a device holds each force
+  over the next period: this is what the hand received).
+
+The planes' spring holds ``S = ½ kd |x − y|²`` (the free part ``kd o`` stores nothing: its work
+goes through the accounts as it is done). Each period the stretch is scaled by
+``β = min(1, √(E_v / S))``, 0 when ``E_v ≤ 0``: a re-anchoring (a new model that moves the
+proxy), a fade, a free force that pulls the hand along, anything that would give back more than
+was put in, is rendered only as far as it is paid for (the budget lends :data:`ALLOWANCE_J`,
+1 µJ, so accounts standing at zero by rounding still render). The controller: while the spring
+holds more than the device's account (``S > E_in``: the hold of each force gives the hand up to
+``½ kd |Δh|²`` a period more than the virtual spring), or the environment's account is below
+zero (``E_v < −1 µJ``: nothing would be rendered until it is repaid), a damper
+``α = deficit/(|v|² T)`` (at most :data:`MAX_DAMPING`) against the handle's velocity ``v`` asks
+it back over the next period: at a steady press it is Colgate's ``kd T / 2``.
 
 **Validity**: a model holds fully for ``2 gap + 25 ms`` after it arrived (``gap``: the scene's
 period, its stated one or the median of the last 16 intervals between models when longer, at
@@ -95,6 +105,7 @@ class LocalRenderer:
         self.models = 0
         self._h: np.ndarray | None = None  # the handle at the last render
         self._f = np.zeros(3)  # the force last rendered
+        self._damper = np.zeros(3)  # the controller's part of the force last requested
         self._stretch: np.ndarray | None = None
         self._was_valid = False
 
@@ -158,7 +169,7 @@ class LocalRenderer:
         before = self._h
         self._account(h)
         weight = self.weight = self.validity(now)
-        self.damping = 0.0
+        self.damping, self._damper = 0.0, np.zeros(3)
         if self.model is None or weight == 0.0 or not live:
             self.spring, self.beta, self._env = 0.0, 0.0, None
             return np.zeros(3)
@@ -180,13 +191,16 @@ class LocalRenderer:
         self.spring = self.beta**2 * spring
         self._env = (self.offset, self.planes, m.kd, self.beta)
         f = self.beta * (m.kd * (x - h) + m.gamma_d * rate)
-        deficit = self.spring - self.energy_in
+        # short in either account: the device's (its held forces) or the environment's (a free
+        # force that pulled the hand along, a change of model): the damper asks it back
+        deficit = max(self.spring - self.energy_in, -self.energy_v - ALLOWANCE_J)
         if deficit > 0.0 and before is not None and period_s > 0.0:  # the controller
             v = (h - before) / period_s
             speed2 = float(v @ v)
             if speed2 > 0.0:
                 self.damping = min(MAX_DAMPING, deficit / (speed2 * period_s))
-                f = f - self.damping * v
+                self._damper = -self.damping * v
+                f = f + self._damper
         return f
 
     def _environment(self, h: np.ndarray) -> np.ndarray:
@@ -201,7 +215,8 @@ class LocalRenderer:
         if self._h is not None:
             step = h - self._h
             self.energy_in -= float(self._f @ step)
-            self.energy_v -= 0.5 * float((self._f + self._environment(h)) @ step)
+            # the environment's part of the held force by the trapezoid, the damper's as held
+            self.energy_v -= float((0.5 * (self._f + self._damper + self._environment(h))) @ step)
         self._h = h.copy()
 
     def rendered(self, f) -> None:
