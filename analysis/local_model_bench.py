@@ -186,6 +186,9 @@ def run(scene: str, rate_hz: float, kd: float, local: bool, kill: bool, folder: 
             os.kill(scene_process.pid, signal.SIGKILL)
             t_kill = time.monotonic()
             time.sleep(0.6)
+        elif scene != "scripted":  # the brick scene ends on SIGTERM, writing its metrics
+            scene_process.send_signal(signal.SIGTERM)
+            scene_process.wait(timeout=120)
         driver.send_signal(signal.SIGTERM)
         driver.wait(timeout=60)
     finally:
@@ -194,7 +197,14 @@ def run(scene: str, rate_hz: float, kd: float, local: bool, kill: bool, folder: 
                 p.kill()
                 p.wait()
     rows, info = drv.read_log(log), json.loads(summary.read_text())
-    return measure(rows, info, hand, t_kill, rate_hz)
+    out = measure(rows, info, hand, t_kill, rate_hz)
+    out["fade_end_ms"] = 1e3 * (info.get("local_model", {}).get("fade_end_s") or math.nan)
+    if (folder / "metrics.json").exists():  # the brick scene's own figures
+        m = json.loads((folder / "metrics.json").read_text())
+        out["scene_model_ms"] = m.get("lcm_local_model_ms", math.nan)
+        out["scene_models"] = m.get("lcm_local_models", 0)
+        out["real_time_factor"] = m.get("real_time_factor", math.nan)
+    return out
 
 
 def hand_start(rows) -> float:
@@ -259,22 +269,39 @@ simulation: {{duration_s: 600}}
 """
     scenario = folder / "scene.yaml"
     scenario.write_text(sc.scenario_to_yaml(sc.load_scenario(REPO / "diagrams" / "lego.yaml", yaml)))
-    contact_y = -0.0335  # where brick_0 meets the wall (device y, m): the hand's path, measured
-    press = contact_y - 0.025
+    metrics = folder / "metrics.json"
+    contact_y = -0.030  # where brick_0 meets the wall (device y, m), read from a driver log
+    press, out = contact_y - 0.025, contact_y + 0.01
+    reach = 0.8 + (0.05 - out) / 0.06  # 6 cm/s from over brick_0 to 1 cm before the wall
+    pressed = reach + (out - press) / 0.06
+    back = pressed + 1.0 + (out - press) / 0.06
     hand = {
         "waypoints": [
             {"t": 0.0, "xyz": [0.0, 0.05, -0.0152], "grasp": False},
             {"t": 0.3, "xyz": [0.0, 0.05, -0.0152], "grasp": True},
             {"t": 0.8, "xyz": [0.0, 0.05, 0.0], "grasp": True},
-            {"t": 2.2, "xyz": [0.0, contact_y + 0.01, 0.0], "grasp": True},
-            {"t": 2.2 + 0.035 / 0.06, "xyz": [0.0, press, 0.0], "grasp": True},
-            {"t": 4.0, "xyz": [0.0, press, 0.0], "grasp": True},
-            {"t": 4.0 + 0.035 / 0.06, "xyz": [0.0, contact_y + 0.01, 0.0], "grasp": True},
-            {"t": 5.2, "xyz": [0.0, contact_y + 0.01, 0.0], "grasp": True},
+            {"t": reach, "xyz": [0.0, out, 0.0], "grasp": True},
+            {"t": pressed, "xyz": [0.0, press, 0.0], "grasp": True},
+            {"t": pressed + 1.0, "xyz": [0.0, press, 0.0], "grasp": True},
+            {"t": back, "xyz": [0.0, out, 0.0], "grasp": True},
+            {"t": back + 0.5, "xyz": [0.0, out, 0.0], "grasp": True},
         ],
-        "windows": {"work": (2.2, 5.2), "hold": (3.3, 3.9), "drag": (1.0, 2.0)},
+        "windows": {
+            "work": (reach, back + 0.5),
+            "hold": (pressed + 0.3, pressed + 0.9),
+            "drag": (1.0, reach - 0.1),
+        },
     }
-    command = [sys.executable, "-m", "godobject_drake", "run", str(scenario), "--no-progress"]
+    command = [
+        sys.executable,
+        "-m",
+        "godobject_drake",
+        "run",
+        str(scenario),
+        "--no-progress",
+        "--metrics",
+        str(metrics),
+    ]
     return hand, command
 
 
@@ -327,6 +354,11 @@ def main(argv=None) -> int:
                 if args.kill:
                     line += f" {r['kill_to_zero_ms']:9.1f} {r['kill_bound_ms']:6.0f}"
                 print(line, flush=True)
+    for r in results:
+        if "scene_model_ms" in r:
+            print(f"{r['driver']}, {r['rate_hz']:g} Hz, kd {r['kd']:g}: the scene published "
+                  f"{r['scene_models']} local models, {r['scene_model_ms']:.3f} ms each; real-time factor "
+                  f"{r['real_time_factor']:.2f}")  # fmt: skip
     print(f"after: {machine()}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))

@@ -27,6 +27,9 @@ the work the hand has done on the device since the first model:
 - ``E_in``, the *device's*, by the held force: ``E_in −= f_prev · Δh`` (a device holds each force
   over the next period: this is what the hand received).
 
+Neither account keeps more than :data:`BANK_J` (0.2 mJ) beyond what the spring holds: the
+work the hand does against the free part (the coupling's lag) is dissipated in the scene, and
+banked it would pay for a later push (the passivity observer's known blind spot), so it leaks.
 The planes' spring holds ``S = ½ kd |x − y|²`` (the free part ``kd o`` stores nothing: its work
 goes through the accounts as it is done). Each period the stretch is scaled by
 ``β = min(1, √(E_v / S))``, 0 when ``E_v ≤ 0``: a re-anchoring (a new model that moves the
@@ -59,6 +62,7 @@ HOLD_GAPS, HOLD_EXTRA_S = 2.0, 0.025
 END_GAPS, END_EXTRA_S = 3.0, 0.05
 ACTIVE_M = 1e-4  # a plane within this of the god-object holds it (explains its stretch)
 SWEEPS = 8  # passes over the planes when projecting the proxy
+BANK_J = 2e-4  # J: what the accounts keep beyond the spring's energy (the rest the scene dissipated)
 ALLOWANCE_J = 1e-6  # J: the budget lends this much, so accounts standing at zero (rounding) still render
 MAX_DAMPING = 10.0  # N·s/m: the passivity controller's damper at most (a hand's own is ~8)
 
@@ -189,6 +193,10 @@ class LocalRenderer:
             self.unpaid += spring - max(budget, 0.0)
         self.beta = min(beta, weight)
         self.spring = self.beta**2 * spring
+        # what the hand put in and the spring does not hold went into the scene's damping (the
+        # coupling's lag, a body's friction): it is not banked to pay a later push (a leak)
+        self.energy_v = min(self.energy_v, self.spring + BANK_J)
+        self.energy_in = min(self.energy_in, self.spring + BANK_J)
         self._env = (self.offset, self.planes, m.kd, self.beta)
         f = self.beta * (m.kd * (x - h) + m.gamma_d * rate)
         # short in either account: the device's (its held forces) or the environment's (a free
