@@ -330,6 +330,19 @@ def test_a_scene_slower_than_10_hz_is_held_as_a_10_hz_one():
     assert r.gap() == 0.1 and r.validity(0.35 - 1e-6) > 0.0 and r.validity(0.35 + 1e-12) == 0.0
 
 
+def test_a_fade_keeps_what_the_spring_held_for_the_model_that_follows():
+    """Held 1 cm into the wall with the spring paid (5 mJ at kd 100), the model fades half way:
+    half the force, and the accounts keep the 5 mJ; the next model renders the whole spring."""
+    r = LocalRenderer()
+    r.take(model(planes=[WALL], kd=100.0, period_s=0.01), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    r.energy_in = r.energy_v = 0.5 * 100 * 0.01**2
+    f = r.request((-0.01, 0.0, 0.0), now=(0.045 + 0.08) / 2, period_s=T)
+    r.rendered(f)
+    assert f[0] == pytest.approx(0.5) and r.energy_v == pytest.approx(5e-3)
+    r.take(model(planes=[WALL], kd=100.0, period_s=0.01), arrived=0.07, h_used=(-0.01, 0.0, 0.0))
+    assert r.request((-0.01, 0.0, 0.0), now=0.07, period_s=T)[0] == pytest.approx(1.0)
+
+
 def test_a_fading_model_renders_its_weight_of_the_force():
     r = LocalRenderer()
     r.take(model(p_G=(0.01, 0.0, 0.0), kd=100.0, period_s=0.01), arrived=0.0, h_used=(0.0, 0.0, 0.0))

@@ -193,10 +193,11 @@ class LocalRenderer:
             self.unpaid += spring - max(budget, 0.0)
         self.beta = min(beta, weight)
         self.spring = self.beta**2 * spring
-        # what the hand put in and the spring does not hold went into the scene's damping (the
-        # coupling's lag, a body's friction): it is not banked to pay a later push (a leak)
-        self.energy_v = min(self.energy_v, self.spring + BANK_J)
-        self.energy_in = min(self.energy_in, self.spring + BANK_J)
+        # what the hand put in and the spring the budget pays for does not hold went into the
+        # scene's damping (the coupling's lag, a body's friction): it is not banked to pay a later
+        # push (a leak); a fade keeps what the faded spring held, for the model that follows
+        paid = beta**2 * spring + BANK_J
+        self.energy_v, self.energy_in = min(self.energy_v, paid), min(self.energy_in, paid)
         self._env = (self.offset, self.planes, m.kd, self.beta)
         f = self.beta * (m.kd * (x - h) + m.gamma_d * rate)
         # short in either account: the device's (its held forces) or the environment's (a free
