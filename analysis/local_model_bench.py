@@ -24,7 +24,8 @@ being held: what the hand received), the force's ripple while the hand holds sti
 peak of |f|, N), the watchdog trips, the drag in free space at 6 cm/s (mean |f|, N), the age of
 the handle pose used by the spring term at p99 (ms, from the device read to the force command),
 and on request (``--kill``) the time from a SIGKILL of the scene to zero force against its
-bound, 3 scene periods + 50 ms. Prints nproc, the CPU model and the load beside the table.
+bound, 3 scene periods + 50 ms (``bound``: the periods the scene was asked for; ``fade``: the
+driver's, from the periods it measured). Prints nproc, the CPU model and the load beside the table.
 """
 
 from __future__ import annotations
@@ -334,7 +335,7 @@ def main(argv=None) -> int:
     header = (f"{'driver':13s} {'scene Hz':>8s} {'kd':>6s} {'work mJ':>8s} {'ripple N':>9s} {'p1-p99':>7s} "
               f"{'hold N':>7s} "
               f"{'trips':>5s} {'drag N':>7s} {'age p99 ms':>10s} {'overruns':>8s} {'models':>6s}"
-              + (f" {'kill→0 ms':>9s} {'bound':>6s}" if args.kill else ""))  # fmt: skip
+              + (f" {'kill→0 ms':>9s} {'bound':>6s} {'fade':>6s}" if args.kill else ""))  # fmt: skip
     print(header)
     results = []
     modes = [True, False] if args.baseline else [True]
@@ -352,7 +353,7 @@ def main(argv=None) -> int:
                         f"{r['hold_N']:7.3f} {r['trips']:5d} {r['drag_N']:7.4f} {r['pose_age_p99_ms']:10.3f} "
                         f"{r['overruns']:8d} {r['models']:6d}")  # fmt: skip
                 if args.kill:
-                    line += f" {r['kill_to_zero_ms']:9.1f} {r['kill_bound_ms']:6.0f}"
+                    line += f" {r['kill_to_zero_ms']:9.1f} {r['kill_bound_ms']:6.0f} {r['fade_end_ms']:6.0f}"
                 print(line, flush=True)
     for r in results:
         if "scene_model_ms" in r:
