@@ -434,8 +434,8 @@ THROTTLE_ENV = "GODOBJECT_TEST_SCENE_HZ"
 class WallThrottle:
     """Test-only: lets a scene's link publish at most ``rate_hz`` times a second of *wall* time,
     to emulate a scene that sustains only that rate (analysis/local_model_bench.py). Set by the
-    environment variable :data:`THROTTLE_ENV` (unset: no throttle). Every publisher of one scene
-    shares it: a step is published by all or none."""
+    environment variable :data:`THROTTLE_ENV` (unset: no throttle). Each publisher has its own
+    (the wrench's and the local model's steps differ); within one, a step's answer is memoised."""
 
     def __init__(self, rate_hz: float, clock=None):
         import time
@@ -471,10 +471,15 @@ class WallThrottle:
 
 
 PLANE_MARGIN_M = 0.005  # contacts the god-object could reach: within this of its held body
+# The local model is published every device period, at most this often (s of simulated time):
+# the driver renders at its own rate from it, and a model costs the scene ~0.5 ms (Python: the
+# signed distances, the message), which every 1 ms step could not afford (docs/local_model.md)
+LOCAL_MODEL_MIN_PERIOD_S = 0.004
 
 
 class LocalModelPublisher(LeafSystem):
-    """The local model after each device period (issue 44; docs/local_model.md):
+    """The local model every device period, at most every :data:`LOCAL_MODEL_MIN_PERIOD_S` of
+    simulated time (issue 44; docs/local_model.md):
     :class:`~godobject_drake.protocol.LocalModel` on :data:`LOCAL_MODEL_CHANNEL`, in the device's
     frame (``p_Dev = R_WDevᵀ (p_W − p_WDev) / scale``; gains ``scale² kd``).
 
@@ -498,21 +503,16 @@ class LocalModelPublisher(LeafSystem):
         from pydrake.geometry import QueryObject
 
         self._query = self.DeclareAbstractInputPort("query", AbstractValue.Make(QueryObject()))
-        self.DeclarePeriodicPublishEvent(device.period_s, 0.0, self._publish)
-        self._bodies: dict = {}  # geometry id -> body index, filled as first seen
+        self.period_s = max(device.period_s, LOCAL_MODEL_MIN_PERIOD_S)
+        self.DeclarePeriodicPublishEvent(self.period_s, 0.0, self._publish)
+        self.throttle = WallThrottle.from_environment()  # its own: its steps are not the wrench's
+        self._geometries: dict = {}  # body index -> its collision geometries, filled as first held
         self._stiffness: dict = {}
         self.published = 0
         self.seconds = 0.0  # spent building and sending the models (the scene's cost)
 
     def _to_dev(self, p_W) -> tuple:
         return tuple((self._R_DevW @ (np.asarray(p_W) - self._p_WDev)) / self._scale)
-
-    def _body(self, inspector, geometry_id) -> int:
-        body = self._bodies.get(geometry_id)
-        if body is None:
-            body = int(self.plant.GetBodyFromFrameId(inspector.GetFrameId(geometry_id)).index())
-            self._bodies[geometry_id] = body
-        return body
 
     def _point_stiffness(self, inspector, geometry_id) -> float:
         k = self._stiffness.get(geometry_id)
@@ -527,12 +527,18 @@ class LocalModelPublisher(LeafSystem):
     def planes(self, context, held: int, p_WG) -> list:
         query = self._query.Eval(context)
         inspector = query.inspector()
+        geometries = self._geometries.get(held)
+        if geometries is None:  # the held body's collision geometries, once
+            from pydrake.multibody.tree import BodyIndex
+
+            body = self.plant.get_body(BodyIndex(held))
+            geometries = self._geometries[held] = set(self.plant.GetCollisionGeometriesForBody(body))
         found = []  # (distance, normal out of the obstacle in W, stiffness)
         for pair in query.ComputeSignedDistancePairwiseClosestPoints(PLANE_MARGIN_M):
-            a, b = self._body(inspector, pair.id_A), self._body(inspector, pair.id_B)
-            if (a == held) == (b == held):
+            a, b = pair.id_A in geometries, pair.id_B in geometries
+            if a == b:
                 continue
-            n = np.asarray(pair.nhat_BA_W) if a == held else -np.asarray(pair.nhat_BA_W)
+            n = np.asarray(pair.nhat_BA_W) if a else -np.asarray(pair.nhat_BA_W)
             ka, kb = self._point_stiffness(inspector, pair.id_A), self._point_stiffness(inspector, pair.id_B)
             k = math.inf if math.isinf(ka) and math.isinf(kb) else 1.0 / (1.0 / ka + 1.0 / kb)  # in series
             found.append((float(pair.distance), n, k))
@@ -563,7 +569,7 @@ class LocalModelPublisher(LeafSystem):
         return LocalModel(
             scene_utime=round(context.get_time() * 1e6),
             pose_utime=receiver._last_utime or 0,
-            period_s=self.device.period_s if self.device.throttle is None else self.device.throttle.interval,
+            period_s=self.period_s if self.throttle is None else max(self.period_s, self.throttle.interval),
             kd=s2 * g.kd, gamma_d=s2 * g.gamma_d, kd_rot=g.kd_rot, gamma_d_rot=g.gamma_d_rot,
             p_G=self._to_dev(p_WG), v_G=tuple(self._R_DevW @ V_WG[3:] / self._scale),
             q_G=tuple(q_Dev / np.linalg.norm(q_Dev)), w_G=tuple(self._R_DevW @ V_WG[:3]),
@@ -572,7 +578,7 @@ class LocalModelPublisher(LeafSystem):
         )  # fmt: skip
 
     def _publish(self, context):
-        throttle = self.device.throttle
+        throttle = self.throttle
         if throttle is not None and not throttle.due(context.get_time()):
             return
         start = time.perf_counter()
