@@ -600,8 +600,8 @@ def test_any_feedback_payload_renders_the_newest_valid_force_within_the_rated_li
                     max_force_n=12.0, grasp="always")  # fmt: skip
     read = device.read
 
-    def read_until_fed():
-        driver.stop_requested = driver.lcm.polls >= len(raw_batches)
+    def read_until_fed():  # the loop polls, then reads the handle: stop after one empty poll
+        driver.stop_requested = driver.lcm.polls > len(raw_batches)
         return read()
 
     device.read = read_until_fed
