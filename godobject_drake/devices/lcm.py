@@ -56,14 +56,18 @@ what it drops is counted as ``lcm_udp_*`` in the metrics (``lcm_udp_unauthentica
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
 from drake import lcmt_force_torque, lcmt_robot_state
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
 from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGuard
@@ -438,7 +442,6 @@ class WallThrottle:
     (the wrench's and the local model's steps differ); within one, a step's answer is memoised."""
 
     def __init__(self, rate_hz: float, clock=None):
-        import time
 
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"{THROTTLE_ENV}={rate_hz!r}: give a rate in Hz > 0 (e.g. 30), or unset it")
@@ -448,7 +451,6 @@ class WallThrottle:
 
     @classmethod
     def from_environment(cls) -> WallThrottle | None:
-        import os
 
         text = os.environ.get(THROTTLE_ENV, "")
         if not text:
@@ -500,7 +502,6 @@ class LocalModelPublisher(LeafSystem):
         self._q_DevW = X.rotation().inverse().ToQuaternion()
         for name, size in (("held_body", 1), ("pose_WT", 7), ("V_WT", 6), ("pose_WG", 7), ("V_WG", 6)):
             self.DeclareVectorInputPort(name, size)
-        from pydrake.geometry import QueryObject
 
         self._query = self.DeclareAbstractInputPort("query", AbstractValue.Make(QueryObject()))
         self.period_s = max(device.period_s, LOCAL_MODEL_MIN_PERIOD_S)
@@ -529,8 +530,6 @@ class LocalModelPublisher(LeafSystem):
         inspector = query.inspector()
         geometries = self._geometries.get(held)
         if geometries is None:  # the held body's collision geometries, once
-            from pydrake.multibody.tree import BodyIndex
-
             body = self.plant.get_body(BodyIndex(held))
             geometries = self._geometries[held] = set(self.plant.GetCollisionGeometriesForBody(body))
         found = []  # (distance, normal out of the obstacle in W, stiffness)
@@ -560,8 +559,6 @@ class LocalModelPublisher(LeafSystem):
         )
         V_WG = self.GetInputPort("V_WG").Eval(context)
         p_WG = pose_WG[4:]
-        from pydrake.common.eigen_geometry import Quaternion
-
         q = pose_WG[:4] / np.linalg.norm(pose_WG[:4])
         q_Dev = self._q_DevW.multiply(Quaternion(q)).wxyz()
         g, s2 = self.gains, self._scale**2
