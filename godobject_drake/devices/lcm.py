@@ -13,6 +13,11 @@ Messages (the ``lcmt_*`` types the drake wheel ships; README "Real devices over 
 - **Feedback** on ``GODOBJECT_FEEDBACK``: ``lcmt_force_torque`` at the device's rate,
   ``timestamp`` the simulation time in µs, ``fx, fy, fz`` (N) and ``tx, ty, tz`` (N·m) the wrench
   the device should render, in W (the feedback port's ``F_Do_W``).
+- **Local model** on ``GODOBJECT_LOCAL_MODEL`` (``udp://`` driver links only, issue 44):
+  :class:`~godobject_drake.protocol.LocalModel`, the god-object, the feedback gains and the
+  contact planes near the held body, in the device's frame, every device period and at most
+  every :data:`LOCAL_MODEL_MIN_PERIOD_S` of simulated time (:class:`LocalModelPublisher`;
+  docs/local_model.md): the driver renders from it at its own rate.
 
 What arrives is checked at each device sample (:class:`LcmReceiver`), and every fault is
 counted in the metrics (:data:`LCM_STATUS_KEYS`):
