@@ -60,6 +60,15 @@ UNITS = {
                                                  "parse_url", "is_udp_url", "_derive"}),
     "link: each end's rules": ("protocol", ("_End", "SceneEnd", "DriverEnd"), None),
     "link: transport": ("protocol", "UdpLcm", None),
+    # the local model (issue 44): its payload's checks, the driver's proxy on the planes, its
+    # energy budget and passivity controller, the model's validity (fade, trips)
+    "link: local model": ("protocol", None, {"parse_local_model", "_finite"}),
+    "link: local model payload": ("protocol", "LocalModel", None),
+    "driver: local model proxy": ("driver.local_model", None, {"project"}),
+    "driver: energy budget": ("driver.local_model", "LocalRenderer", {"request", "_account", "_environment",
+                                                                      "rendered", "reserve", "take"}),
+    "driver: local model validity": ("driver.local_model", "LocalRenderer", {"gap", "validity", "fade_end",
+                                                                             "heard", "proxy", "__init__"}),
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
 NAME = re.compile(r"godobject_drake\.([\w.]+?)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")

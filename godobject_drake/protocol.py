@@ -80,6 +80,7 @@ this transport is published by :class:`~godobject_drake.devices.lcm.ForceTorqueP
 from __future__ import annotations
 
 import binascii
+import dataclasses
 import errno
 import hashlib
 import hmac
@@ -806,3 +807,113 @@ class UdpLcm:
 
     def close(self) -> None:
         self.sock.close()
+
+
+# -- the local model (issue 44) ----------------------------------------------------------------------------
+
+LOCAL_MODEL_CHANNEL = "GODOBJECT_LOCAL_MODEL"
+LOCAL_MODEL_MAGIC = b"GLM1"
+MAX_PLANES = 8  # contacts per local model: a god-object held in a corner needs 3
+_LM_HEAD = struct.Struct(">4sqqd4d3d3d4d3d3dB")  # see LocalModel
+_LM_PLANE = struct.Struct(">3d3dd")
+UNIT_TOLERANCE = 1e-6  # a normal or quaternion further from unit length is refused, not renormalised
+
+
+class LocalModelError(ValueError):
+    """A local model payload that cannot be rendered: the message names the field, its value and
+    the limit."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalModel:
+    """What the scene publishes after each step on :data:`LOCAL_MODEL_CHANNEL` (issue 44), so the
+    driver computes the force with the handle's *current* pose (docs/local_model.md). Everything
+    is in the device's frame Dev (m, m/s; a W-first unit quaternion), and the gains are the
+    feedback coupling's seen from the device (``scale² kd``: N per metre of the handle).
+
+    ``scene_utime``: the scene's simulated time (µs); ``pose_utime``: the ``utime`` of the newest
+    pose sample the scene had taken (the driver's clock, µs; 0 before the first);
+    ``period_s``: the scene's nominal publication period (s); ``p_G``, ``v_G``, ``q_G``, ``w_G``:
+    the god-object's pose and velocity; ``p_T``: the coupling's target; ``planes``: each
+    ``(point, normal, stiffness)``: the god-object's reference point may not cross the plane
+    through ``point`` against the unit ``normal`` (pointing out of the obstacle), ``stiffness``
+    N/m (``inf``: rigid)."""
+
+    scene_utime: int
+    pose_utime: int
+    period_s: float
+    kd: float
+    gamma_d: float
+    kd_rot: float
+    gamma_d_rot: float
+    p_G: tuple
+    v_G: tuple
+    q_G: tuple
+    w_G: tuple
+    p_T: tuple
+    planes: tuple = ()
+
+    def encode(self) -> bytes:
+        if len(self.planes) > MAX_PLANES:
+            raise LocalModelError(
+                f"a local model of {len(self.planes)} planes: at most {MAX_PLANES} (keep the nearest)"
+            )
+        head = _LM_HEAD.pack(
+            LOCAL_MODEL_MAGIC, int(self.scene_utime), int(self.pose_utime), float(self.period_s),
+            self.kd, self.gamma_d, self.kd_rot, self.gamma_d_rot,
+            *self.p_G, *self.v_G, *self.q_G, *self.w_G, *self.p_T, len(self.planes),
+        )  # fmt: skip
+        planes = (_LM_PLANE.pack(*point, *normal, stiffness) for point, normal, stiffness in self.planes)
+        return head + b"".join(planes)
+
+
+def _finite(name: str, values) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise LocalModelError(f"local model: {name} {list(values)} is not finite")
+
+
+def parse_local_model(raw: bytes) -> LocalModel:
+    """A :class:`LocalModel` from its payload, or :class:`LocalModelError` naming what is wrong:
+    another magic, a length that does not match the plane count, more than :data:`MAX_PLANES`
+    planes, a value that is not finite (a stiffness may be ``inf``: rigid), a negative gain, a
+    stiffness ≤ 0, a normal or quaternion not of unit length (within :data:`UNIT_TOLERANCE`), a
+    negative time or a period not > 0. Nothing is renormalised or clamped."""
+    raw = bytes(raw)
+    if len(raw) < _LM_HEAD.size:
+        raise LocalModelError(f"local model: {len(raw)} bytes, shorter than its {_LM_HEAD.size}-byte head")
+    fields = _LM_HEAD.unpack_from(raw)
+    if fields[0] != LOCAL_MODEL_MAGIC:
+        raise LocalModelError(f"local model: magic {fields[0]!r}, not {LOCAL_MODEL_MAGIC!r}")
+    n = fields[-1]
+    if n > MAX_PLANES:
+        raise LocalModelError(f"local model: {n} planes, at most {MAX_PLANES}")
+    if len(raw) != _LM_HEAD.size + n * _LM_PLANE.size:
+        raise LocalModelError(
+            f"local model: {len(raw)} bytes for {n} planes; expected {_LM_HEAD.size + n * _LM_PLANE.size}"
+        )
+    scene_utime, pose_utime, period = fields[1:4]
+    gains, rest = fields[4:8], fields[8:-1]
+    p_G, v_G, q_G, w_G, p_T = rest[0:3], rest[3:6], rest[6:10], rest[10:13], rest[13:16]
+    if scene_utime < 0 or pose_utime < 0:
+        raise LocalModelError(f"local model: times {scene_utime}, {pose_utime} µs must be ≥ 0")
+    _finite("period_s", [period])
+    if not period > 0:
+        raise LocalModelError(f"local model: period_s {period!r} must be > 0")
+    _finite("gains", gains)
+    if min(gains) < 0:
+        raise LocalModelError(f"local model: gains {list(gains)} must be ≥ 0")
+    for name, values in (("p_G", p_G), ("v_G", v_G), ("q_G", q_G), ("w_G", w_G), ("p_T", p_T)):
+        _finite(name, values)
+    if abs(math.hypot(*q_G) - 1.0) > UNIT_TOLERANCE:
+        raise LocalModelError(f"local model: q_G {list(q_G)} is not a unit quaternion")
+    planes = []
+    for i in range(n):
+        values = _LM_PLANE.unpack_from(raw, _LM_HEAD.size + i * _LM_PLANE.size)
+        point, normal, stiffness = values[0:3], values[3:6], values[6]
+        _finite(f"plane {i} point/normal", [*point, *normal])
+        if abs(math.hypot(*normal) - 1.0) > UNIT_TOLERANCE:
+            raise LocalModelError(f"local model: plane {i} normal {list(normal)} is not of unit length")
+        if math.isnan(stiffness) or not stiffness > 0:
+            raise LocalModelError(f"local model: plane {i} stiffness {stiffness!r} must be > 0 (inf: rigid)")
+        planes.append((point, normal, stiffness))
+    return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, tuple(planes))

@@ -600,8 +600,8 @@ def test_any_feedback_payload_renders_the_newest_valid_force_within_the_rated_li
                     max_force_n=12.0, grasp="always")  # fmt: skip
     read = device.read
 
-    def read_until_fed():
-        driver.stop_requested = driver.lcm.polls >= len(raw_batches)
+    def read_until_fed():  # the loop polls, then reads the handle: stop after one empty poll
+        driver.stop_requested = driver.lcm.polls > len(raw_batches)
         return read()
 
     device.read = read_until_fed
@@ -764,3 +764,50 @@ def test_any_scenario_file_runs_or_is_refused_with_a_message(text, capsys):
         else:
             m = json.loads(metrics.read_text(), parse_constant=lambda c: pytest.fail(f"{c} in {text}"))
             assert m["diverged"] == (code == 1) or "metrics_error" in m, (code, m["diagnosis"], text)
+
+
+# -- the local model (issue 44) ----------------------------------------------------------------------------
+
+
+def _valid_model(p_G, planes):
+    from godobject_drake.protocol import LocalModel
+
+    return LocalModel(1, 2, 0.001, 200.0, 0.0, 0.0, 0.0, tuple(p_G), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
+                      (0.0, 0.0, 0.0), tuple(p_G), tuple(planes))  # fmt: skip
+
+
+coordinate = st.floats(-1.0, 1.0)
+unit = st.sampled_from([(1.0, 0.0, 0.0), (0.0, 0.0, -1.0)])
+plane = st.tuples(st.tuples(coordinate, coordinate, coordinate), unit,
+                  st.one_of(st.just(math.inf), st.floats(1.0, 1e7)))  # fmt: skip
+
+
+@FUZZ
+@given(
+    p_G=st.tuples(coordinate, coordinate, coordinate),
+    planes=st.lists(plane, max_size=8),
+    edits=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=4),
+    cut=st.one_of(st.none(), st.integers(0, 800)),
+)
+def test_any_changed_local_model_is_read_whole_and_checked_or_refused_naming_why(p_G, planes, edits, cut):
+    """A local model payload changed anywhere (bytes overwritten, cut short) is either refused
+    with a LocalModelError (never another exception), or read into a model every value of which
+    is within its limits: finite, gains ≥ 0, unit normals and quaternion, stiffness > 0."""
+    from godobject_drake.protocol import LocalModelError, parse_local_model
+
+    raw = bytearray(_valid_model(p_G, planes).encode())
+    for at, value in edits:
+        raw[at % len(raw)] = value
+    if cut is not None:
+        raw = raw[:cut]
+    try:
+        m = parse_local_model(bytes(raw))
+    except LocalModelError as e:
+        event(str(e).split(":")[1].split()[0] if ":" in str(e) else "refused")
+        return
+    values = [m.period_s, m.kd, m.gamma_d, m.kd_rot, m.gamma_d_rot, *m.p_G, *m.v_G, *m.q_G, *m.w_G, *m.p_T]
+    assert all(math.isfinite(v) for v in values) and m.period_s > 0 and min(m.kd, m.gamma_d) >= 0
+    assert abs(math.hypot(*m.q_G) - 1.0) <= 1e-6 and len(m.planes) <= 8
+    for point, normal, stiffness in m.planes:
+        assert all(math.isfinite(v) for v in point) and abs(math.hypot(*normal) - 1.0) <= 1e-6
+        assert stiffness > 0 and not math.isnan(stiffness)

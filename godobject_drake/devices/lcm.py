@@ -13,6 +13,11 @@ Messages (the ``lcmt_*`` types the drake wheel ships; README "Real devices over 
 - **Feedback** on ``GODOBJECT_FEEDBACK``: ``lcmt_force_torque`` at the device's rate,
   ``timestamp`` the simulation time in µs, ``fx, fy, fz`` (N) and ``tx, ty, tz`` (N·m) the wrench
   the device should render, in W (the feedback port's ``F_Do_W``).
+- **Local model** on ``GODOBJECT_LOCAL_MODEL`` (``udp://`` driver links only, issue 44):
+  :class:`~godobject_drake.protocol.LocalModel`, the god-object, the feedback gains and the
+  contact planes near the held body, in the device's frame, every device period and at most
+  every :data:`LOCAL_MODEL_MIN_PERIOD_S` of simulated time (:class:`LocalModelPublisher`;
+  docs/local_model.md): the driver renders from it at its own rate.
 
 What arrives is checked at each device sample (:class:`LcmReceiver`), and every fault is
 counted in the metrics (:data:`LCM_STATUS_KEYS`):
@@ -56,14 +61,18 @@ what it drops is counted as ``lcm_udp_*`` in the metrics (``lcm_udp_unauthentica
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
 from drake import lcmt_force_torque, lcmt_robot_state
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
 from pydrake.lcm import DrakeLcm
 from pydrake.math import RigidTransform
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGuard
@@ -75,9 +84,12 @@ from godobject_drake.protocol import (
     FEEDBACK_CHANNEL,
     JOINT_CHANNEL,
     LCM_STATUS_KEYS,
+    LOCAL_MODEL_CHANNEL,
+    MAX_PLANES,
     POSE_CHANNEL,
     POSE_NAMES,
     STOP_SUFFIX,
+    LocalModel,
     decode,
     parse_robot_state,
 )
@@ -220,6 +232,7 @@ class LcmDevice(DeviceSource):
         self._q0 = X_WD0.rotation().ToQuaternion().wxyz()
         self._grasp = ""
         self._polled_at = -math.inf
+        self.throttle = WallThrottle.from_environment()
         super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard)
 
     def _read(self, t: float):
@@ -288,6 +301,10 @@ class LcmDevice(DeviceSource):
             counts["driver_status_messages"] = self.driver_status_messages
             counts["driver_bad_status"] = self.driver_bad_status
             counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})
+            publisher = getattr(self, "local_publisher", None)
+            if publisher is not None:  # the local model's cost on the scene's side (issue 44)
+                counts["lcm_local_models"] = publisher.published
+                counts["lcm_local_model_ms"] = 1e3 * publisher.seconds / max(publisher.published, 1)
         return counts
 
     def status(self, context) -> dict:
@@ -308,6 +325,21 @@ class LcmDevice(DeviceSource):
         ``grasp_names`` is refused (counted)."""
         self.known_grasps = set(grasp_names)
         return add_feedback_publisher(builder, F_Do_W_port, self)
+
+    def connect_local_model(self, builder, coupling, gains) -> LeafSystem | None:
+        """A driver link (``udp://``) also gets the local model after each step (issue 44,
+        docs/local_model.md): :class:`LocalModelPublisher`, reading the coupling and the scene's
+        geometry. Other transports (``memq://``, Drake's multicast): nothing."""
+        if not self.driver_link or not builder.HasSubsystemNamed("scene_graph"):
+            return None
+        plant = builder.GetSubsystemByName("plant")
+        scene_graph = builder.GetSubsystemByName("scene_graph")
+        publisher = builder.AddNamedSystem("local_model_publisher", LocalModelPublisher(self, plant, gains))
+        self.local_publisher = publisher
+        for port in ("held_body", "pose_WT", "V_WT", "pose_WG", "V_WG"):
+            builder.Connect(coupling.GetOutputPort(port), publisher.GetInputPort(port))
+        builder.Connect(scene_graph.get_query_output_port(), publisher.GetInputPort("query"))
+        return publisher
 
 
 class LcmJointDevice(JointDevice):
@@ -377,6 +409,7 @@ def add_feedback_publisher(builder, F_Do_W_port, device: LcmDevice):
         )
     else:  # a driver link (udp://): Drake's publisher takes only its own C++ LCM
         system = ForceTorquePublisher(device.lcm, device.feedback_channel, device.period_s)
+        system.throttle = device.throttle
     publisher = builder.AddNamedSystem("feedback_publisher", system)
     builder.Connect(F_Do_W_port, message.GetInputPort("F_Do_W"))
     builder.Connect(message.GetOutputPort("message"), publisher.get_input_port())
@@ -392,8 +425,11 @@ class ForceTorquePublisher(LeafSystem):
         self.lcm, self.channel = lcm, channel
         self._in = self.DeclareAbstractInputPort("lcm_message", AbstractValue.Make(lcmt_force_torque()))
         self.DeclarePeriodicPublishEvent(period_s, 0.0, self._publish)
+        self.throttle = None  # a WallThrottle (test-only: the scene's rate of wall time)
 
     def _publish(self, context):
+        if self.throttle is not None and not self.throttle.due(context.get_time()):
+            return
         self.lcm.Publish(self.channel, self._in.Eval(context).encode())
 
 
@@ -416,3 +452,155 @@ class ForceTorqueMessage(LeafSystem):
         msg.timestamp = round(context.get_time() * 1e6)
         msg.tx, msg.ty, msg.tz, msg.fx, msg.fy, msg.fz = (float(v) for v in F)
         output.set_value(msg)
+
+
+THROTTLE_ENV = "GODOBJECT_TEST_SCENE_HZ"
+
+
+class WallThrottle:
+    """Test-only: lets a scene's link publish at most ``rate_hz`` times a second of *wall* time,
+    to emulate a scene that sustains only that rate (analysis/local_model_bench.py). Set by the
+    environment variable :data:`THROTTLE_ENV` (unset: no throttle). Each publisher has its own
+    (the wrench's and the local model's steps differ); within one, a step's answer is memoised."""
+
+    def __init__(self, rate_hz: float, clock=None):
+
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"{THROTTLE_ENV}={rate_hz!r}: give a rate in Hz > 0 (e.g. 30), or unset it")
+        self.interval, self.clock = 1.0 / rate_hz, clock or time.monotonic
+        self._next = -math.inf
+        self._step, self._due = None, False
+
+    @classmethod
+    def from_environment(cls) -> WallThrottle | None:
+
+        text = os.environ.get(THROTTLE_ENV, "")
+        if not text:
+            return None
+        try:
+            rate = float(text)
+        except ValueError:
+            rate = math.nan
+        return cls(rate)
+
+    def due(self, step_time: float) -> bool:
+        """Whether the step at simulated ``step_time`` is published (the same answer for every
+        publisher of that step)."""
+        if step_time != self._step:
+            now = self.clock()
+            self._step, self._due = step_time, now >= self._next
+            if self._due:
+                self._next = max(self._next + self.interval, now - self.interval)
+        return self._due
+
+
+PLANE_MARGIN_M = 0.005  # contacts the god-object could reach: within this of its held body
+# The local model is published every device period, at most this often (s of simulated time):
+# the driver renders at its own rate from it, and a model costs the scene ~0.5 ms (Python: the
+# signed distances, the message), which every 1 ms step could not afford (docs/local_model.md)
+LOCAL_MODEL_MIN_PERIOD_S = 0.004
+
+
+class LocalModelPublisher(LeafSystem):
+    """The local model every device period, at most every :data:`LOCAL_MODEL_MIN_PERIOD_S` of
+    simulated time (issue 44; docs/local_model.md):
+    :class:`~godobject_drake.protocol.LocalModel` on :data:`LOCAL_MODEL_CHANNEL`, in the device's
+    frame (``p_Dev = R_WDevᵀ (p_W − p_WDev) / scale``; gains ``scale² kd``).
+
+    The planes: every geometry pair of the held body and another body within
+    :data:`PLANE_MARGIN_M` (Drake's signed distance query, broad phase first), one plane per
+    distinct normal (the nearest), at most :data:`~godobject_drake.protocol.MAX_PLANES`:
+    through the god-object's point moved ``max(distance, 0)`` against the normal (the god-object
+    may come that close), normal out of the obstacle, stiffness the pair's point-contact
+    stiffness in series (inf when the geometries state none)."""
+
+    def __init__(self, device: LcmDevice, plant, gains):
+        super().__init__()
+        self.device, self.plant, self.gains = device, plant, gains
+        X = device.X_WDev or RigidTransform()
+        self._R_DevW = X.rotation().matrix().T
+        self._p_WDev = X.translation().copy()
+        self._scale = device.scale
+        self._q_DevW = X.rotation().inverse().ToQuaternion()
+        for name, size in (("held_body", 1), ("pose_WT", 7), ("V_WT", 6), ("pose_WG", 7), ("V_WG", 6)):
+            self.DeclareVectorInputPort(name, size)
+
+        self._query = self.DeclareAbstractInputPort("query", AbstractValue.Make(QueryObject()))
+        self.period_s = max(device.period_s, LOCAL_MODEL_MIN_PERIOD_S)
+        self.DeclarePeriodicPublishEvent(self.period_s, 0.0, self._publish)
+        self.throttle = WallThrottle.from_environment()  # its own: its steps are not the wrench's
+        self._geometries: dict = {}  # body index -> its collision geometries, filled as first held
+        self._stiffness: dict = {}
+        self.published = 0
+        self.seconds = 0.0  # spent building and sending the models (the scene's cost)
+
+    def _to_dev(self, p_W) -> tuple:
+        return tuple((self._R_DevW @ (np.asarray(p_W) - self._p_WDev)) / self._scale)
+
+    def _point_stiffness(self, inspector, geometry_id) -> float:
+        k = self._stiffness.get(geometry_id)
+        if k is None:
+            props = inspector.GetProximityProperties(geometry_id)
+            k = math.inf
+            if props is not None and props.HasProperty("material", "point_contact_stiffness"):
+                k = float(props.GetProperty("material", "point_contact_stiffness"))
+            self._stiffness[geometry_id] = k
+        return k
+
+    def planes(self, context, held: int, p_WG) -> list:
+        query = self._query.Eval(context)
+        inspector = query.inspector()
+        geometries = self._geometries.get(held)
+        if geometries is None:  # the held body's collision geometries, once
+            body = self.plant.get_body(BodyIndex(held))
+            geometries = self._geometries[held] = set(self.plant.GetCollisionGeometriesForBody(body))
+        found = []  # (distance, normal out of the obstacle in W, stiffness)
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(PLANE_MARGIN_M):
+            a, b = pair.id_A in geometries, pair.id_B in geometries
+            if a == b:
+                continue
+            n = np.asarray(pair.nhat_BA_W) if a else -np.asarray(pair.nhat_BA_W)
+            ka, kb = self._point_stiffness(inspector, pair.id_A), self._point_stiffness(inspector, pair.id_B)
+            k = math.inf if math.isinf(ka) and math.isinf(kb) else 1.0 / (1.0 / ka + 1.0 / kb)  # in series
+            found.append((float(pair.distance), n, k))
+        kept: list = []
+        for distance, n, k in sorted(found, key=lambda c: c[0]):
+            if len(kept) < MAX_PLANES and all(float(n @ m) < 0.99 for _, m, _ in kept):
+                kept.append((distance, n, k))
+        s2 = self._scale**2
+        return [
+            (self._to_dev(p_WG - max(distance, 0.0) * n), tuple(self._R_DevW @ n), s2 * k)
+            for distance, n, k in kept
+        ]
+
+    def model(self, context) -> LocalModel:
+        held = int(self.GetInputPort("held_body").Eval(context)[0])
+        pose_WT, pose_WG = (
+            self.GetInputPort("pose_WT").Eval(context),
+            self.GetInputPort("pose_WG").Eval(context),
+        )
+        V_WG = self.GetInputPort("V_WG").Eval(context)
+        p_WG = pose_WG[4:]
+        q = pose_WG[:4] / np.linalg.norm(pose_WG[:4])
+        q_Dev = self._q_DevW.multiply(Quaternion(q)).wxyz()
+        g, s2 = self.gains, self._scale**2
+        receiver = self.device.receiver
+        return LocalModel(
+            scene_utime=round(context.get_time() * 1e6),
+            pose_utime=receiver._last_utime or 0,
+            period_s=self.period_s if self.throttle is None else max(self.period_s, self.throttle.interval),
+            kd=s2 * g.kd, gamma_d=s2 * g.gamma_d, kd_rot=g.kd_rot, gamma_d_rot=g.gamma_d_rot,
+            p_G=self._to_dev(p_WG), v_G=tuple(self._R_DevW @ V_WG[3:] / self._scale),
+            q_G=tuple(q_Dev / np.linalg.norm(q_Dev)), w_G=tuple(self._R_DevW @ V_WG[:3]),
+            p_T=self._to_dev(pose_WT[4:]),
+            planes=tuple(self.planes(context, held, p_WG)) if held >= 0 else (),
+        )  # fmt: skip
+
+    def _publish(self, context):
+        throttle = self.throttle
+        if throttle is not None and not throttle.due(context.get_time()):
+            return
+        start = time.perf_counter()
+        self.device.lcm.Publish(LOCAL_MODEL_CHANNEL, self.model(context).encode())
+        self.seconds += time.perf_counter() - start
+        self.published += 1

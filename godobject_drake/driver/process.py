@@ -24,8 +24,14 @@ Each device period the loop:
    while held, ``grasp=`` when let go), button 1 the clutch: while held the pose sent stays put
    and no force is rendered; let go, the handle carries on from where the pose stayed;
 2. sends the pose to the scene (``lcmt_robot_state``, ``utime`` the driver's clock in µs);
-3. takes the newest feedback (``lcmt_force_torque``, already in the device's frame: the scene
-   maps it) and renders it through :class:`ForceSafety`:
+3. computes the force: from the scene's newest **local model** once one is heard (a scene of
+   this version publishes one after each step, on ``GODOBJECT_LOCAL_MODEL``): the spring to a
+   proxy kept out of the model's planes, with the handle's pose read this period, paid for by
+   an energy budget, valid for 2 scene periods + 25 ms and faded to zero at 3 scene periods +
+   50 ms (:mod:`~godobject_drake.driver.local_model`, docs/local_model.md; the watchdog below
+   is then the model's validity); else (an older scene, or ``--no-local-model``) the newest
+   feedback wrench (``lcmt_force_torque``, already in the device's frame: the scene maps it),
+   held. Either is rendered through :class:`ForceSafety`:
 
    - **watchdog**: no feedback for ``watchdog_periods`` device periods (the scene stalled, was
      killed or never started): zero force until feedback comes again (``watchdog_trips``). A
@@ -70,6 +76,7 @@ from pathlib import Path
 import numpy as np
 
 from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
+from godobject_drake.driver.local_model import LocalRenderer
 from godobject_drake.driver.safety import FeedbackGate, ForceSafety
 from godobject_drake.protocol import (
     DRIVER_STATUS_CHANNEL,
@@ -77,14 +84,17 @@ from godobject_drake.protocol import (
     FEEDBACK_CHANNEL,
     KEY_ENV,
     LINK_REJECTED,
+    LOCAL_MODEL_CHANNEL,
     POSE_CHANNEL,
     STOP_SUFFIX,
     KeyFileError,
+    LocalModelError,
     StderrHandler,
     decode,
     driver_lcm,
     is_udp_url,
     key_fingerprint,
+    parse_local_model,
     pose_message,
     status_message,
 )
@@ -151,6 +161,7 @@ class Driver:
         exit_on_stop: bool = False,
         feedback_channel: str = FEEDBACK_CHANNEL,
         channel: str = POSE_CHANNEL,
+        local_model: bool = True,
     ):
         self.device, self.lcm, self.rated = device, lcm, rated
         self.period = 1.0 / rate_hz
@@ -173,8 +184,36 @@ class Driver:
         self.late = Quantiles()  # how late each period started
         self.gaps = Quantiles()  # between two feedback messages
         self.stop_requested = False
+        self.local = LocalRenderer()  # the scene's local model, once it sends one (issue 44)
+        # the last POSES_KEPT poses sent and their utimes, a ring allocated once (bounded memory)
+        self._sent_utimes = np.full(self.POSES_KEPT, -1, np.int64)
+        self._sent_poses = np.zeros((self.POSES_KEPT, 3))
+        self.pose_age = Quantiles()  # from reading the handle to commanding the force it gave
+        self.bad_local_models = 0
         lcm.Subscribe(feedback_channel, self._on_feedback)
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
+        if local_model:
+            lcm.Subscribe(LOCAL_MODEL_CHANNEL, self._on_local_model)
+
+    POSES_KEPT = 4096  # 4 s at 1 kHz: the pose a local model was computed from is looked up here
+
+    def sent_pose(self, utime: int) -> np.ndarray | None:
+        """The pose sent with ``utime`` if among the last :attr:`POSES_KEPT`, else None."""
+        found = np.flatnonzero(self._sent_utimes == utime) if utime > 0 else ()
+        return self._sent_poses[found[0]].copy() if len(found) else None
+
+    def _on_local_model(self, raw: bytes) -> None:
+        try:
+            model = parse_local_model(raw)
+        except LocalModelError:
+            self.bad_local_models += 1
+            self.counts["bad_feedback"] += 1
+            return
+        now = time.monotonic() if self._arrived_after is None else self._arrived_after
+        self.local.take(model, now, self.sent_pose(model.pose_utime))
+        if not self.heard_scene:
+            self.heard_scene = True
+            self.device.on_scene()
 
     def _on_feedback(self, raw: bytes) -> None:
         from drake import lcmt_force_torque
@@ -232,7 +271,16 @@ class Driver:
                     self.counts["overruns"] += 1
                     next_tick = now  # start again from now: no burst of catch-up periods
                 self.counts["loops"] += 1
+                # What this poll hands over arrived after the previous poll, at the earliest: its
+                # age is counted from there (fail-safe: a message that sat out a stall is stale).
+                # Its age is taken when the force is rendered, after the poll (the process may be
+                # held up anywhere in the loop). The poll comes first, so the handle's pose is
+                # read just before the force it gives is computed and commanded (issue 44).
+                self._arrived_after, poll = previous_poll, time.monotonic()
+                self.lcm.HandleSubscriptions(0)
+                previous_poll = poll
                 p, q, buttons = self.device.read()
+                read_at = time.monotonic()
                 grasp, clutch = self._buttons(buttons)
                 sent = p + self.offset
                 if clutch:
@@ -242,21 +290,28 @@ class Driver:
                 elif self.held is not None:  # let go: carry on from where the pose stayed
                     self.offset += self.held - (p + self.offset)
                     sent, self.held = self.held, None
-                utime = round((now - start) * 1e6) + 1
-                self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
-                # What this poll hands over arrived after the previous poll, at the earliest: its
-                # age is counted from there (fail-safe: a message that sat out a stall is stale).
-                # Its age is taken when the force is rendered, after the poll (the process may be
-                # held up anywhere in the loop).
-                self._arrived_after, poll = previous_poll, time.monotonic()
-                self.lcm.HandleSubscriptions(0)
-                previous_poll = poll
                 state = self.gate.state(time.monotonic(), clutch)
-                self.counts["watchdog_trips"] = self.gate.trips
-                requested = self.gate.force
+                if self.local.heard:  # the local model decides what is fresh (module docstring)
+                    live = state not in ("stopped", "clutch")
+                    requested = self.local.request(sent, time.monotonic(), self.period, live)
+                    if live:
+                        state = "ok" if self.local.weight > 0.0 else "watchdog"
+                    self.counts["watchdog_trips"] = self.local.trips
+                else:
+                    self.counts["watchdog_trips"] = self.gate.trips
+                    requested = self.gate.force
                 f = self.safety.step(requested, state == "ok")
                 self.device.render(f)
-                self._row((now, *sent, *requested, *f, self.gate.scene_time, state, int(self.safety.buzzing)))
+                self.pose_age.add(time.monotonic() - read_at)
+                self.local.rendered(f)
+                utime = round((now - start) * 1e6) + 1
+                self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
+                slot = self.counts["loops"] % self.POSES_KEPT
+                self._sent_utimes[slot], self._sent_poses[slot] = utime, sent
+                local = self.local
+                scene_time = local.model.scene_utime * 1e-6 if local.heard else self.gate.scene_time
+                self._row((now, *sent, *requested, *f, scene_time, state, int(self.safety.buzzing),
+                           local.weight, local.beta, local.damping, local.energy_in))  # fmt: skip
                 if self.counts["loops"] % 100 == 0:
                     self.publish_status(now)
                     if self.log_file is not None:
@@ -279,7 +334,8 @@ class Driver:
         finally:
             self.device.close()
         now = time.monotonic()
-        self._row((now, *(math.nan,) * 3, *zero, *zero, math.nan, "exit", 0))
+        row = (now, *(math.nan,) * 3, *zero, *zero, math.nan, "exit", 0, *(0.0,) * 3, self.local.energy_in)
+        self._row(row)
         if self.log_file is not None:
             self.log_file.close()
         try:
@@ -303,9 +359,22 @@ class Driver:
             "rt_priority": getattr(self, "rt_priority", 0),
             "loop_lateness": self.late.summary(),
             "feedback_gap": self.gaps.summary(),
+            "local_model": {
+                "models": self.local.models,
+                "bad": self.bad_local_models,
+                "energy_in_j": self.local.energy_in,
+                "unpaid_j": self.local.unpaid,
+                "trips": self.local.trips,
+                "gap_s": self.local.gap() if self.local.heard else None,
+                "fade_end_s": self.local.fade_end() if self.local.heard else None,
+            },
+            "spring_pose_age": self.pose_age.summary(),
         }
 
-    LOG_HEADER = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz"
+    # t_scene: the local model's scene time once one is heard (else the wrench's); weight, beta,
+    # damping, energy_in: the local model's validity, budget scale, passivity damper (N·s/m) and
+    # the work the hand has done on the device (J) (driver/local_model.py)
+    LOG_HEADER = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz,weight,beta,damping,energy_in"
 
     def open_log(self, path: str | Path) -> None:
         """Write every period to ``path`` as it runs (flushed every 100 periods, closed at exit)."""
@@ -416,6 +485,7 @@ def _run(args) -> int:
         max_force_n=args.max_force or rated.max_force_n,
         grasp=args.grasp,
         exit_on_stop=args.exit_on_stop,
+        local_model=not args.no_local_model,
     )
     limits = driver.summary()["limits"]
     print(
@@ -573,6 +643,12 @@ def parser() -> argparse.ArgumentParser:
         "device's servo loop should; 0 (default): the normal scheduler",
     )
     run.add_argument("--exit-on-stop", action="store_true", help="exit when the scene says it stopped")
+    run.add_argument(
+        "--no-local-model",
+        action="store_true",
+        help="render the scene's newest wrench, held, as before issue 44 (for comparison): the "
+        "scene's local model is ignored",
+    )
     run.add_argument("--log", default="", help="write every period to FILE.csv at exit")
     run.add_argument("--summary", default="", help="write the counts, limits and timing to FILE.json at exit")
     cal = sub.add_parser("calibrate", help="record the device's reachable box as a scenario's workspace")

@@ -275,4 +275,7 @@ def render_feedback(builder: DiagramBuilder, device, chain: HapticChain, feedbac
     None."""
     force = feedback.GetOutputPort("F_Do_W")
     chain.connect_feedback(builder, force)
-    return device.connect_feedback(builder, force, coupling.bodies)
+    publisher = device.connect_feedback(builder, force, coupling.bodies)
+    if hasattr(device, "connect_local_model"):  # a driver process: the local model too (issue 44)
+        device.connect_local_model(builder, coupling, feedback.gains)
+    return publisher

@@ -1,0 +1,239 @@
+"""The driver's side of the local model (issue 44; docs/local_model.md): each device period the
+force is computed from the scene's newest :class:`~godobject_drake.protocol.LocalModel` with the
+handle's *current* position, a proxy kept out of the model's planes, and an energy budget that
+pays for every change of model: what it cannot pay for is not rendered.
+
+Plain arithmetic on the positions, forces and times handed to it (no clock, no socket), so each
+rule is checked exactly by the fast tests (``tests/test_local_model.py``) and mutation-tested
+(docs/mutation.md). Positions are the device's frame as the scene sees it (the pose the driver
+sends, clutch offset included), forces the device's frame (N).
+
+**The proxy** (a god-object at the device's rate, Zilles & Salisbury's, on Adachi's and Mark et
+al.'s local planes). When a model arrives, the scene's stretch ``p_G − h_used`` (``h_used``: the
+pose the scene had taken) is split into what the model's *active* planes explain (the god-object
+rests on them: its component along their normals, pushing out) and the rest ``o`` (the
+god-object's lag in free space, a held body's weight). Each period the free proxy is
+``y = h + o``, with ``h`` the handle now; the proxy ``x`` is ``y`` moved out of every plane it
+entered (a plane of stiffness ``s`` lets it in by ``kd/(kd + s)`` of the way: rigid planes not at
+all), and the force is ``kd (x − h) + γd`` times the stretch's rate.
+
+**The energy budget** (Hannaford & Ryu's passivity observer and controller). Two accounts of
+the work the hand has done on the device since the first model:
+
+- ``E_v``, the *virtual* environment's, by the trapezoid: ``E_v −= ½ (f_prev + f_env(h)) · Δh``,
+  ``f_env(h)`` the force the environment last rendered (its model, its scaling) gives at the
+  handle's new position. For a fixed spring it equals the spring's energy exactly, so pressing
+  into a plane pays for the stretch as it grows; a *new* model (a re-anchoring) is not in it;
+- ``E_in``, the *device's*, by the held force: ``E_in −= f_prev · Δh`` (a device holds each force
+  over the next period: this is what the hand received).
+
+Neither account keeps more than :data:`BANK_J` (0.2 mJ) beyond what the spring holds: the
+work the hand does against the free part (the coupling's lag) is dissipated in the scene, and
+banked it would pay for a later push (the passivity observer's known blind spot), so it leaks.
+The planes' spring holds ``S = ½ kd |x − y|²`` (the free part ``kd o`` stores nothing: its work
+goes through the accounts as it is done). Each period the stretch is scaled by
+``β = min(1, √(E_v / S))``, 0 when ``E_v ≤ 0``: a re-anchoring (a new model that moves the
+proxy), a fade, a free force that pulls the hand along, anything that would give back more than
+was put in, is rendered only as far as it is paid for (the budget lends :data:`ALLOWANCE_J`,
+1 µJ, so accounts standing at zero by rounding still render). The controller: while the spring
+holds more than the device's account (``S > E_in``: the hold of each force gives the hand up to
+``½ kd |Δh|²`` a period more than the virtual spring), or the environment's account is below
+zero (``E_v < −1 µJ``: nothing would be rendered until it is repaid), a damper
+``α = deficit/(|v|² T)`` (at most :data:`MAX_DAMPING`) against the handle's velocity ``v`` asks
+it back over the next period: at a steady press it is Colgate's ``kd T / 2``.
+
+**Validity**: a model holds fully for ``2 gap + 25 ms`` after it arrived (``gap``: the scene's
+period, its stated one or the median of the last 16 intervals between models when longer, at
+most :data:`MAX_GAP_S`), then fades linearly to zero at ``3 gap + 50 ms``: a scene killed
+between two messages leaves no force after that. Each fade to zero is a watchdog trip.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from godobject_drake.protocol import LocalModel
+
+MAX_GAP_S = 0.1  # a scene slower than 10 Hz is held no longer than a 10 Hz one
+HOLD_GAPS, HOLD_EXTRA_S = 2.0, 0.025
+END_GAPS, END_EXTRA_S = 3.0, 0.05
+ACTIVE_M = 1e-4  # a plane within this of the god-object holds it (explains its stretch)
+SWEEPS = 8  # passes over the planes when projecting the proxy
+BANK_J = 2e-4  # J: what the accounts keep beyond the spring's energy (the rest the scene dissipated)
+ALLOWANCE_J = 1e-6  # J: the budget lends this much, so accounts standing at zero (rounding) still render
+MAX_DAMPING = 10.0  # N·s/m: the passivity controller's damper at most (a hand's own is ~8)
+
+
+def project(y: np.ndarray, planes, kd: float) -> np.ndarray:
+    """``y`` moved out of every plane it entered (module docstring): a plane of stiffness ``s``
+    lets it stay in by ``kd/(kd + s)`` of its depth (``s`` inf: none). Several planes: passes of
+    projections (exact for one plane, or for planes at right angles)."""
+    x = np.array(y, float)
+    for _ in range(SWEEPS if len(planes) > 1 else 1):
+        for point, normal, stiffness in planes:
+            depth = -float(np.dot(normal, x - point))
+            if depth > 0.0:
+                keep = 0.0 if math.isinf(stiffness) or kd == 0.0 else kd / (kd + stiffness)
+                x = x + (1.0 - keep) * depth * np.asarray(normal)
+    return x
+
+
+class LocalRenderer:
+    """The force from the newest local model (module docstring).
+
+    - :meth:`take` a model (and the handle position the scene had used, or None: its target);
+    - :meth:`validity` its weight now (1 fresh, fading to 0);
+    - :meth:`request` the force for the handle at ``h`` now;
+    - :meth:`rendered` what the device was actually commanded (after :class:`ForceSafety`): the
+      energy budget counts that.
+    """
+
+    def __init__(self):
+        self.model: LocalModel | None = None
+        self.arrived = -math.inf
+        self.gaps: deque = deque(maxlen=16)
+        self.planes: list = []
+        self.offset = np.zeros(3)  # o: the stretch no plane explains
+        self.energy_in = 0.0  # E_in (J): the work the hand has done on the device (held forces)
+        self.energy_v = 0.0  # E_v (J): the same, on the virtual environment (trapezoid)
+        self._env = None  # what the last request rendered: (offset, planes, kd, β)
+        self.spring = 0.0  # S (J) as last requested
+        self.beta = 1.0
+        self.weight = 0.0  # the model's validity at the last request
+        self.damping = 0.0  # N·s/m: the passivity controller's at the last request
+        self.unpaid = 0.0  # J: spring energy asked for and not rendered, summed
+        self.trips = 0
+        self.models = 0
+        self._h: np.ndarray | None = None  # the handle at the last render
+        self._f = np.zeros(3)  # the force last rendered
+        self._damper = np.zeros(3)  # the controller's part of the force last requested
+        self._stretch: np.ndarray | None = None
+        self._was_valid = False
+
+    @property
+    def heard(self) -> bool:
+        return self.model is not None
+
+    def take(self, model: LocalModel, arrived: float, h_used=None) -> None:
+        if self.model is not None and arrived > self.arrived:
+            self.gaps.append(arrived - self.arrived)
+        self.model, self.arrived = model, float(arrived)
+        self.models += 1
+        kd = model.kd
+        p_G = np.array(model.p_G, float)
+        h_used = np.array(model.p_T if h_used is None else h_used, float)
+        self.planes = [(np.array(p, float), np.array(n, float), float(s)) for p, n, s in model.planes]
+        stretch = p_G - h_used
+        for point, normal, _ in self.planes:  # what the planes holding G explain
+            if abs(float(np.dot(normal, p_G - point))) <= ACTIVE_M:
+                along = float(np.dot(normal, stretch))
+                if along > 0.0:
+                    stretch = stretch - along * normal
+        self.offset = stretch if kd > 0 else np.zeros(3)
+
+    def gap(self) -> float:
+        """The scene's period (s): its stated one, or the median of the last 16 intervals between
+        its models when longer (a scene slower than it says), at most :data:`MAX_GAP_S`."""
+        if self.model is None:
+            return MAX_GAP_S
+        seen = float(np.median(self.gaps)) if self.gaps else 0.0
+        return min(max(seen, self.model.period_s), MAX_GAP_S)
+
+    def fade_end(self) -> float:
+        """How long after its arrival the newest model is rendered at all (s): ``3 gap + 50 ms``."""
+        return END_GAPS * self.gap() + END_EXTRA_S
+
+    def validity(self, now: float) -> float:
+        """The model's weight at ``now``: 1 until ``2 gap + 25 ms`` after it arrived, then linear
+        to 0 at ``3 gap + 50 ms``; 0 with no model. Counts a trip at each fall to 0."""
+        if self.model is None:
+            return 0.0
+        gap, age = self.gap(), now - self.arrived
+        hold, end = HOLD_GAPS * gap + HOLD_EXTRA_S, self.fade_end()
+        weight = 1.0 if age <= hold else 0.0 if age >= end else (end - age) / (end - hold)
+        valid = weight > 0.0
+        if self._was_valid and not valid:
+            self.trips += 1
+        self._was_valid = valid
+        return weight
+
+    def proxy(self, h) -> np.ndarray:
+        return project(np.asarray(h, float) + self.offset, self.planes, self.model.kd)
+
+    def request(self, h, now: float, period_s: float, live: bool = True) -> np.ndarray:
+        """The force to render for the handle at ``h`` now (module docstring): the free part
+        ``kd o`` and the planes' spring ``kd (x − y)`` (and the damper on the stretch's rate),
+        scaled by the budget's ``β`` and the model's validity (:attr:`weight`), plus the
+        passivity controller's damper while the spring holds more than the hand put in; zero
+        when not ``live`` (a stop, the clutch). Called every period: the budget counts every move."""
+        h = np.asarray(h, float)
+        before = self._h
+        self._account(h)
+        weight = self.weight = self.validity(now)
+        self.damping, self._damper = 0.0, np.zeros(3)
+        if self.model is None or weight == 0.0 or not live:
+            self.spring, self.beta, self._env = 0.0, 0.0, None
+            return np.zeros(3)
+        m = self.model
+        y = h + self.offset
+        x = project(y, self.planes, m.kd)
+        rate = np.zeros(3)
+        if before is not None and m.gamma_d > 0.0 and period_s > 0.0:
+            y0 = before + self.offset  # the same model: a re-anchoring is no rate
+            rate = ((x - h) - (project(y0, self.planes, m.kd) - before)) / period_s
+        spring = 0.5 * m.kd * float((x - y) @ (x - y))
+        budget = self.energy_v + ALLOWANCE_J
+        if spring <= budget:
+            beta = 1.0
+        else:
+            beta = math.sqrt(budget / spring) if budget > 0.0 else 0.0
+            self.unpaid += spring - max(budget, 0.0)
+        self.beta = min(beta, weight)
+        self.spring = self.beta**2 * spring
+        # what the hand put in and the spring the budget pays for does not hold went into the
+        # scene's damping (the coupling's lag, a body's friction): it is not banked to pay a later
+        # push (a leak); a fade keeps what the faded spring held, for the model that follows
+        paid = beta**2 * spring + BANK_J
+        self.energy_v, self.energy_in = min(self.energy_v, paid), min(self.energy_in, paid)
+        self._env = (self.offset, self.planes, m.kd, self.beta)
+        f = self.beta * (m.kd * (x - h) + m.gamma_d * rate)
+        # short in either account: the device's (its held forces) or the environment's (a free
+        # force that pulled the hand along, a change of model): the damper asks it back
+        deficit = max(self.spring - self.energy_in, -self.energy_v - ALLOWANCE_J)
+        if deficit > 0.0 and before is not None and period_s > 0.0:  # the controller
+            v = (h - before) / period_s
+            speed2 = float(v @ v)
+            if speed2 > 0.0:
+                self.damping = min(MAX_DAMPING, deficit / (speed2 * period_s))
+                self._damper = -self.damping * v
+                f = f + self._damper
+        return f
+
+    def _environment(self, h: np.ndarray) -> np.ndarray:
+        """The force the environment rendered at the last request gives at ``h`` (its model
+        and scaling, before any new model): the virtual spring's force, for the trapezoid."""
+        if self._env is None:
+            return np.zeros(3)
+        offset, planes, kd, beta = self._env
+        return beta * kd * (project(h + offset, planes, kd) - h)
+
+    def _account(self, h: np.ndarray) -> None:
+        if self._h is not None:
+            step = h - self._h
+            self.energy_in -= float(self._f @ step)
+            # the environment's part of the held force by the trapezoid, the damper's as held
+            self.energy_v -= float((0.5 * (self._f + self._damper + self._environment(h))) @ step)
+        self._h = h.copy()
+
+    def rendered(self, f) -> None:
+        """The force the device was commanded this period (held until the next)."""
+        self._f = np.array(f, float)
+
+    @property
+    def reserve(self) -> float:
+        """``E_in − S`` (J): the energy the hand put in and the spring does not hold: ≥ 0 while
+        the device is passive (module docstring)."""
+        return self.energy_in - self.spring

@@ -1,0 +1,412 @@
+"""The local model (issue 44; docs/local_model.md): the payload and its checks, the driver's
+proxy on the planes, its energy budget and passivity controller, the model's expiry, and a
+closed loop of the emulated device against a wall a slow scene re-anchors.
+
+Everything here is arithmetic on positions, forces and times handed in (no socket, no wall
+clock: the emulated device runs on a clock the test advances), so every figure is exact and
+holds on a loaded machine; the timing figures are analysis/local_model_bench.py's."""
+
+import math
+import struct
+
+import numpy as np
+import pytest
+from test_link import DRIVER_AT, SCENE_AT, ends, handshake
+
+from godobject_drake.driver.families import EmulatedDevice, HandPath
+from godobject_drake.driver.local_model import (
+    ALLOWANCE_J,
+    BANK_J,
+    END_EXTRA_S,
+    HOLD_EXTRA_S,
+    MAX_DAMPING,
+    LocalRenderer,
+    project,
+)
+from godobject_drake.protocol import (
+    LOCAL_MODEL_CHANNEL,
+    MAX_PLANES,
+    LocalModel,
+    LocalModelError,
+    parse_local_model,
+)
+
+INF = math.inf
+T = 1e-3  # the device's period (s)
+WALL = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), INF)  # x ≥ 0 is free, a rigid wall below
+
+
+def model(p_G=(0.0, 0.0, 0.0), p_T=None, planes=(), kd=200.0, gamma_d=0.0, period_s=0.01, utime=1):
+    return LocalModel(
+        scene_utime=utime, pose_utime=0, period_s=period_s, kd=kd, gamma_d=gamma_d, kd_rot=0.0,
+        gamma_d_rot=0.0, p_G=tuple(p_G), v_G=(0.0, 0.0, 0.0), q_G=(1.0, 0.0, 0.0, 0.0),
+        w_G=(0.0, 0.0, 0.0), p_T=tuple(p_G if p_T is None else p_T), planes=tuple(planes),
+    )  # fmt: skip
+
+
+# -- the payload ------------------------------------------------------------------------------------------
+
+
+def test_a_local_model_is_read_back_as_written():
+    m = model(p_G=(0.01, -0.02, 0.03), p_T=(0.0, -0.02, 0.03), planes=[WALL, ((0, 0, 0), (0, 0, 1), 5e4)])
+    assert parse_local_model(m.encode()) == m
+    assert len(m.encode()) == 189 + 2 * 56  # the head (4 + 3 × 8 + 20 × 8 + 1 bytes), and 7 doubles a plane
+
+
+def _bad(m: LocalModel, **changes) -> bytes:
+    import dataclasses
+
+    return dataclasses.replace(m, **changes).encode()
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        (dict(kd=-1.0), "gains"),
+        (dict(gamma_d=math.nan), "gains"),
+        (dict(p_G=(0.0, math.inf, 0.0)), "p_G"),
+        (dict(v_G=(math.nan, 0.0, 0.0)), "v_G"),
+        (dict(p_T=(0.0, 0.0, -math.inf)), "p_T"),
+        (dict(q_G=(1.0, 0.1, 0.0, 0.0)), "unit quaternion"),
+        (dict(period_s=0.0), "period_s"),
+        (dict(period_s=math.inf), "period_s"),
+        (dict(scene_utime=-1), "times"),
+        (dict(planes=[((0, 0, 0), (1.0, 0.01, 0.0), INF)]), "unit length"),
+        (dict(planes=[((0, 0, 0), (1.0, 0.0, 0.0), 0.0)]), "stiffness"),
+        (dict(planes=[((0, 0, 0), (1.0, 0.0, 0.0), math.nan)]), "stiffness"),
+        (dict(planes=[((0, math.nan, 0), (1.0, 0.0, 0.0), INF)]), "plane 0"),
+    ],
+)
+def test_a_local_model_out_of_its_limits_is_refused_naming_the_field(change, named):
+    with pytest.raises(LocalModelError, match=named):
+        parse_local_model(_bad(model(planes=[WALL]), **change))
+
+
+def test_a_truncated_padded_or_foreign_payload_is_refused_naming_the_length_or_magic():
+    raw = model(planes=[WALL]).encode()
+    for cut in (0, 1, 100, len(raw) - 1):
+        with pytest.raises(LocalModelError, match="bytes"):
+            parse_local_model(raw[:cut])
+    with pytest.raises(LocalModelError, match="bytes"):
+        parse_local_model(raw + b"\0")
+    with pytest.raises(LocalModelError, match="magic"):
+        parse_local_model(b"XLM1" + raw[4:])
+    too_many = bytearray(raw)
+    too_many[188] = MAX_PLANES + 1  # the plane count, the head's last byte
+    with pytest.raises(LocalModelError, match=f"at most {MAX_PLANES}"):
+        parse_local_model(bytes(too_many))
+    with pytest.raises(LocalModelError, match="planes"):
+        model(planes=[WALL] * (MAX_PLANES + 1)).encode()
+    assert struct.unpack_from(">d", raw, 189 + 48)[0] == INF  # the wall's stiffness, where the format says
+
+
+@pytest.mark.parametrize("byte", [0, 50, 100, -1])
+def test_a_local_model_changed_on_the_link_is_unauthenticated_and_never_parsed(byte):
+    """The local model rides the paired link like the wrench: a changed datagram is dropped
+    before any handler, counted; the intact one passes."""
+    scene, driver = ends()
+    handshake(scene, driver)
+    sealed = scene.seal(LOCAL_MODEL_CHANNEL, model(planes=[WALL]).encode())
+    changed = bytearray(sealed)
+    changed[byte] ^= 0x01
+    assert driver.receive(bytes(changed), SCENE_AT, 0.0) == (None, None)
+    assert driver.counts["udp_malformed"] + driver.counts["udp_unauthenticated"] == 1
+    message, _ = driver.receive(sealed, SCENE_AT, 0.0)
+    assert message[0] == LOCAL_MODEL_CHANNEL and parse_local_model(message[1]) == model(planes=[WALL])
+    assert driver.receive(sealed, SCENE_AT, 0.0) == (None, None) and driver.counts["udp_replayed"] == 1
+    assert scene.receive(sealed, DRIVER_AT) == (None, None)  # the scene's own kind: not taken
+
+
+# -- the proxy ---------------------------------------------------------------------------------------------
+
+
+def test_the_proxy_never_enters_a_rigid_plane_and_a_soft_one_by_kd_over_kd_plus_s():
+    rng = np.random.default_rng(4)
+    floor = ((0.0, 0.0, 0.01), (0.0, 0.0, 1.0), INF)
+    for y in rng.uniform(-0.05, 0.05, (500, 3)):
+        x = project(y, [WALL, floor], 200.0)
+        assert x[0] >= -1e-15 and x[2] >= 0.01 - 1e-15  # a corner of two rigid planes
+        assert np.allclose(x, [max(y[0], 0.0), y[1], max(y[2], 0.01)])  # the nearest point of it
+    soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)
+    assert project(np.array([-0.02, 0.0, 0.0]), [soft], 200.0)[0] == pytest.approx(-0.02 * 200 / 800)
+
+
+def test_the_force_is_kd_times_the_stretch_to_the_proxy_by_hand():
+    """A god-object held by the wall at x = 0 whose target the scene had at x = −1 cm, with a
+    free lag of 2 mm on y: the free part ``o`` is (0, 2 mm, 0) and the wall explains the rest.
+    With the hand at x = −1.5 cm the force is kd (0 − (−1.5 cm), 2 mm, 0); with the hand out at
+    x = +0.3 cm it is kd o only."""
+    r = LocalRenderer()
+    r.energy_in = r.energy_v = 1.0  # a budget that pays: the force is the model's
+    r.take(model(p_G=(0.0, 0.002, 0.0), planes=[WALL], kd=200.0), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    assert np.allclose(r.offset, [0.0, 0.002, 0.0])
+    f = r.request((-0.015, 0.0, 0.0), now=0.001, period_s=T)
+    assert np.allclose(f, [200 * 0.015, 200 * 0.002, 0.0], rtol=1e-12)
+    assert r.spring == pytest.approx(0.5 * 200 * 0.015**2)  # the planes' spring only
+    r.rendered(f)
+    r.energy_in = r.energy_v = 1.0  # again: the 1.8 cm jump out is no motion a hand makes in 1 ms
+    f = r.request((0.003, 0.0, 0.0), now=0.002, period_s=T)
+    assert np.allclose(f, [0.0, 200 * 0.002, 0.0], rtol=1e-12)
+
+
+def test_in_free_space_the_proxy_moves_with_the_hand_between_scene_messages():
+    """No plane: the scene's lag ``p_G − h_used`` (1 mm behind a hand moving at 6 cm/s) is
+    held, the handle's own motion is not a stretch (a heavy free space is a slow scene's, not
+    the hand's): kd × 1 mm against the motion, and the hand pays for it. The same lag ahead of
+    the hand would pull it along: rendered only while paid for, then the controller's damper."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    for k, x in enumerate(np.linspace(0.0, 0.0058, 30)):  # 6 cm/s for 30 ms
+        f = r.request((x, 0.0, 0.0), now=k * T, period_s=T)
+        r.rendered(f)
+        assert np.allclose(f, [-50 * 0.001, 0.0, 0.0])
+    # what the drag took from the hand (0.29 mJ), kept up to the bank: the rest the scene dissipated
+    assert 0.05 * 0.0058 > BANK_J and r.energy_in == pytest.approx(BANK_J)
+    ahead = LocalRenderer()
+    ahead.take(model(p_G=(0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    f0 = ahead.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    ahead.rendered(f0)
+    f1 = ahead.request((2e-4, 0.0, 0.0), now=T, period_s=T)  # f0 pulled the hand 0.2 mm along
+    ahead.rendered(f1)
+    assert f0[0] == pytest.approx(0.05) and ahead.energy_in == pytest.approx(-0.05 * 2e-4)
+    # in deficit: no lag force, the controller's damper 1e-5 J / ((0.2 m/s)² 1 ms) = 0.25 N·s/m
+    assert ahead.damping == pytest.approx(0.25) and f1[0] == pytest.approx(-0.25 * 0.2)
+    ahead.request((4e-4, 0.0, 0.0), now=2 * T, period_s=T)
+    assert ahead.energy_in == pytest.approx(0.0, abs=1e-18)  # paid back over the next 0.2 mm
+
+
+# -- the energy budget -------------------------------------------------------------------------------------
+
+
+def _press(r: LocalRenderer, depths, t0=0.0):
+    """Move the handle through ``depths`` (m into the wall, one a period), rendering as asked."""
+    f = np.zeros(3)
+    for k, d in enumerate(depths):
+        f = r.request((-d, 0.0, 0.0), now=t0 + k * T, period_s=T)
+        r.rendered(f)
+    return f
+
+
+def test_pressing_renders_the_spring_and_the_controller_pays_for_the_held_force():
+    """The hand presses 1 cm into the wall at kd 100 in 10 steps of 1 mm. The virtual account
+    (trapezoid) of a linear spring is exact, ``E_v = ½ kd d²``: the spring is rendered whole
+    (β = 1) at every step. The device holds each force over the next step, so the hand puts in
+    less than the spring holds: the first step puts in nothing, and the controller's damper
+    asks the missing ½ kd Δ² over the next step at the step's speed Δ/T: α = kd T / 2, against
+    the motion, so the force rendered is ``kd Δ + (kd T/2)(Δ/T) = 1.5 kd Δ``. At the end the hand
+    has put in at least what the spring holds, less one step's ½ kd Δ²."""
+    r = LocalRenderer()
+    r.take(model(planes=[WALL], kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    f = _press(r, [0.0, 0.001])
+    assert r.beta == 1.0 and r.energy_in == 0.0
+    assert r.energy_v == pytest.approx(0.5 * 100 * 0.001**2, rel=1e-12)
+    assert r.damping == pytest.approx(100 * T / 2, rel=1e-12) and f[0] == pytest.approx(1.5 * 100 * 0.001)
+    _press(r, np.arange(2, 11) * 1e-3, t0=2 * T)
+    assert r.beta == 1.0 and r.spring == pytest.approx(0.5 * 100 * 0.01**2) and r.energy_v >= r.spring
+    assert r.energy_in >= r.spring - 0.5 * 100 * 0.001**2 - 1e-15
+
+
+def test_a_re_anchoring_is_rendered_only_as_far_as_the_budget_pays():
+    """Held 1 cm into the wall with a budget of exactly what the spring holds (5 mJ at kd 100),
+    the scene moves the wall 5 mm out (towards the hand's free side): the model asks
+    ½ kd (1.5 cm)² = 11.25 mJ; the device renders β = √(5/11.25) of its force, and the spring
+    it renders holds exactly the 5 mJ paid for."""
+    r = LocalRenderer()
+    r.take(model(planes=[WALL], kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.energy_in = r.energy_v = 0.5 * 100 * 0.01**2
+    f = r.request((-0.01, 0.0, 0.0), now=0.001, period_s=T)
+    r.rendered(f)
+    assert f[0] == pytest.approx(1.0) and r.beta == 1.0
+    moved = ((0.005, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
+    r.take(model(p_G=(0.005, 0, 0), planes=[moved], kd=100.0), arrived=0.002, h_used=(-0.01, 0.0, 0.0))
+    f = r.request((-0.01, 0.0, 0.0), now=0.002, period_s=T)
+    paid = 5e-3 + ALLOWANCE_J  # what the hand put in, and the 1 µJ the budget lends
+    beta = math.sqrt(paid / 11.25e-3)
+    assert r.beta == pytest.approx(beta, rel=1e-12) and f[0] == pytest.approx(100 * 0.015 * beta, rel=1e-12)
+    assert r.spring == pytest.approx(paid, rel=1e-12) and r.unpaid == pytest.approx(11.25e-3 - paid)
+
+
+def test_accounts_standing_at_zero_by_rounding_still_render_the_model():
+    """The controller repays a deficit exactly, so the accounts can stay a rounding error below
+    zero: the budget's 1 µJ allowance renders the model (no deadlock at zero force)."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.energy_in = r.energy_v = -1e-12
+    assert np.allclose(r.request((0.0, 0.0, 0.0), now=T, period_s=T), [-0.05, 0.0, 0.0])
+    r.energy_v = -2 * ALLOWANCE_J
+    assert np.allclose(r.request((0.0, 0.0, 0.0), now=2 * T, period_s=T), 0.0)
+
+
+def test_an_environment_account_below_zero_is_repaid_by_the_damper_then_renders_again():
+    """The device's account in credit, the environment's 3 µJ short (the hand was pulled along
+    by a free force): nothing of the model is rendered, and the damper asks for the 2 µJ past
+    the allowance at the hand's 0.1 m/s (α = 2e-6 / (0.01 × 1e-3) = 0.2 N·s/m); once the hand
+    has paid it, the model renders again."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    r.rendered(np.zeros(3))
+    r._env = None  # nothing rendered before: the trapezoid counts only the held force
+    r.energy_in, r.energy_v = 1e-3, -3e-6
+    f = r.request((1e-4, 0.0, 0.0), now=T, period_s=T)
+    assert r.beta == 0.0 and r.damping == pytest.approx(0.2) and np.allclose(f, [-0.02, 0.0, 0.0])
+    r.rendered(f)
+    f = r.request((2e-4, 0.0, 0.0), now=2 * T, period_s=T)  # the hand paid 0.02 N × 0.1 mm = 2 µJ
+    assert r.energy_v == pytest.approx(-1e-6) and r.beta == 1.0 and f[0] == pytest.approx(-0.05)
+
+
+def test_work_done_on_a_free_force_is_not_banked_to_pay_a_later_push():
+    """The hand drags against a 0.5 N lag for 2 cm (10 mJ put in); then a new model puts a plane
+    5 mm inside the hand (a contact the scene saw late) asking ½ kd (5 mm)² = 1.25 mJ at kd 100:
+    only the 0.2 mJ bank (and the 1 µJ allowance) pays, β = √(0.201 / 1.25), not the 10 mJ."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.005, 0.0, 0.0), kd=100.0, period_s=0.1), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    for k, x in enumerate(np.linspace(0.0, 0.02, 201)):  # 10 cm/s for 0.2 s: a 10 Hz scene, fresh
+        r.rendered(r.request((x, 0.0, 0.0), now=k * T, period_s=T))
+    assert r.energy_in == pytest.approx(BANK_J) and r.energy_v == pytest.approx(BANK_J)
+    wall = ((0.025, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
+    r.take(model(p_G=(0.025, 0.0, 0.0), planes=[wall], kd=100.0), arrived=0.2, h_used=(0.02, 0.0, 0.0))
+    f = r.request((0.02, 0.0, 0.0), now=0.2, period_s=T)
+    beta = math.sqrt((BANK_J + ALLOWANCE_J) / (0.5 * 100 * 0.005**2))
+    assert r.beta == pytest.approx(beta, rel=1e-9) and f[0] == pytest.approx(100 * 0.005 * beta, rel=1e-9)
+
+
+def test_a_deficit_is_paid_back_by_the_controllers_damper():
+    """The hand was given 2 mJ more than it put in and moves at 0.1 m/s: the controller's
+    damper is 2 mJ / (v² T) = 200 N·s/m, cut to MAX_DAMPING, opposing the motion; no deficit,
+    no damper."""
+    r = LocalRenderer()
+    r.take(model(kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    r.rendered(np.zeros(3))
+    r.energy_in = -2e-3
+    f = r.request((1e-4, 0.0, 0.0), now=T, period_s=T)
+    assert r.damping == MAX_DAMPING and np.allclose(f, [-MAX_DAMPING * 0.1, 0.0, 0.0])
+    r.energy_in = -2e-7
+    r.rendered(np.zeros(3))
+    f = r.request((2e-4, 0.0, 0.0), now=2 * T, period_s=T)
+    assert r.damping == pytest.approx(2e-7 / (0.01 * T)) and f[0] == pytest.approx(-2e-7 / (0.01 * T) * 0.1)
+    r.energy_in = 0.0
+    r.request((3e-4, 0.0, 0.0), now=3 * T, period_s=T)
+    assert r.damping == 0.0
+
+
+# -- validity ----------------------------------------------------------------------------------------------
+
+
+def test_a_model_holds_then_fades_to_zero_within_three_gaps_and_50_ms_and_counts_one_trip():
+    r = LocalRenderer()
+    for k in range(5):  # a scene at 64 Hz (times exact in binary)
+        r.take(model(period_s=0.01), arrived=k / 64)
+    last, gap = 4 / 64, 1 / 64
+    assert r.gap() == pytest.approx(gap)
+    hold, end = 2 * gap + HOLD_EXTRA_S, 3 * gap + END_EXTRA_S
+    assert r.validity(last + hold) == 1.0
+    assert r.validity(last + (hold + end) / 2) == pytest.approx(0.5)
+    assert r.validity(last + end + 1e-12) == 0.0 and r.trips == 1
+    assert r.validity(last + end + 1.0) == 0.0 and r.trips == 1
+    r.take(model(period_s=0.01), arrived=last + 1.2)  # the scene back: valid, a new trip later
+    assert r.validity(last + 1.2) == 1.0
+    assert LocalRenderer().validity(0.0) == 0.0  # no model: nothing
+
+
+def test_the_scene_period_is_its_stated_one_or_the_median_interval_when_longer():
+    """One stall among 16 intervals does not stretch the fade (the median, not the longest); a
+    scene publishing faster than it says is held for the period it says."""
+    r = LocalRenderer()
+    times = [k / 256 for k in range(16)] + [15 / 256 + 0.5]  # 4 ms intervals, then a 0.5 s stall
+    for t in times:
+        r.take(model(period_s=1 / 1024), arrived=t)
+    assert r.gap() == 1 / 256
+    fast = LocalRenderer()
+    for k in range(5):
+        fast.take(model(period_s=1 / 64), arrived=k / 1024)
+    assert fast.gap() == 1 / 64
+
+
+def test_a_scene_slower_than_10_hz_is_held_as_a_10_hz_one():
+    r = LocalRenderer()
+    r.take(model(period_s=1.0), arrived=0.0)
+    assert r.gap() == 0.1 and r.validity(0.35 - 1e-6) > 0.0 and r.validity(0.35 + 1e-12) == 0.0
+
+
+def test_a_fade_keeps_what_the_spring_held_for_the_model_that_follows():
+    """Held 1 cm into the wall with the spring paid (5 mJ at kd 100), the model fades half way:
+    half the force, and the accounts keep the 5 mJ; the next model renders the whole spring."""
+    r = LocalRenderer()
+    r.take(model(planes=[WALL], kd=100.0, period_s=0.01), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    r.energy_in = r.energy_v = 0.5 * 100 * 0.01**2
+    f = r.request((-0.01, 0.0, 0.0), now=(0.045 + 0.08) / 2, period_s=T)
+    r.rendered(f)
+    assert f[0] == pytest.approx(0.5) and r.energy_v == pytest.approx(5e-3)
+    r.take(model(planes=[WALL], kd=100.0, period_s=0.01), arrived=0.07, h_used=(-0.01, 0.0, 0.0))
+    assert r.request((-0.01, 0.0, 0.0), now=0.07, period_s=T)[0] == pytest.approx(1.0)
+
+
+def test_a_fading_model_renders_its_weight_of_the_force():
+    r = LocalRenderer()
+    r.take(model(p_G=(0.01, 0.0, 0.0), kd=100.0, period_s=0.01), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    f = r.request((0.0, 0.0, 0.0), now=(0.045 + 0.08) / 2, period_s=T)  # half way down
+    assert np.allclose(f, [0.5, 0.0, 0.0])
+
+
+# -- a closed loop: the emulated device against a slow scene's wall ---------------------------------------
+
+
+class _Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def _wall_loop(scene_hz: float, kd: float, local: bool):
+    """The emulated handle (0.1 kg, hand 400 N/m, 8 N·s/m) pressed 2.5 cm past a wall at x = 0
+    (from x = +1 cm), held, and brought back; a scene at ``scene_hz`` sees the handle when it
+    publishes and answers with a god-object on the wall (its contact one scene period late).
+    ``local``: the driver renders the local model; else the scene's wrench, held. Returns the
+    work the device did on the hand (J) and the force's ripple during the hold (N)."""
+    clock = _Clock()
+    xyz = np.array([[0.01, 0, 0], [-0.025, 0, 0], [-0.025, 0, 0], [0.01, 0, 0], [0.01, 0, 0]])
+    path = HandPath(np.array([0.0, 0.5, 1.5, 2.0, 3.0]), xyz, np.zeros(5, bool), np.zeros(5, bool))
+    device = EmulatedDevice(path, clock=clock, start_on_scene=False)
+    r = LocalRenderer()
+    work, f, held, peak = 0.0, np.zeros(3), [], 0.0
+    every = round(1.0 / scene_hz / T)
+    h_prev = None
+    for k in range(3000):
+        clock.t = k * T
+        h, _, _ = device.read()
+        if h_prev is not None:
+            work += float(f @ (h - h_prev))  # the held force over the period's motion
+        h_prev = h
+        if k % every == 0:  # the scene's step: the god-object on the wall, the handle as it was then
+            p_G = np.array([max(h[0], 0.0), 0.0, 0.0])
+            scene_model = model(p_G=p_G, p_T=h, planes=[WALL] if h[0] < 0.005 else [], kd=kd)
+            r.take(scene_model, arrived=clock.t, h_used=h)
+            wrench = kd * (p_G - h)
+        f = r.request(h, clock.t, T) if local else wrench
+        r.rendered(f)
+        peak = max(peak, abs(f[0]))
+        device.render(f)
+        if 1.0 <= clock.t <= 1.5:
+            held.append(f[0])
+    return work, float(np.ptp(held)), peak
+
+
+@pytest.mark.parametrize("scene_hz", [1000, 100, 30])
+@pytest.mark.parametrize("kd", [200.0, 1000.0])
+def test_the_local_model_wall_does_no_work_on_the_hand_where_the_held_wrench_does(scene_hz, kd):
+    """Press, hold, release against a wall a slow scene publishes: the held wrench puts energy
+    into the hand (its contact arrives a scene period late), the local model does not (≤ 0.5 mJ)
+    and holds still. The same loop, the same hand, exact arithmetic: the held wrench at 30 Hz
+    is the check that this test can fail."""
+    work_local, ripple_local, peak = _wall_loop(scene_hz, kd, local=True)
+    work_held, _, _ = _wall_loop(scene_hz, kd, local=False)
+    print(f"{scene_hz} Hz kd {kd:g}: local model {work_local * 1e3:+.4f} mJ (ripple {ripple_local:.4f} N, "
+          f"peak {peak:.3f} N); "
+          f"held wrench {work_held * 1e3:+.3f} mJ")  # fmt: skip
+    assert work_local <= 0.5e-3 and ripple_local <= 0.05
+    if scene_hz <= 100:
+        assert work_held > 0.5e-3
