@@ -36,8 +36,9 @@ boundary and never per step:
   Older Drake has no ``Deactivate``: the query still finds a sleeping body's contacts and SAP
   drops them. The run's log says once which it is.
 
-It runs as part of the safeguards' monitor (:func:`~godobject_drake.safeguards.install_safeguards`),
-the one place that may change the plant's context between steps. Locking sets the body's
+It runs with the safeguards' checks (:func:`~godobject_drake.safeguards.install_safeguards`: their
+per-step monitor, or ``Safeguards.poll`` from ``simulate``'s loop at the same steps), the one place
+that may change the plant's context between steps. Locking sets the body's
 velocities to zero; unlocking leaves them at zero, which is what a resting body had.
 """
 
