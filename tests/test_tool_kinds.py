@@ -123,6 +123,17 @@ def test_a_kind_defined_here_takes_its_flag_on_the_command_line(tmp_path, capsys
     assert json.loads(metrics.read_text())["one_brick"] == "brick_0"
 
 
+@pytest.mark.parametrize(
+    ("scene", "body"),
+    [("lego", "brick_0"), ("laparoscopy", "tube"), ("deformable_probe", "probe")],
+)
+def test_the_studies_find_each_shipped_scenes_god_object_body(scene, body):
+    """The speed report's god-object pose, per kind: the rigid device's first grasp, the grasper's
+    tip body, the probe's core (the grasper's joint device was asked for grasp names it does not
+    have, and the speed report's laparoscopy rows failed)."""
+    assert god_object_body(load_scenario(REPO / "diagrams" / f"{scene}.yaml")) == body
+
+
 def test_the_studies_ask_the_kind():
     s = load_scenario(LEGO, SCENARIO)
     assert describe(s) == "h=1ms one=brick_0"

@@ -597,6 +597,11 @@ class JointDevice(LeafSystem):
         """Not measured for joint devices (:meth:`DeviceSource.reversals`)."""
         return None
 
+    def grasp_names(self, duration_s: float | None = None) -> set[str]:
+        """None (:meth:`DeviceSource.grasp_names`): a joint device names no body; its jaws grasp
+        what they close on."""
+        return set()
+
     def zero_feedback(self, t: float) -> bool:
         """The joint devices here render no feedback (:meth:`DeviceSource.zero_feedback`)."""
         return False
