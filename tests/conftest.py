@@ -9,6 +9,7 @@ needs one imports it by path with :func:`load_script` (the package itself never 
 import argparse
 import base64
 import dataclasses
+import gc
 import importlib.util
 import logging
 import os
@@ -31,6 +32,19 @@ from godobject_drake.simulation import RunResult, simulate
 from godobject_drake.station.build import build_station, make_meshcat
 
 REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(autouse=True)
+def _collect_on_the_main_thread():
+    """Each test's garbage collected after it, on the main thread. Once in a fast-tier run the
+    garbage collector ran inside a thread a test had just started (test_pairing's driver thread)
+    and the process aborted there ("Fatal Python error: Aborted ... Garbage-collecting", the
+    pytest-xdist worker lost): a Drake object an earlier test left in a reference cycle (Meshcat
+    is one that must be used on the thread that made it) destroyed off its thread."""
+    yield
+    gc.collect()
+
+
 EXAMPLES = REPO / "examples"
 SCENES = ("lego", "laparoscopy", "deformable_probe")
 
