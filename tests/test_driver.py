@@ -311,7 +311,9 @@ def test_the_force_is_zero_within_the_local_models_fade_after_the_scene_is_kille
     summary = json.loads((tmp_path / "driver.json").read_text())
     f = np.linalg.norm(rendered(log), axis=1)
     fade_s = summary["local_model"]["fade_end_s"]  # 3 scene periods + 50 ms
-    assert summary["local_model"]["models"] > 100 and fade_s <= 3 * 0.1 + 0.05
+    # models: enough for the measured period (a median of 16 gaps); how many a loaded machine
+    # lets the scene publish before the kill varies (88 at load 6, over 100 alone)
+    assert summary["local_model"]["models"] >= 20 and fade_s <= 3 * 0.1 + 0.05
     after = log["t"] >= t_kill + fade_s
     assert after.sum() > 10 and np.all(f[after] == 0.0)
     assert np.any(f[log["t"] < t_kill] > 0.5)
