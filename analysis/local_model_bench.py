@@ -10,7 +10,9 @@ the scene's publication rate (Hz of wall time) and the feedback gain ``kd``.
 Two scenes:
 
 - ``scripted`` (the default, labelled so): a scene process that is *not* Drake: a god-object
-  pulled toward the handle by a critically damped coupling (ω 40 rad/s, the brick scene's),
+  pulled toward the handle by a critically damped coupling (ω 40 rad/s, damping on the velocity
+  relative to the handle's backward difference: the brick scene's law), with its free twin for
+  the model's ``lag``,
   integrated at 1 ms of wall time, stopped by a rigid wall at x = 0 of the device's frame, which
   publishes the wrench and a local model (the wall as a plane) at the throttled rate;
 - ``lego``: the brick scene (diagrams/lego.yaml, ``python -m godobject_drake run``, device
@@ -103,9 +105,13 @@ def serve(url: str, key_file: str, rate_hz: float, kd: float, seconds: float) ->
         if "p" in latest:
             target = latest["p"]
             if G is None:
-                G, v = target.copy(), np.zeros(3)
-            v = v + h * (OMEGA**2 * (target - G) - 2 * OMEGA * v)  # semi-implicit Euler, ω h = 0.04
+                G, v, before = target.copy(), np.zeros(3), target.copy()
+                free_G, free_v = G.copy(), v.copy()  # the same god-object, no wall: the free lag
+            v_T, before = (target - before) / h, target.copy()  # the coupling's: relative damping
+            v = v + h * (OMEGA**2 * (target - G) + 2 * OMEGA * (v_T - v))  # semi-implicit Euler, ω h = 0.04
             G = G + h * v
+            free_v = free_v + h * (OMEGA**2 * (target - free_G) + 2 * OMEGA * (v_T - free_v))
+            free_G = free_G + h * free_v
             if G[0] < 0.0:  # the wall stops the god-object
                 G[0], v[0] = 0.0, max(v[0], 0.0)
             now = time.monotonic()
@@ -119,7 +125,8 @@ def serve(url: str, key_file: str, rate_hz: float, kd: float, seconds: float) ->
                 planes = [((0.0, G[1], G[2]), (1.0, 0.0, 0.0), math.inf)] if G[0] < 0.005 else []
                 model = LocalModel(
                     msg.timestamp, latest["utime"], dt, kd, 0.0, 0.0, 0.0, tuple(G), tuple(v),
-                    (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), tuple(target), tuple(planes),
+                    (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), tuple(target), tuple(free_G - target),
+                    tuple(planes),
                 )  # fmt: skip
                 lcm.Publish(LOCAL_MODEL_CHANNEL, model.encode())
         next_step += h

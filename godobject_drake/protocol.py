@@ -812,9 +812,9 @@ class UdpLcm:
 # -- the local model (issue 44) ----------------------------------------------------------------------------
 
 LOCAL_MODEL_CHANNEL = "GODOBJECT_LOCAL_MODEL"
-LOCAL_MODEL_MAGIC = b"GLM1"
+LOCAL_MODEL_MAGIC = b"GLM2"  # GLM2: with the coupling's free lag (GLM1 had none)
 MAX_PLANES = 8  # contacts per local model: a god-object held in a corner needs 3
-_LM_HEAD = struct.Struct(">4sqqd4d3d3d4d3d3dB")  # see LocalModel
+_LM_HEAD = struct.Struct(">4sqqd4d3d3d4d3d3d3dB")  # see LocalModel
 _LM_PLANE = struct.Struct(">3d3dd")
 UNIT_TOLERANCE = 1e-6  # a normal or quaternion further from unit length is refused, not renormalised
 
@@ -834,7 +834,10 @@ class LocalModel:
     ``scene_utime``: the scene's simulated time (µs); ``pose_utime``: the ``utime`` of the newest
     pose sample the scene had taken (the driver's clock, µs; 0 before the first);
     ``period_s``: the scene's nominal publication period (s); ``p_G``, ``v_G``, ``q_G``, ``w_G``:
-    the god-object's pose and velocity; ``p_T``: the coupling's target; ``planes``: each
+    the god-object's pose and velocity; ``p_T``: the coupling's target; ``lag``: the stretch
+    ``p_G − p_T`` a god-object free of every contact would have now, driven by the same targets
+    (the coupling's own lag as the hand moves: the scene's slow motion makes it large, and the
+    driver leaves it out of the force, docs/local_model.md); ``planes``: each
     ``(point, normal, stiffness)``: the god-object's reference point may not cross the plane
     through ``point`` against the unit ``normal`` (pointing out of the obstacle), ``stiffness``
     N/m (``inf``: rigid)."""
@@ -851,6 +854,7 @@ class LocalModel:
     q_G: tuple
     w_G: tuple
     p_T: tuple
+    lag: tuple = (0.0, 0.0, 0.0)
     planes: tuple = ()
 
     def encode(self) -> bytes:
@@ -861,7 +865,7 @@ class LocalModel:
         head = _LM_HEAD.pack(
             LOCAL_MODEL_MAGIC, int(self.scene_utime), int(self.pose_utime), float(self.period_s),
             self.kd, self.gamma_d, self.kd_rot, self.gamma_d_rot,
-            *self.p_G, *self.v_G, *self.q_G, *self.w_G, *self.p_T, len(self.planes),
+            *self.p_G, *self.v_G, *self.q_G, *self.w_G, *self.p_T, *self.lag, len(self.planes),
         )  # fmt: skip
         planes = (_LM_PLANE.pack(*point, *normal, stiffness) for point, normal, stiffness in self.planes)
         return head + b"".join(planes)
@@ -893,7 +897,7 @@ def parse_local_model(raw: bytes) -> LocalModel:
         )
     scene_utime, pose_utime, period = fields[1:4]
     gains, rest = fields[4:8], fields[8:-1]
-    p_G, v_G, q_G, w_G, p_T = rest[0:3], rest[3:6], rest[6:10], rest[10:13], rest[13:16]
+    p_G, v_G, q_G, w_G, p_T, lag = rest[0:3], rest[3:6], rest[6:10], rest[10:13], rest[13:16], rest[16:19]
     if scene_utime < 0 or pose_utime < 0:
         raise LocalModelError(f"local model: times {scene_utime}, {pose_utime} µs must be ≥ 0")
     _finite("period_s", [period])
@@ -902,7 +906,7 @@ def parse_local_model(raw: bytes) -> LocalModel:
     _finite("gains", gains)
     if min(gains) < 0:
         raise LocalModelError(f"local model: gains {list(gains)} must be ≥ 0")
-    for name, values in (("p_G", p_G), ("v_G", v_G), ("q_G", q_G), ("w_G", w_G), ("p_T", p_T)):
+    for name, values in (("p_G", p_G), ("v_G", v_G), ("q_G", q_G), ("w_G", w_G), ("p_T", p_T), ("lag", lag)):
         _finite(name, values)
     if abs(math.hypot(*q_G) - 1.0) > UNIT_TOLERANCE:
         raise LocalModelError(f"local model: q_G {list(q_G)} is not a unit quaternion")
@@ -916,4 +920,4 @@ def parse_local_model(raw: bytes) -> LocalModel:
         if math.isnan(stiffness) or not stiffness > 0:
             raise LocalModelError(f"local model: plane {i} stiffness {stiffness!r} must be > 0 (inf: rigid)")
         planes.append((point, normal, stiffness))
-    return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, tuple(planes))
+    return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, lag, tuple(planes))

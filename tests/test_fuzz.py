@@ -773,7 +773,7 @@ def _valid_model(p_G, planes):
     from godobject_drake.protocol import LocalModel
 
     return LocalModel(1, 2, 0.001, 200.0, 0.0, 0.0, 0.0, tuple(p_G), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
-                      (0.0, 0.0, 0.0), tuple(p_G), tuple(planes))  # fmt: skip
+                      (0.0, 0.0, 0.0), tuple(p_G), planes=tuple(planes))  # fmt: skip
 
 
 coordinate = st.floats(-1.0, 1.0)

@@ -36,12 +36,18 @@ T = 1e-3  # the device's period (s)
 WALL = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), INF)  # x ≥ 0 is free, a rigid wall below
 
 
-def model(p_G=(0.0, 0.0, 0.0), p_T=None, planes=(), kd=200.0, gamma_d=0.0, period_s=0.01, utime=1):
+def model(p_G=(0, 0, 0), p_T=None, planes=(), kd=200.0, gamma_d=0.0, period_s=0.01, utime=1, lag=(0, 0, 0)):
     return LocalModel(
         scene_utime=utime, pose_utime=0, period_s=period_s, kd=kd, gamma_d=gamma_d, kd_rot=0.0,
         gamma_d_rot=0.0, p_G=tuple(p_G), v_G=(0.0, 0.0, 0.0), q_G=(1.0, 0.0, 0.0, 0.0),
-        w_G=(0.0, 0.0, 0.0), p_T=tuple(p_G if p_T is None else p_T), planes=tuple(planes),
+        w_G=(0.0, 0.0, 0.0), p_T=tuple(p_G if p_T is None else p_T), lag=tuple(map(float, lag)),
+        planes=tuple(planes),
     )  # fmt: skip
+
+
+def take_at(renderer, h, arrived, **fields):
+    """``renderer`` takes a model whose target is the handle ``h`` the scene used (no grasp offset)."""
+    renderer.take(model(p_T=h, **fields), arrived=arrived, h_used=h)
 
 
 # -- the payload ------------------------------------------------------------------------------------------
@@ -50,7 +56,7 @@ def model(p_G=(0.0, 0.0, 0.0), p_T=None, planes=(), kd=200.0, gamma_d=0.0, perio
 def test_a_local_model_is_read_back_as_written():
     m = model(p_G=(0.01, -0.02, 0.03), p_T=(0.0, -0.02, 0.03), planes=[WALL, ((0, 0, 0), (0, 0, 1), 5e4)])
     assert parse_local_model(m.encode()) == m
-    assert len(m.encode()) == 189 + 2 * 56  # the head (4 + 3 × 8 + 20 × 8 + 1 bytes), and 7 doubles a plane
+    assert len(m.encode()) == 213 + 2 * 56  # the head (4 + 3 × 8 + 23 × 8 + 1 bytes), and 7 doubles a plane
 
 
 def _bad(m: LocalModel, **changes) -> bytes:
@@ -92,12 +98,12 @@ def test_a_truncated_padded_or_foreign_payload_is_refused_naming_the_length_or_m
     with pytest.raises(LocalModelError, match="magic"):
         parse_local_model(b"XLM1" + raw[4:])
     too_many = bytearray(raw)
-    too_many[188] = MAX_PLANES + 1  # the plane count, the head's last byte
+    too_many[212] = MAX_PLANES + 1  # the plane count, the head's last byte
     with pytest.raises(LocalModelError, match=f"at most {MAX_PLANES}"):
         parse_local_model(bytes(too_many))
     with pytest.raises(LocalModelError, match="planes"):
         model(planes=[WALL] * (MAX_PLANES + 1)).encode()
-    assert struct.unpack_from(">d", raw, 189 + 48)[0] == INF  # the wall's stiffness, where the format says
+    assert struct.unpack_from(">d", raw, 213 + 48)[0] == INF  # the wall's stiffness, where the format says
 
 
 @pytest.mark.parametrize("byte", [0, 50, 100, -1])
@@ -138,7 +144,7 @@ def test_the_force_is_kd_times_the_stretch_to_the_proxy_by_hand():
     x = +0.3 cm it is kd o only."""
     r = LocalRenderer()
     r.energy_in = r.energy_v = 1.0  # a budget that pays: the force is the model's
-    r.take(model(p_G=(0.0, 0.002, 0.0), planes=[WALL], kd=200.0), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    take_at(r, (-0.01, 0.0, 0.0), 0.0, p_G=(0.0, 0.002, 0.0), planes=[WALL], kd=200.0)
     assert np.allclose(r.offset, [0.0, 0.002, 0.0])
     f = r.request((-0.015, 0.0, 0.0), now=0.001, period_s=T)
     assert np.allclose(f, [200 * 0.015, 200 * 0.002, 0.0], rtol=1e-12)
@@ -155,7 +161,7 @@ def test_in_free_space_the_proxy_moves_with_the_hand_between_scene_messages():
     the hand's): kd × 1 mm against the motion, and the hand pays for it. The same lag ahead of
     the hand would pull it along: rendered only while paid for, then the controller's damper."""
     r = LocalRenderer()
-    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(-0.001, 0.0, 0.0), kd=50.0)
     for k, x in enumerate(np.linspace(0.0, 0.0058, 30)):  # 6 cm/s for 30 ms
         f = r.request((x, 0.0, 0.0), now=k * T, period_s=T)
         r.rendered(f)
@@ -163,7 +169,7 @@ def test_in_free_space_the_proxy_moves_with_the_hand_between_scene_messages():
     # what the drag took from the hand (0.29 mJ), kept up to the bank: the rest the scene dissipated
     assert 0.05 * 0.0058 > BANK_J and r.energy_in == pytest.approx(BANK_J)
     ahead = LocalRenderer()
-    ahead.take(model(p_G=(0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(ahead, (0.0, 0.0, 0.0), 0.0, p_G=(0.001, 0.0, 0.0), kd=50.0)
     f0 = ahead.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
     ahead.rendered(f0)
     f1 = ahead.request((2e-4, 0.0, 0.0), now=T, period_s=T)  # f0 pulled the hand 0.2 mm along
@@ -173,6 +179,40 @@ def test_in_free_space_the_proxy_moves_with_the_hand_between_scene_messages():
     assert ahead.damping == pytest.approx(0.25) and f1[0] == pytest.approx(-0.25 * 0.2)
     ahead.request((4e-4, 0.0, 0.0), now=2 * T, period_s=T)
     assert ahead.energy_in == pytest.approx(0.0, abs=1e-18)  # paid back over the next 0.2 mm
+
+
+def test_a_grasp_offset_is_no_force_and_the_planes_stop_the_grasped_point():
+    """The hand grasped the body 1 cm beside its centre: the scene's target sits ``c`` = (0, 1 cm,
+    0) from the handle it used, and the god-object is on it (no stretch). Wherever the hand goes
+    in free space the force is zero (kd c = 2 N was rendered before: a pull toward the body's
+    centre that the scene's own feedback, kd (p_G − p_T), never gives). A wall at y = 0 of the
+    god-object's point stops the grasped point, not the handle: with the handle at y = −1.5 cm
+    the point is 0.5 cm in, and the force is kd × 0.5 cm."""
+    r = LocalRenderer()
+    r.energy_in = r.energy_v = 1.0  # a budget that pays: the force is the model's
+    wall_y = ((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), INF)
+    on_target = model(p_G=(0.0, 0.03, 0.0), p_T=(0.0, 0.03, 0.0), planes=[wall_y])
+    r.take(on_target, arrived=0.0, h_used=(0.0, 0.02, 0.0))
+    assert np.allclose(r.grasp, [0.0, 0.01, 0.0]) and np.allclose(r.offset, 0.0)
+    for k, h in enumerate([(0.0, 0.02, 0.0), (0.01, 0.015, -0.003), (0.0, -0.01, 0.0)]):
+        f = r.request(h, now=k * T, period_s=T)  # the grasped point at y ≥ 0: zero (to rounding)
+        assert np.allclose(f, 0.0, rtol=0.0, atol=1e-12), (h, f)
+        r.energy_in = r.energy_v = 1.0
+    f = r.request((0.0, -0.015, 0.0), now=3 * T, period_s=T)
+    assert np.allclose(f, [0.0, 200 * 0.005, 0.0], rtol=1e-12)
+    assert np.allclose(r.proxy((0.0, -0.015, 0.0)), [0.0, 0.0, 0.0])  # the grasped point on the wall
+
+
+def test_the_couplings_free_lag_is_not_rendered_and_a_contacts_part_is():
+    """A slow scene saw the hand at 60 cm/s and its god-object lags 6 mm behind the target on y,
+    exactly as a free one would (``lag``): no force. Where a contact held it back 2 mm more than
+    the free one (a body dragged on a surface), kd × 2 mm is rendered: the contact's part."""
+    r = LocalRenderer()
+    r.energy_in = r.energy_v = 1.0
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(0.0, -0.006, 0.0), lag=(0.0, -0.006, 0.0), kd=200.0)
+    assert np.all(r.request((0.0, 0.001, 0.0), now=0.0, period_s=T) == 0.0)
+    take_at(r, (0.0, 0.0, 0.0), T, p_G=(0.0, -0.008, 0.0), lag=(0.0, -0.006, 0.0), kd=200.0)
+    assert np.allclose(r.request((0.0, 0.001, 0.0), now=T, period_s=T), [0.0, -200 * 0.002, 0.0])
 
 
 # -- the energy budget -------------------------------------------------------------------------------------
@@ -196,7 +236,7 @@ def test_pressing_renders_the_spring_and_the_controller_pays_for_the_held_force(
     the motion, so the force rendered is ``kd Δ + (kd T/2)(Δ/T) = 1.5 kd Δ``. At the end the hand
     has put in at least what the spring holds, less one step's ½ kd Δ²."""
     r = LocalRenderer()
-    r.take(model(planes=[WALL], kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, planes=[WALL], kd=100.0)
     f = _press(r, [0.0, 0.001])
     assert r.beta == 1.0 and r.energy_in == 0.0
     assert r.energy_v == pytest.approx(0.5 * 100 * 0.001**2, rel=1e-12)
@@ -212,13 +252,13 @@ def test_a_re_anchoring_is_rendered_only_as_far_as_the_budget_pays():
     ½ kd (1.5 cm)² = 11.25 mJ; the device renders β = √(5/11.25) of its force, and the spring
     it renders holds exactly the 5 mJ paid for."""
     r = LocalRenderer()
-    r.take(model(planes=[WALL], kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, planes=[WALL], kd=100.0)
     r.energy_in = r.energy_v = 0.5 * 100 * 0.01**2
     f = r.request((-0.01, 0.0, 0.0), now=0.001, period_s=T)
     r.rendered(f)
     assert f[0] == pytest.approx(1.0) and r.beta == 1.0
     moved = ((0.005, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
-    r.take(model(p_G=(0.005, 0, 0), planes=[moved], kd=100.0), arrived=0.002, h_used=(-0.01, 0.0, 0.0))
+    take_at(r, (-0.01, 0.0, 0.0), 0.002, p_G=(0.005, 0, 0), planes=[moved], kd=100.0)
     f = r.request((-0.01, 0.0, 0.0), now=0.002, period_s=T)
     paid = 5e-3 + ALLOWANCE_J  # what the hand put in, and the 1 µJ the budget lends
     beta = math.sqrt(paid / 11.25e-3)
@@ -230,7 +270,7 @@ def test_accounts_standing_at_zero_by_rounding_still_render_the_model():
     """The controller repays a deficit exactly, so the accounts can stay a rounding error below
     zero: the budget's 1 µJ allowance renders the model (no deadlock at zero force)."""
     r = LocalRenderer()
-    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(-0.001, 0.0, 0.0), kd=50.0)
     r.energy_in = r.energy_v = -1e-12
     assert np.allclose(r.request((0.0, 0.0, 0.0), now=T, period_s=T), [-0.05, 0.0, 0.0])
     r.energy_v = -2 * ALLOWANCE_J
@@ -243,7 +283,7 @@ def test_an_environment_account_below_zero_is_repaid_by_the_damper_then_renders_
     the allowance at the hand's 0.1 m/s (α = 2e-6 / (0.01 × 1e-3) = 0.2 N·s/m); once the hand
     has paid it, the model renders again."""
     r = LocalRenderer()
-    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(-0.001, 0.0, 0.0), kd=50.0)
     r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
     r.rendered(np.zeros(3))
     r._env = None  # nothing rendered before: the trapezoid counts only the held force
@@ -260,12 +300,12 @@ def test_work_done_on_a_free_force_is_not_banked_to_pay_a_later_push():
     5 mm inside the hand (a contact the scene saw late) asking ½ kd (5 mm)² = 1.25 mJ at kd 100:
     only the 0.2 mJ bank (and the 1 µJ allowance) pays, β = √(0.201 / 1.25), not the 10 mJ."""
     r = LocalRenderer()
-    r.take(model(p_G=(-0.005, 0.0, 0.0), kd=100.0, period_s=0.1), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(-0.005, 0.0, 0.0), kd=100.0, period_s=0.1)
     for k, x in enumerate(np.linspace(0.0, 0.02, 201)):  # 10 cm/s for 0.2 s: a 10 Hz scene, fresh
         r.rendered(r.request((x, 0.0, 0.0), now=k * T, period_s=T))
     assert r.energy_in == pytest.approx(BANK_J) and r.energy_v == pytest.approx(BANK_J)
     wall = ((0.025, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
-    r.take(model(p_G=(0.025, 0.0, 0.0), planes=[wall], kd=100.0), arrived=0.2, h_used=(0.02, 0.0, 0.0))
+    take_at(r, (0.02, 0.0, 0.0), 0.2, p_G=(0.025, 0.0, 0.0), planes=[wall], kd=100.0)
     f = r.request((0.02, 0.0, 0.0), now=0.2, period_s=T)
     beta = math.sqrt((BANK_J + ALLOWANCE_J) / (0.5 * 100 * 0.005**2))
     assert r.beta == pytest.approx(beta, rel=1e-9) and f[0] == pytest.approx(100 * 0.005 * beta, rel=1e-9)
@@ -276,7 +316,7 @@ def test_a_deficit_is_paid_back_by_the_controllers_damper():
     damper is 2 mJ / (v² T) = 200 N·s/m, cut to MAX_DAMPING, opposing the motion; no deficit,
     no damper."""
     r = LocalRenderer()
-    r.take(model(kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, kd=100.0)
     r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
     r.rendered(np.zeros(3))
     r.energy_in = -2e-3
@@ -334,18 +374,18 @@ def test_a_fade_keeps_what_the_spring_held_for_the_model_that_follows():
     """Held 1 cm into the wall with the spring paid (5 mJ at kd 100), the model fades half way:
     half the force, and the accounts keep the 5 mJ; the next model renders the whole spring."""
     r = LocalRenderer()
-    r.take(model(planes=[WALL], kd=100.0, period_s=0.01), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    take_at(r, (-0.01, 0.0, 0.0), 0.0, planes=[WALL], kd=100.0, period_s=0.01)
     r.energy_in = r.energy_v = 0.5 * 100 * 0.01**2
     f = r.request((-0.01, 0.0, 0.0), now=(0.045 + 0.08) / 2, period_s=T)
     r.rendered(f)
     assert f[0] == pytest.approx(0.5) and r.energy_v == pytest.approx(5e-3)
-    r.take(model(planes=[WALL], kd=100.0, period_s=0.01), arrived=0.07, h_used=(-0.01, 0.0, 0.0))
+    take_at(r, (-0.01, 0.0, 0.0), 0.07, planes=[WALL], kd=100.0, period_s=0.01)
     assert r.request((-0.01, 0.0, 0.0), now=0.07, period_s=T)[0] == pytest.approx(1.0)
 
 
 def test_a_fading_model_renders_its_weight_of_the_force():
     r = LocalRenderer()
-    r.take(model(p_G=(0.01, 0.0, 0.0), kd=100.0, period_s=0.01), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(0.01, 0.0, 0.0), kd=100.0, period_s=0.01)
     f = r.request((0.0, 0.0, 0.0), now=(0.045 + 0.08) / 2, period_s=T)  # half way down
     assert np.allclose(f, [0.5, 0.0, 0.0])
 
@@ -410,3 +450,64 @@ def test_the_local_model_wall_does_no_work_on_the_hand_where_the_held_wrench_doe
     assert work_local <= 0.5e-3 and ripple_local <= 0.05
     if scene_hz <= 100:
         assert work_held > 0.5e-3
+
+
+# -- the scene's side: the coupling's free lag -------------------------------------------------------------
+
+
+def _held_samples_exactly(omega, samples, period):
+    """The coupling's law for a free god-object, ``p̈ = ω² (p_D − p) + 2ω (v_D − ṗ)``, solved
+    exactly over each period with the sample held (the matrix exponential of the linear ODE):
+    the lag ``p − p_D`` after each period, the second method FreeLag is checked against."""
+    from scipy.linalg import expm
+
+    k, b = omega**2, 2 * omega
+    p, v, lags = samples[0][0].copy(), np.zeros(3), []
+    for p_D, v_D in samples[1:]:
+        for axis in range(3):
+            A = np.array([[0.0, 1.0, 0.0], [-k, -b, k * p_D[axis] + b * v_D[axis]], [0.0, 0.0, 0.0]])
+            p[axis], v[axis], _ = expm(A * period) @ np.array([p[axis], v[axis], 1.0])
+        lags.append(p - p_D)
+    return lags
+
+
+def test_the_free_lag_follows_the_coupling_law_for_a_free_god_object():
+    """A hand starts at 6 cm/s from rest, sampled at 1 kHz (held between samples, the backward
+    difference as its velocity): the coupling (ω 40 rad/s, critical) lags at most about
+    ``V/(e ω)`` = 0.55 mm, then follows the ramp with a constant lag of about half a sample's
+    motion. ``FreeLag`` (symplectic Euler, as Drake steps a free body) against the exact solution
+    of the same held samples: within ``3 ω h`` of the peak at h = 1 ms, half that at h = 0.5 ms
+    (first order). Its force cap: a 1 m jump of the target is met at ``ω² max_stretch`` m/s²
+    (0.2 m/s after the first millisecond at 0.125 m), not 40 m/s."""
+    from godobject_drake.devices.lcm import FreeLag
+
+    omega, V, T = 40.0, np.array([0.0, 0.06, 0.0]), 1e-3
+    samples = [(V * T * max(n - 1, 0), V if n > 1 else np.zeros(3)) for n in range(400)]  # a start at rest
+    exact = _held_samples_exactly(omega, samples, T)
+    peak = 0.06 / (math.e * omega)
+    assert max(np.linalg.norm(lag) for lag in exact) == pytest.approx(peak, rel=0.1)
+    worst = {}
+    for h in (1e-3, 5e-4):
+        free = FreeLag(omega**2, 2 * omega, math.inf, h)
+        free.reset(0.0, 3, samples[0][0], np.zeros(3), np.zeros(3))
+        lags = [free.advance(n * T, *samples[n]) for n in range(1, len(samples))]
+        worst[h] = max(np.linalg.norm(a - b) for a, b in zip(lags, exact, strict=True))
+    assert worst[1e-3] <= 3 * omega * 1e-3 * peak and 1.8 <= worst[1e-3] / worst[5e-4] <= 2.2, worst
+    capped = FreeLag(omega**2, 2 * omega, 0.125, 1e-3)
+    capped.reset(0.0, 3, np.zeros(3), np.zeros(3), np.zeros(3))
+    capped.advance(1e-3, np.array([1.0, 0.0, 0.0]), np.zeros(3))
+    assert capped.v[0] == pytest.approx(1e-3 * omega**2 * 0.125)  # 0.2 m/s
+
+
+def test_the_free_lag_restarts_on_the_god_object_when_the_grasp_changes():
+    """A new held body: the free god-object starts where the scene's is (lag = its stretch, no
+    force from it), moving with it; nothing held: the coupling's G is the target (lag 0)."""
+    from godobject_drake.devices.lcm import FreeLag
+
+    free = FreeLag(1600.0, 80.0, math.inf, 1e-3)
+    assert np.all(free.advance(0.0, np.ones(3), np.zeros(3)) == 0.0)  # nothing held yet
+    free.reset(0.004, 5, np.array([0.2, 0.1, 0.0]), np.array([0.0, 0.0, -0.003]), np.array([0.0, 0.5, 0.0]))
+    assert np.all(free.lag == [0.0, 0.0, -0.003]) and np.allclose(free.p, [0.2, 0.1, -0.003])
+    assert np.all(free.v == [0.0, 0.5, 0.0])
+    free.reset(0.008, -1, np.array([0.3, 0.0, 0.0]), np.array([0.01, 0, 0]), np.zeros(3))
+    assert np.all(free.advance(0.009, np.array([0.3, 0.0, 0.0]), np.ones(3)) == 0.0)

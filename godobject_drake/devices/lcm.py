@@ -334,10 +334,14 @@ class LcmDevice(DeviceSource):
             return None
         plant = builder.GetSubsystemByName("plant")
         scene_graph = builder.GetSubsystemByName("scene_graph")
-        publisher = builder.AddNamedSystem("local_model_publisher", LocalModelPublisher(self, plant, gains))
+        publisher = builder.AddNamedSystem(
+            "local_model_publisher", LocalModelPublisher(self, plant, gains, coupling)
+        )
         self.local_publisher = publisher
         for port in ("held_body", "pose_WT", "V_WT", "pose_WG", "V_WG"):
             builder.Connect(coupling.GetOutputPort(port), publisher.GetInputPort(port))
+        for port in ("X_WD", "V_WD"):  # the samples the coupling holds, for the free lag
+            builder.Connect(self.GetOutputPort(port), publisher.GetInputPort(port))
         builder.Connect(scene_graph.get_query_output_port(), publisher.GetInputPort("query"))
         return publisher
 
@@ -501,6 +505,54 @@ PLANE_MARGIN_M = 0.005  # contacts the god-object could reach: within this of it
 LOCAL_MODEL_MIN_PERIOD_S = 0.004
 
 
+class FreeLag:
+    """The stretch ``p_G − p_T`` of a god-object free of every contact, driven by the same
+    device samples as the scene's (issue 44; docs/local_model.md): the coupling's own lag as the
+    hand moves, which the driver leaves out of the force.
+
+    The coupling pulls the held body by ``a = ωn² (p_T − p) + 2 ζ ωn (v_T − v)`` (per unit mass,
+    gravity compensated, ``|a| ≤ ωn² max_stretch_m`` as its force cap); this integrates that law
+    for a body nothing touches, as Drake steps a free body (symplectic Euler at the plant's step
+    ``h``), over each device period with the sample the coupling held over it. It follows the
+    device point D (the target is D carried by the grasp offset: the same lag while the device
+    does not turn). Where the scene's body touches nothing it moves the same way, so
+    ``p_G − p_T − lag`` is about zero however fast the target moved in simulated time (a scene at
+    a tenth of real time sees a 6 cm/s hand at 60 cm/s, and its god-object lags millimetres:
+    drag a hand would feel); where a contact held it back, the difference is what the contact did.
+    :meth:`reset` on each change of held body (to the god-object's stretch and velocity)."""
+
+    def __init__(self, omega_n2: float, two_zeta_omega: float, max_stretch_m: float, step_s: float):
+        self.k, self.b, self.h = float(omega_n2), float(two_zeta_omega), float(step_s)
+        self.a_max = self.k * float(max_stretch_m)  # inf: no cap
+        self.held, self.t = None, None
+        self.p = self.v = self.lag = np.zeros(3)
+
+    def reset(self, t: float, held: int, p_D, stretch, v_G) -> None:
+        """Start on the scene's god-object: ``p_D + stretch`` moving at ``v_G`` (nothing held: on D)."""
+        self.held, self.t = held, t
+        self.lag = np.asarray(stretch, float) if held >= 0 else np.zeros(3)
+        self.p = np.asarray(p_D, float) + self.lag
+        self.v = np.asarray(v_G, float) if held >= 0 else np.zeros(3)
+
+    def advance(self, t: float, p_D, v_D) -> np.ndarray:
+        """The lag at ``t`` (W, m): the device's sample ``p_D``, ``v_D`` held since the last call."""
+        p_D, v_D = np.asarray(p_D, float), np.asarray(v_D, float)
+        if self.held is None or self.held < 0 or not t > self.t:  # nothing held: G is on D
+            self.t, self.p, self.v, self.lag = t, p_D, v_D, np.zeros(3)
+            return self.lag
+        n = max(1, round((t - self.t) / self.h))
+        dt, p, v = (t - self.t) / n, self.p, self.v
+        for _ in range(n):
+            a = self.k * (p_D - p) + self.b * (v_D - v)
+            norm = math.sqrt(float(a @ a))
+            if norm > self.a_max:
+                a = a * (self.a_max / norm)
+            v = v + dt * a
+            p = p + dt * v
+        self.t, self.p, self.v, self.lag = t, p, v, p - p_D
+        return self.lag
+
+
 class LocalModelPublisher(LeafSystem):
     """The local model every device period, at most every :data:`LOCAL_MODEL_MIN_PERIOD_S` of
     simulated time (issue 44; docs/local_model.md):
@@ -514,7 +566,7 @@ class LocalModelPublisher(LeafSystem):
     may come that close), normal out of the obstacle, stiffness the pair's point-contact
     stiffness in series (inf when the geometries state none)."""
 
-    def __init__(self, device: LcmDevice, plant, gains):
+    def __init__(self, device: LcmDevice, plant, gains, coupling=None):
         super().__init__()
         self.device, self.plant, self.gains = device, plant, gains
         X = device.X_WDev or RigidTransform()
@@ -526,13 +578,24 @@ class LocalModelPublisher(LeafSystem):
             self.DeclareVectorInputPort(name, size)
 
         self._query = self.DeclareAbstractInputPort("query", AbstractValue.Make(QueryObject()))
-        self.period_s = max(device.period_s, LOCAL_MODEL_MIN_PERIOD_S)
-        self.DeclarePeriodicPublishEvent(self.period_s, 0.0, self._publish)
+        # every device period the free lag moves on (one event: the lag is moved before a model
+        # is built); every `every` of them a model is published
+        self.every = max(1, math.ceil(LOCAL_MODEL_MIN_PERIOD_S / device.period_s - 1e-9))
+        self.period_s = self.every * device.period_s
+        self._ticks = 0
+        self.DeclarePeriodicPublishEvent(device.period_s, 0.0, self._publish)
+        self._X_WD = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
+        self._V_WD = self.DeclareVectorInputPort("V_WD", 6)
         self.throttle = WallThrottle.from_environment()  # its own: its steps are not the wrench's
         self._geometries: dict = {}  # body index -> its collision geometries, filled as first held
         self._stiffness: dict = {}
         self.published = 0
         self.seconds = 0.0  # spent building and sending the models (the scene's cost)
+        # the coupling's free lag (None: a coupling without the gains: no lag is left out)
+        self.free = None
+        if hasattr(coupling, "_wn2"):  # a rigid coupling (explicit or implicit): its gains
+            step = min(plant.time_step(), device.period_s) if plant.time_step() > 0 else device.period_s
+            self.free = FreeLag(coupling._wn2, coupling._2zwn, coupling.max_stretch_m, step)
 
     def _to_dev(self, p_W) -> tuple:
         return tuple((self._R_DevW @ (np.asarray(p_W) - self._p_WDev)) / self._scale)
@@ -581,6 +644,12 @@ class LocalModelPublisher(LeafSystem):
         )
         V_WG = self.GetInputPort("V_WG").Eval(context)
         p_WG = pose_WG[4:]
+        lag_W = np.zeros(3)
+        if self.free is not None:
+            if held != self.free.held:  # a new grasp: the free god-object starts on the scene's
+                p_WD = self._X_WD.Eval(context).translation()
+                self.free.reset(context.get_time(), held, p_WD, p_WG - pose_WT[4:], V_WG[3:])
+            lag_W = self.free.lag
         q = pose_WG[:4] / np.linalg.norm(pose_WG[:4])
         q_Dev = self._q_DevW.multiply(Quaternion(q)).wxyz()
         g, s2 = self.gains, self._scale**2
@@ -592,15 +661,21 @@ class LocalModelPublisher(LeafSystem):
             kd=s2 * g.kd, gamma_d=s2 * g.gamma_d, kd_rot=g.kd_rot, gamma_d_rot=g.gamma_d_rot,
             p_G=self._to_dev(p_WG), v_G=tuple(self._R_DevW @ V_WG[3:] / self._scale),
             q_G=tuple(q_Dev / np.linalg.norm(q_Dev)), w_G=tuple(self._R_DevW @ V_WG[:3]),
-            p_T=self._to_dev(pose_WT[4:]),
+            p_T=self._to_dev(pose_WT[4:]), lag=tuple(self._R_DevW @ lag_W / self._scale),
             planes=tuple(self.planes(context, held, p_WG)) if held >= 0 else (),
         )  # fmt: skip
 
     def _publish(self, context):
-        throttle = self.throttle
-        if throttle is not None and not throttle.due(context.get_time()):
-            return
         start = time.perf_counter()
+        if self.free is not None:  # every device period: the free lag moves on
+            p_WD = self._X_WD.Eval(context).translation()
+            self.free.advance(context.get_time(), p_WD, self._V_WD.Eval(context)[3:])
+        self._ticks += 1
+        throttle = self.throttle
+        skip = (self._ticks - 1) % self.every != 0
+        if skip or (throttle is not None and not throttle.due(context.get_time())):
+            self.seconds += time.perf_counter() - start
+            return
         self.device.lcm.Publish(LOCAL_MODEL_CHANNEL, self.model(context).encode())
         self.seconds += time.perf_counter() - start
         self.published += 1

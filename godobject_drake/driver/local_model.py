@@ -9,13 +9,16 @@ rule is checked exactly by the fast tests (``tests/test_local_model.py``) and mu
 sends, clutch offset included), forces the device's frame (N).
 
 **The proxy** (a god-object at the device's rate, Zilles & Salisbury's, on Adachi's and Mark et
-al.'s local planes). When a model arrives, the scene's stretch ``p_G − h_used`` (``h_used``: the
-pose the scene had taken) is split into what the model's *active* planes explain (the god-object
-rests on them: its component along their normals, pushing out) and the rest ``o`` (the
-god-object's lag in free space, a held body's weight). Each period the free proxy is
-``y = h + o``, with ``h`` the handle now; the proxy ``x`` is ``y`` moved out of every plane it
-entered (a plane of stiffness ``s`` lets it in by ``kd/(kd + s)`` of the way: rigid planes not at
-all), and the force is ``kd (x − h) + γd`` times the stretch's rate.
+al.'s local planes). When a model arrives, ``c = p_T − h_used`` (``h_used``: the pose the scene
+had taken) is where the target sits from the handle (the grasp offset), and the scene's stretch
+less the coupling's free lag, ``p_G − p_T − lag`` (``lag``: the stretch a god-object free of every
+contact would have, driven by the same targets: what slow motion makes of a moving hand), is
+split into what the model's *active* planes explain (the god-object rests on them: its component
+along their normals, pushing out) and the rest ``o`` (friction, a held body pressed where no plane
+is published). Each period the free proxy is ``y = h + c + o``, with ``h`` the handle now; the
+proxy ``x`` is ``y`` moved out of every plane it entered (a plane of stiffness ``s`` lets it in by
+``kd/(kd + s)`` of the way: rigid planes not at all), and the force is ``kd (x − h − c) + γd``
+times the stretch's rate: in free space ``kd o``, no drag from the coupling's lag.
 
 **The energy budget** (Hannaford & Ryu's passivity observer and controller). Two accounts of
 the work the hand has done on the device since the first model:
@@ -97,6 +100,7 @@ class LocalRenderer:
         self.gaps: deque = deque(maxlen=16)
         self.planes: list = []
         self.offset = np.zeros(3)  # o: the stretch no plane explains
+        self.grasp = np.zeros(3)  # c: the target from the handle (the grasp offset)
         self.energy_in = 0.0  # E_in (J): the work the hand has done on the device (held forces)
         self.energy_v = 0.0  # E_v (J): the same, on the virtual environment (trapezoid)
         self._env = None  # what the last request rendered: (offset, planes, kd, β)
@@ -123,10 +127,11 @@ class LocalRenderer:
         self.model, self.arrived = model, float(arrived)
         self.models += 1
         kd = model.kd
-        p_G = np.array(model.p_G, float)
-        h_used = np.array(model.p_T if h_used is None else h_used, float)
+        p_G, p_T = np.array(model.p_G, float), np.array(model.p_T, float)
+        h_used = p_T if h_used is None else np.array(h_used, float)
         self.planes = [(np.array(p, float), np.array(n, float), float(s)) for p, n, s in model.planes]
-        stretch = p_G - h_used
+        self.grasp = p_T - h_used
+        stretch = p_G - p_T - np.array(model.lag, float)
         for point, normal, _ in self.planes:  # what the planes holding G explain
             if abs(float(np.dot(normal, p_G - point))) <= ACTIVE_M:
                 along = float(np.dot(normal, stretch))
@@ -161,7 +166,9 @@ class LocalRenderer:
         return weight
 
     def proxy(self, h) -> np.ndarray:
-        return project(np.asarray(h, float) + self.offset, self.planes, self.model.kd)
+        """The proxy ``x`` for the handle at ``h`` (the god-object's point: ``h + c`` moved by the
+        free part and out of the planes)."""
+        return project(np.asarray(h, float) + self.grasp + self.offset, self.planes, self.model.kd)
 
     def request(self, h, now: float, period_s: float, live: bool = True) -> np.ndarray:
         """The force to render for the handle at ``h`` now (module docstring): the free part
@@ -178,12 +185,13 @@ class LocalRenderer:
             self.spring, self.beta, self._env = 0.0, 0.0, None
             return np.zeros(3)
         m = self.model
-        y = h + self.offset
+        hc = h + self.grasp  # the target now
+        y = hc + self.offset
         x = project(y, self.planes, m.kd)
         rate = np.zeros(3)
         if before is not None and m.gamma_d > 0.0 and period_s > 0.0:
-            y0 = before + self.offset  # the same model: a re-anchoring is no rate
-            rate = ((x - h) - (project(y0, self.planes, m.kd) - before)) / period_s
+            b = before + self.grasp  # the same model: a re-anchoring is no rate
+            rate = ((x - hc) - (project(b + self.offset, self.planes, m.kd) - b)) / period_s
         spring = 0.5 * m.kd * float((x - y) @ (x - y))
         budget = self.energy_v + ALLOWANCE_J
         if spring <= budget:
@@ -198,8 +206,8 @@ class LocalRenderer:
         # push (a leak); a fade keeps what the faded spring held, for the model that follows
         paid = beta**2 * spring + BANK_J
         self.energy_v, self.energy_in = min(self.energy_v, paid), min(self.energy_in, paid)
-        self._env = (self.offset, self.planes, m.kd, self.beta)
-        f = self.beta * (m.kd * (x - h) + m.gamma_d * rate)
+        self._env = (self.grasp + self.offset, self.grasp, self.planes, m.kd, self.beta)
+        f = self.beta * (m.kd * (x - hc) + m.gamma_d * rate)
         # short in either account: the device's (its held forces) or the environment's (a free
         # force that pulled the hand along, a change of model): the damper asks it back
         deficit = max(self.spring - self.energy_in, -self.energy_v - ALLOWANCE_J)
@@ -217,8 +225,8 @@ class LocalRenderer:
         and scaling, before any new model): the virtual spring's force, for the trapezoid."""
         if self._env is None:
             return np.zeros(3)
-        offset, planes, kd, beta = self._env
-        return beta * kd * (project(h + offset, planes, kd) - h)
+        offset, grasp, planes, kd, beta = self._env
+        return beta * kd * (project(h + offset, planes, kd) - h - grasp)
 
     def _account(self, h: np.ndarray) -> None:
         if self._h is not None:
