@@ -158,8 +158,9 @@ def test_sigterm_ends_the_run_as_ctrl_c_does(tmp_path):
     assert "interrupted (SIGTERM)" in err and "recording written to" in err  # logged: stderr
     html = (tmp_path / "r.html").read_text()
     assert html.rstrip().endswith("</html>")
-    frames = _frames(tmp_path / "r.html")  # the recording covers the run up to the signal
-    assert max(frames) >= 0.9 * m["sim_time_s"] * 64 and m["recording_s"] == m["sim_time_s"]
+    frames = _frames(tmp_path / "r.html")  # the recording covers the run up to the signal, to a frame
+    # (64 a second: a run stopped early, 0.107 s on a loaded machine, ends at frame 6, 0.094 s)
+    assert max(frames) / 64 >= m["sim_time_s"] - 1 / 64 and m["recording_s"] == m["sim_time_s"]
 
 
 @pytest.mark.slow
