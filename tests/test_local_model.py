@@ -15,11 +15,13 @@ from test_link import DRIVER_AT, SCENE_AT, ends, handshake
 
 from godobject_drake.driver.families import EmulatedDevice, HandPath
 from godobject_drake.driver.local_model import (
+    ACTIVE_M,
     ALLOWANCE_J,
     BANK_J,
     END_EXTRA_S,
     HOLD_EXTRA_S,
     MAX_DAMPING,
+    SWEEPS,
     LocalRenderer,
     project,
 )
@@ -173,6 +175,104 @@ def test_in_free_space_the_proxy_moves_with_the_hand_between_scene_messages():
     assert ahead.damping == pytest.approx(0.25) and f1[0] == pytest.approx(-0.25 * 0.2)
     ahead.request((4e-4, 0.0, 0.0), now=2 * T, period_s=T)
     assert ahead.energy_in == pytest.approx(0.0, abs=1e-18)  # paid back over the next 0.2 mm
+
+
+def test_a_soft_plane_lets_the_proxy_in_by_kd_over_kd_plus_s_at_any_kd():
+    """kd 1 N/m against a plane of 3 N/m: in by a quarter of the 2 cm (0.5 cm); kd 0 (no spring
+    to share the depth with): not at all."""
+    soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 3.0)
+    assert project(np.array([-0.02, 0.0, 0.0]), [soft], 1.0) == pytest.approx([-0.005, 0.0, 0.0], rel=1e-12)
+    assert project(np.array([-0.02, 0.0, 0.0]), [soft], 0.0).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_the_proxy_in_an_acute_corner_comes_to_its_edge_pass_by_pass():
+    """A 60° groove of two rigid planes (x ≥ 0 and the plane whose normal is at 120° to it): a
+    point 1 cm below the edge on the first plane is projected onto the other plane, then back,
+    each projection onto a line 60° away, halving its distance to the edge (cos 60°). The first
+    pass projects once (the point is on the first plane), each later pass twice: after
+    SWEEPS = 8 passes the proxy is 1 cm × 2⁻¹⁵ = 0.31 µm from the edge, on the second plane."""
+    groove = [WALL, ((0.0, 0.0, 0.0), (-0.5, math.sqrt(3) / 2, 0.0), INF)]
+    x = project(np.array([0.0, -0.01, 0.0]), groove, 200.0)
+    assert SWEEPS == 8 and np.linalg.norm(x) == pytest.approx(0.01 * 0.5 ** (2 * SWEEPS - 1), rel=1e-9)
+    assert x @ groove[1][1] == pytest.approx(0.0, abs=1e-20) and x[0] < 0.0  # on the second plane
+
+
+def test_the_renderers_proxy_is_the_handle_plus_the_free_lag_out_of_the_planes():
+    """The model of the by-hand test above (the wall, a 2 mm lag on y): the hand 1.5 cm into the
+    wall has its proxy on the wall, 2 mm along y; out of the wall, the hand plus the lag."""
+    r = LocalRenderer()
+    r.take(model(p_G=(0.0, 0.002, 0.0), planes=[WALL], kd=200.0), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    assert np.allclose(r.proxy((-0.015, 0.0, 0.0)), [0.0, 0.002, 0.0], rtol=0, atol=1e-18)
+    assert np.allclose(r.proxy((0.003, 0.001, 0.0)), [0.003, 0.003, 0.0], rtol=0, atol=1e-18)
+    soft = LocalRenderer()  # a plane of 600 N/m at kd 200: the proxy in by a quarter of the depth
+    soft.take(model(planes=[((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)], kd=200.0), arrived=0.0)
+    assert soft.proxy((-0.02, 0.0, 0.0)) == pytest.approx([-0.005, 0.0, 0.0], rel=1e-12)
+
+
+def test_a_model_with_no_h_used_is_taken_against_its_own_target():
+    """No handle position given: the stretch is the model's ``p_G − p_T`` (2 mm on y, no plane)."""
+    r = LocalRenderer()
+    r.take(model(p_G=(0.0, 0.002, 0.0), p_T=(0.0, 0.0, 0.0)), arrived=0.0)
+    assert r.offset.tolist() == [0.0, 0.002, 0.0]
+
+
+def test_a_plane_holds_the_god_object_up_to_active_m_away():
+    """The scene's stretch (the target 1 cm into the wall, G on it) is explained by a plane whose
+    distance to G is at most ACTIVE_M (0.1 mm) inclusive: no free lag is left; a plane twice as
+    far does not hold G, and the whole stretch is the lag."""
+    for gap_m, lag in ((0.0, 0.0), (ACTIVE_M, 0.0), (2 * ACTIVE_M, 0.01 + 2 * ACTIVE_M)):
+        r = LocalRenderer()
+        r.take(model(p_G=(gap_m, 0.0, 0.0), planes=[WALL], kd=100.0), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+        assert r.offset == pytest.approx([lag, 0.0, 0.0], abs=1e-18)
+
+
+def test_the_free_lag_is_kept_at_any_kd_above_zero_and_none_at_kd_zero():
+    """kd 0 (no spring): the scene's stretch means nothing, o = 0; kd 0.5 N/m keeps it."""
+    for kd, lag in ((0.0, 0.0), (0.5, 0.002), (200.0, 0.002)):
+        r = LocalRenderer()
+        r.take(model(p_G=(0.002, 0.0, 0.0), kd=kd), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+        assert r.offset.tolist() == [lag, 0.0, 0.0]
+
+
+def test_the_damper_acts_on_the_stretchs_rate_through_a_soft_plane_not_on_the_hand_in_free_space():
+    """γd 0.5 N·s/m, kd 200 N/m on a plane of 600 N/m: the proxy is in by a quarter of the depth,
+    so the force is the series spring's 150 N/m × depth and the stretch grows at ¾ of the hand's
+    speed. Pressing in at 0.1 m/s from 1 mm deep adds 0.5 × 0.075 = 0.0375 N (not at the first
+    request: no earlier handle), holding adds nothing, withdrawing at 0.1 m/s takes 0.0375 N off.
+    In free space the lag (1 mm) moves with the hand: no rate, kd × o alone, and a new model (a
+    new lag) is no rate either. The budget is in credit, so β = 1 and no controller damper."""
+    soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)
+    r = LocalRenderer()
+    r.take(model(planes=[soft], kd=200.0, gamma_d=0.5), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.energy_in = r.energy_v = 1.0
+    depths = [0.001, 0.0011, 0.0012, 0.0012, 0.0011]
+    pushes = [0.0, 0.0375, 0.0375, 0.0, -0.0375]
+    for k, (d, push) in enumerate(zip(depths, pushes, strict=True)):
+        f = r.request((-d, 0.0, 0.0), now=k * T, period_s=T)
+        r.rendered(f)
+        assert r.beta == 1.0 and r.damping == 0.0
+        assert f[0] == pytest.approx(150.0 * d + push, rel=1e-9) and f[1] == f[2] == 0.0
+    free = LocalRenderer()
+    free.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0, gamma_d=0.5), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    for k in range(5):  # 6 cm/s
+        f = free.request((k * 6e-5, 0.0, 0.0), now=k * T, period_s=T)
+        free.rendered(f)
+        assert f == pytest.approx([-0.05, 0.0, 0.0], rel=1e-9)
+    h = (4 * 6e-5, 0.0, 0.0)  # the hand still; the scene's new lag is 2 mm
+    free.take(model(p_G=(h[0] - 0.002, 0.0, 0.0), kd=50.0, gamma_d=0.5), arrived=5 * T, h_used=h)
+    assert free.request(h, now=5 * T, period_s=T) == pytest.approx([-0.1, 0.0, 0.0], rel=1e-9)
+
+
+def test_a_request_with_no_time_since_the_last_has_no_rate_and_no_damper():
+    """period_s 0 (two reads at once): the stretch's rate and the controller's damper need a
+    time; with none the force is the spring's alone (no division by zero), even in deficit and
+    with the hand moved 0.1 mm along each axis."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0, gamma_d=0.5), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.rendered(r.request((0.0, 0.0, 0.0), now=0.0, period_s=T))
+    r.energy_in = -2e-3
+    f = r.request((1e-4, 1e-4, 1e-4), now=T, period_s=0.0)
+    assert f == pytest.approx([-0.05, 0.0, 0.0], rel=1e-9) and r.damping == 0.0
 
 
 # -- the energy budget -------------------------------------------------------------------------------------
