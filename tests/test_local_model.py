@@ -21,6 +21,7 @@ from godobject_drake.driver.local_model import (
     END_EXTRA_S,
     HOLD_EXTRA_S,
     MAX_DAMPING,
+    MAX_GAP_S,
     SWEEPS,
     LocalRenderer,
     project,
@@ -389,6 +390,83 @@ def test_a_deficit_is_paid_back_by_the_controllers_damper():
     r.energy_in = 0.0
     r.request((3e-4, 0.0, 0.0), now=3 * T, period_s=T)
     assert r.damping == 0.0
+
+
+def test_a_renderer_that_has_heard_nothing_renders_nothing_and_reports_its_idle_state():
+    """Before any model the driver logs weight 0, β 1 (nothing scaled), no damper, no spring, no
+    energy, no trip, no model; the scene's period is taken as the longest held (MAX_GAP_S), so a
+    model would fade by 3 × 0.1 + 0.05 = 0.35 s; and a request is three zeros."""
+    r = LocalRenderer()
+    assert not r.heard and r.models == 0 and r.trips == 0
+    assert (r.weight, r.beta, r.damping, r.spring, r.unpaid) == (0.0, 1.0, 0.0, 0.0, 0.0)
+    assert (r.energy_in, r.energy_v, r.reserve) == (0.0, 0.0, 0.0)
+    assert r.gap() == MAX_GAP_S and r.fade_end() == pytest.approx(0.35)
+    assert r.validity(0.0) == 0.0 and r.request((0.01, 0.0, 0.0), now=0.0, period_s=T).tolist() == [0.0] * 3
+    assert r.weight == 0.0 and r.beta == 0.0 and r.trips == 0
+
+
+def test_every_model_taken_is_counted():
+    r = LocalRenderer()
+    for k in range(3):
+        r.take(model(), arrived=k * 0.01)
+    assert r.heard and r.models == 3
+
+
+def test_credit_beyond_the_spring_leaks_down_to_the_bank():
+    """Held 1 cm into the wall at kd 100 (the spring holds 5 mJ) with 1 J in both accounts: after
+    one request each keeps the spring's 5 mJ plus BANK_J (0.2 mJ), and the reserve E_in − S is
+    the bank."""
+    r = LocalRenderer()
+    r.take(model(planes=[WALL], kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.energy_in = r.energy_v = 1.0
+    f = r.request((-0.01, 0.0, 0.0), now=0.0, period_s=T)
+    assert f[0] == pytest.approx(1.0) and r.beta == 1.0 and r.spring == pytest.approx(5e-3, rel=1e-12)
+    assert r.energy_in == pytest.approx(5e-3 + BANK_J, rel=1e-12) and r.energy_v == r.energy_in
+    assert r.reserve == pytest.approx(BANK_J, rel=1e-9)
+
+
+def test_a_re_anchoring_held_spends_nothing_and_its_shortfall_is_summed_each_period():
+    """The re-anchoring above (5 mJ paid, 11.25 mJ asked) held for two periods, the hand still:
+    the spring rendered holds exactly what was paid, so the accounts keep their 5 mJ, and the
+    unpaid 11.25 − 5.001 mJ is counted in each period (twice)."""
+    r = LocalRenderer()
+    moved = ((0.005, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
+    r.take(model(p_G=(0.005, 0, 0), planes=[moved], kd=100.0), arrived=0.0, h_used=(-0.01, 0.0, 0.0))
+    r.energy_in = r.energy_v = 5e-3
+    for k in range(2):
+        r.rendered(r.request((-0.01, 0.0, 0.0), now=k * T, period_s=T))
+        assert r.energy_v == 5e-3 and r.energy_in == 5e-3
+    assert r.unpaid == pytest.approx(2 * (11.25e-3 - 5e-3 - ALLOWANCE_J), rel=1e-9)
+
+
+def test_a_stop_or_the_clutch_renders_nothing_and_the_push_meanwhile_pays_nothing():
+    """Not ``live`` (the scene's stop, the clutch) with a fresh model and the hand 1 cm into the
+    wall: zero force, no spring held, β 0, the accounts untouched (1 mJ). The hand goes 1 mm
+    deeper while the device holds zero: the next live request has the 1 mJ alone to pay the
+    ½ kd (1.1 cm)² = 6.05 mJ the wall now asks (the environment rendered nothing over the step)."""
+    r = LocalRenderer()
+    r.take(model(planes=[WALL], kd=100.0), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.energy_in = r.energy_v = 1e-3
+    f = r.request((-0.01, 0.0, 0.0), now=0.0, period_s=T, live=False)
+    assert f.tolist() == [0.0, 0.0, 0.0] and (r.spring, r.beta, r.damping, r.weight) == (0.0, 0.0, 0.0, 1.0)
+    assert r.energy_v == 1e-3 and r.energy_in == 1e-3
+    r.rendered(f)
+    r.request((-0.011, 0.0, 0.0), now=T, period_s=T)
+    assert r.energy_v == 1e-3 and r.beta == pytest.approx(math.sqrt((1e-3 + ALLOWANCE_J) / 6.05e-3), rel=1e-9)
+
+
+def test_an_expired_model_renders_no_force_not_even_the_controllers_damper():
+    """A model of a 100 Hz scene ends 3 × 10 + 50 = 80 ms after it arrived: a request after that
+    is zero, though the device's account is 1 mJ short and the hand moves at 0.1 m/s (no
+    damper), and the accounts are left as they were for the model that follows; one trip."""
+    r = LocalRenderer()
+    r.take(model(p_G=(-0.001, 0.0, 0.0), kd=50.0, period_s=0.01), arrived=0.0, h_used=(0.0, 0.0, 0.0))
+    r.rendered(r.request((0.0, 0.0, 0.0), now=0.079, period_s=T, live=False))  # the clutch: nothing held
+    assert 0.0 < r.weight < 0.05
+    r.energy_in, r.energy_v = -1e-3, 3e-4
+    f = r.request((1e-4, 0.0, 0.0), now=0.081, period_s=T)
+    assert f.tolist() == [0.0, 0.0, 0.0] and (r.weight, r.beta, r.damping) == (0.0, 0.0, 0.0)
+    assert r.energy_in == -1e-3 and r.energy_v == 3e-4 and r.trips == 1
 
 
 # -- validity ----------------------------------------------------------------------------------------------
