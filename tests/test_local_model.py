@@ -528,6 +528,52 @@ def test_a_fading_model_renders_its_weight_of_the_force():
     assert np.allclose(f, [0.5, 0.0, 0.0])
 
 
+def test_the_fade_ends_three_gaps_and_50_ms_after_the_model():
+    r = LocalRenderer()
+    for k in range(3):  # 64 Hz
+        r.take(model(period_s=0.01), arrived=k / 64)
+    assert r.gap() == 1 / 64 and r.fade_end() == pytest.approx(3 / 64 + END_EXTRA_S, rel=1e-15)
+
+
+def test_two_models_at_the_same_time_are_no_interval():
+    """A model taken at the same instant as the one before (two in one poll) is no 0 s interval:
+    the scene's period stays the 1/64 s between the others (a 0 would halve the median)."""
+    r = LocalRenderer()
+    for t in (0.0, 1 / 64, 1 / 64):
+        r.take(model(period_s=1 / 1024), arrived=t)
+    assert r.gap() == 1 / 64
+
+
+def test_the_scene_period_is_the_median_of_the_last_16_intervals_only():
+    """Intervals of 1/64 s, then 8 of 1/256 s and 8 of 1/128 s: the last 16 are the 8 and 8, their
+    median (1/256 + 1/128)/2 = 3/512 s; the 1/64 before them is forgotten (with it, 17 intervals
+    would have the median 1/128)."""
+    r = LocalRenderer()
+    t = 0.0
+    r.take(model(period_s=1 / 1024), arrived=t)
+    for dt in [1 / 64] + [1 / 256] * 8 + [1 / 128] * 8:
+        t += dt
+        r.take(model(period_s=1 / 1024), arrived=t)
+    assert r.gap() == 3 / 512
+
+
+def test_a_trip_is_counted_at_each_fall_to_zero_and_only_then():
+    """A 100 Hz scene's model (hold 45 ms, end 80 ms): valid at every millisecond of its life, no
+    trip; the fall after 80 ms is one; the scene back after 1 s (its period now taken as the
+    longest held, 0.1 s: the end 0.35 s after) and gone again: the second trip; a model first
+    looked at after its end never fell: no trip."""
+    r = LocalRenderer()
+    r.take(model(period_s=0.01), arrived=0.0)
+    assert all(r.validity(k * 1e-3) > 0.0 for k in range(80)) and r.trips == 0
+    assert r.validity(0.081) == 0.0 and r.trips == 1
+    r.take(model(period_s=0.01), arrived=1.0)
+    assert r.gap() == MAX_GAP_S and r.validity(1.0 + 0.34) > 0.0 and r.trips == 1
+    assert r.validity(1.0 + 0.351) == 0.0 and r.trips == 2
+    late = LocalRenderer()
+    late.take(model(period_s=0.01), arrived=0.0)
+    assert late.validity(0.5) == 0.0 and late.trips == 0
+
+
 # -- a closed loop: the emulated device against a slow scene's wall ---------------------------------------
 
 
