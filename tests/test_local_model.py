@@ -15,11 +15,14 @@ from test_link import DRIVER_AT, SCENE_AT, ends, handshake
 
 from godobject_drake.driver.families import EmulatedDevice, HandPath
 from godobject_drake.driver.local_model import (
+    ACTIVE_M,
     ALLOWANCE_J,
     BANK_J,
     END_EXTRA_S,
     HOLD_EXTRA_S,
     MAX_DAMPING,
+    MAX_GAP_S,
+    SWEEPS,
     LocalRenderer,
     project,
 )
@@ -215,6 +218,104 @@ def test_the_couplings_free_lag_is_not_rendered_and_a_contacts_part_is():
     assert np.allclose(r.request((0.0, 0.001, 0.0), now=T, period_s=T), [0.0, -200 * 0.002, 0.0])
 
 
+def test_a_soft_plane_lets_the_proxy_in_by_kd_over_kd_plus_s_at_any_kd():
+    """kd 1 N/m against a plane of 3 N/m: in by a quarter of the 2 cm (0.5 cm); kd 0 (no spring
+    to share the depth with): not at all."""
+    soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 3.0)
+    assert project(np.array([-0.02, 0.0, 0.0]), [soft], 1.0) == pytest.approx([-0.005, 0.0, 0.0], rel=1e-12)
+    assert project(np.array([-0.02, 0.0, 0.0]), [soft], 0.0).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_the_proxy_in_an_acute_corner_comes_to_its_edge_pass_by_pass():
+    """A 60° groove of two rigid planes (x ≥ 0 and the plane whose normal is at 120° to it): a
+    point 1 cm below the edge on the first plane is projected onto the other plane, then back,
+    each projection onto a line 60° away, halving its distance to the edge (cos 60°). The first
+    pass projects once (the point is on the first plane), each later pass twice: after
+    SWEEPS = 8 passes the proxy is 1 cm × 2⁻¹⁵ = 0.31 µm from the edge, on the second plane."""
+    groove = [WALL, ((0.0, 0.0, 0.0), (-0.5, math.sqrt(3) / 2, 0.0), INF)]
+    x = project(np.array([0.0, -0.01, 0.0]), groove, 200.0)
+    assert SWEEPS == 8 and np.linalg.norm(x) == pytest.approx(0.01 * 0.5 ** (2 * SWEEPS - 1), rel=1e-9)
+    assert x @ groove[1][1] == pytest.approx(0.0, abs=1e-20) and x[0] < 0.0  # on the second plane
+
+
+def test_the_renderers_proxy_is_the_handle_plus_the_free_lag_out_of_the_planes():
+    """The model of the by-hand test above (the wall, a 2 mm lag on y): the hand 1.5 cm into the
+    wall has its proxy on the wall, 2 mm along y; out of the wall, the hand plus the lag."""
+    r = LocalRenderer()
+    take_at(r, (-0.01, 0.0, 0.0), 0.0, p_G=(0.0, 0.002, 0.0), planes=[WALL], kd=200.0)
+    assert np.allclose(r.proxy((-0.015, 0.0, 0.0)), [0.0, 0.002, 0.0], rtol=0, atol=1e-18)
+    assert np.allclose(r.proxy((0.003, 0.001, 0.0)), [0.003, 0.003, 0.0], rtol=0, atol=1e-18)
+    soft = LocalRenderer()  # a plane of 600 N/m at kd 200: the proxy in by a quarter of the depth
+    soft.take(model(planes=[((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)], kd=200.0), arrived=0.0)
+    assert soft.proxy((-0.02, 0.0, 0.0)) == pytest.approx([-0.005, 0.0, 0.0], rel=1e-12)
+
+
+def test_a_model_with_no_h_used_is_taken_against_its_own_target():
+    """No handle position given: the stretch is the model's ``p_G − p_T`` (2 mm on y, no plane)."""
+    r = LocalRenderer()
+    r.take(model(p_G=(0.0, 0.002, 0.0), p_T=(0.0, 0.0, 0.0)), arrived=0.0)
+    assert r.offset.tolist() == [0.0, 0.002, 0.0]
+
+
+def test_a_plane_holds_the_god_object_up_to_active_m_away():
+    """The scene's stretch (the target 1 cm into the wall, G on it) is explained by a plane whose
+    distance to G is at most ACTIVE_M (0.1 mm) inclusive: no free lag is left; a plane twice as
+    far does not hold G, and the whole stretch is the lag."""
+    for gap_m, lag in ((0.0, 0.0), (ACTIVE_M, 0.0), (2 * ACTIVE_M, 0.01 + 2 * ACTIVE_M)):
+        r = LocalRenderer()
+        take_at(r, (-0.01, 0.0, 0.0), 0.0, p_G=(gap_m, 0.0, 0.0), planes=[WALL], kd=100.0)
+        assert r.offset == pytest.approx([lag, 0.0, 0.0], abs=1e-18)
+
+
+def test_the_free_lag_is_kept_at_any_kd_above_zero_and_none_at_kd_zero():
+    """kd 0 (no spring): the scene's stretch means nothing, o = 0; kd 0.5 N/m keeps it."""
+    for kd, lag in ((0.0, 0.0), (0.5, 0.002), (200.0, 0.002)):
+        r = LocalRenderer()
+        take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(0.002, 0.0, 0.0), kd=kd)
+        assert r.offset.tolist() == [lag, 0.0, 0.0]
+
+
+def test_the_damper_acts_on_the_stretchs_rate_through_a_soft_plane_not_on_the_hand_in_free_space():
+    """γd 0.5 N·s/m, kd 200 N/m on a plane of 600 N/m: the proxy is in by a quarter of the depth,
+    so the force is the series spring's 150 N/m × depth and the stretch grows at ¾ of the hand's
+    speed. Pressing in at 0.1 m/s from 1 mm deep adds 0.5 × 0.075 = 0.0375 N (not at the first
+    request: no earlier handle), holding adds nothing, withdrawing at 0.1 m/s takes 0.0375 N off.
+    In free space the lag (1 mm) moves with the hand: no rate, kd × o alone, and a new model (a
+    new lag) is no rate either. The budget is in credit, so β = 1 and no controller damper."""
+    soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, planes=[soft], kd=200.0, gamma_d=0.5)
+    r.energy_in = r.energy_v = 1.0
+    depths = [0.001, 0.0011, 0.0012, 0.0012, 0.0011]
+    pushes = [0.0, 0.0375, 0.0375, 0.0, -0.0375]
+    for k, (d, push) in enumerate(zip(depths, pushes, strict=True)):
+        f = r.request((-d, 0.0, 0.0), now=k * T, period_s=T)
+        r.rendered(f)
+        assert r.beta == 1.0 and r.damping == 0.0
+        assert f[0] == pytest.approx(150.0 * d + push, rel=1e-9) and f[1] == f[2] == 0.0
+    free = LocalRenderer()
+    take_at(free, (0.0, 0.0, 0.0), 0.0, p_G=(-0.001, 0.0, 0.0), kd=50.0, gamma_d=0.5)
+    for k in range(5):  # 6 cm/s
+        f = free.request((k * 6e-5, 0.0, 0.0), now=k * T, period_s=T)
+        free.rendered(f)
+        assert f == pytest.approx([-0.05, 0.0, 0.0], rel=1e-9)
+    h = (4 * 6e-5, 0.0, 0.0)  # the hand still; the scene's new lag is 2 mm
+    take_at(free, h, 5 * T, p_G=(h[0] - 0.002, 0.0, 0.0), kd=50.0, gamma_d=0.5)
+    assert free.request(h, now=5 * T, period_s=T) == pytest.approx([-0.1, 0.0, 0.0], rel=1e-9)
+
+
+def test_a_request_with_no_time_since_the_last_has_no_rate_and_no_damper():
+    """period_s 0 (two reads at once): the stretch's rate and the controller's damper need a
+    time; with none the force is the spring's alone (no division by zero), even in deficit and
+    with the hand moved 0.1 mm along each axis."""
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(-0.001, 0.0, 0.0), kd=50.0, gamma_d=0.5)
+    r.rendered(r.request((0.0, 0.0, 0.0), now=0.0, period_s=T))
+    r.energy_in = -2e-3
+    f = r.request((1e-4, 1e-4, 1e-4), now=T, period_s=0.0)
+    assert f == pytest.approx([-0.05, 0.0, 0.0], rel=1e-9) and r.damping == 0.0
+
+
 # -- the energy budget -------------------------------------------------------------------------------------
 
 
@@ -331,6 +432,83 @@ def test_a_deficit_is_paid_back_by_the_controllers_damper():
     assert r.damping == 0.0
 
 
+def test_a_renderer_that_has_heard_nothing_renders_nothing_and_reports_its_idle_state():
+    """Before any model the driver logs weight 0, β 1 (nothing scaled), no damper, no spring, no
+    energy, no trip, no model; the scene's period is taken as the longest held (MAX_GAP_S), so a
+    model would fade by 3 × 0.1 + 0.05 = 0.35 s; and a request is three zeros."""
+    r = LocalRenderer()
+    assert not r.heard and r.models == 0 and r.trips == 0
+    assert (r.weight, r.beta, r.damping, r.spring, r.unpaid) == (0.0, 1.0, 0.0, 0.0, 0.0)
+    assert (r.energy_in, r.energy_v, r.reserve) == (0.0, 0.0, 0.0)
+    assert r.gap() == MAX_GAP_S and r.fade_end() == pytest.approx(0.35)
+    assert r.validity(0.0) == 0.0 and r.request((0.01, 0.0, 0.0), now=0.0, period_s=T).tolist() == [0.0] * 3
+    assert r.weight == 0.0 and r.beta == 0.0 and r.trips == 0
+
+
+def test_every_model_taken_is_counted():
+    r = LocalRenderer()
+    for k in range(3):
+        r.take(model(), arrived=k * 0.01)
+    assert r.heard and r.models == 3
+
+
+def test_credit_beyond_the_spring_leaks_down_to_the_bank():
+    """Held 1 cm into the wall at kd 100 (the spring holds 5 mJ) with 1 J in both accounts: after
+    one request each keeps the spring's 5 mJ plus BANK_J (0.2 mJ), and the reserve E_in − S is
+    the bank."""
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, planes=[WALL], kd=100.0)
+    r.energy_in = r.energy_v = 1.0
+    f = r.request((-0.01, 0.0, 0.0), now=0.0, period_s=T)
+    assert f[0] == pytest.approx(1.0) and r.beta == 1.0 and r.spring == pytest.approx(5e-3, rel=1e-12)
+    assert r.energy_in == pytest.approx(5e-3 + BANK_J, rel=1e-12) and r.energy_v == r.energy_in
+    assert r.reserve == pytest.approx(BANK_J, rel=1e-9)
+
+
+def test_a_re_anchoring_held_spends_nothing_and_its_shortfall_is_summed_each_period():
+    """The re-anchoring above (5 mJ paid, 11.25 mJ asked) held for two periods, the hand still:
+    the spring rendered holds exactly what was paid, so the accounts keep their 5 mJ, and the
+    unpaid 11.25 − 5.001 mJ is counted in each period (twice)."""
+    r = LocalRenderer()
+    moved = ((0.005, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
+    take_at(r, (-0.01, 0.0, 0.0), 0.0, p_G=(0.005, 0, 0), planes=[moved], kd=100.0)
+    r.energy_in = r.energy_v = 5e-3
+    for k in range(2):
+        r.rendered(r.request((-0.01, 0.0, 0.0), now=k * T, period_s=T))
+        assert r.energy_v == 5e-3 and r.energy_in == 5e-3
+    assert r.unpaid == pytest.approx(2 * (11.25e-3 - 5e-3 - ALLOWANCE_J), rel=1e-9)
+
+
+def test_a_stop_or_the_clutch_renders_nothing_and_the_push_meanwhile_pays_nothing():
+    """Not ``live`` (the scene's stop, the clutch) with a fresh model and the hand 1 cm into the
+    wall: zero force, no spring held, β 0, the accounts untouched (1 mJ). The hand goes 1 mm
+    deeper while the device holds zero: the next live request has the 1 mJ alone to pay the
+    ½ kd (1.1 cm)² = 6.05 mJ the wall now asks (the environment rendered nothing over the step)."""
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, planes=[WALL], kd=100.0)
+    r.energy_in = r.energy_v = 1e-3
+    f = r.request((-0.01, 0.0, 0.0), now=0.0, period_s=T, live=False)
+    assert f.tolist() == [0.0, 0.0, 0.0] and (r.spring, r.beta, r.damping, r.weight) == (0.0, 0.0, 0.0, 1.0)
+    assert r.energy_v == 1e-3 and r.energy_in == 1e-3
+    r.rendered(f)
+    r.request((-0.011, 0.0, 0.0), now=T, period_s=T)
+    assert r.energy_v == 1e-3 and r.beta == pytest.approx(math.sqrt((1e-3 + ALLOWANCE_J) / 6.05e-3), rel=1e-9)
+
+
+def test_an_expired_model_renders_no_force_not_even_the_controllers_damper():
+    """A model of a 100 Hz scene ends 3 × 10 + 50 = 80 ms after it arrived: a request after that
+    is zero, though the device's account is 1 mJ short and the hand moves at 0.1 m/s (no
+    damper), and the accounts are left as they were for the model that follows; one trip."""
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(-0.001, 0.0, 0.0), kd=50.0, period_s=0.01)
+    r.rendered(r.request((0.0, 0.0, 0.0), now=0.079, period_s=T, live=False))  # the clutch: nothing held
+    assert 0.0 < r.weight < 0.05
+    r.energy_in, r.energy_v = -1e-3, 3e-4
+    f = r.request((1e-4, 0.0, 0.0), now=0.081, period_s=T)
+    assert f.tolist() == [0.0, 0.0, 0.0] and (r.weight, r.beta, r.damping) == (0.0, 0.0, 0.0)
+    assert r.energy_in == -1e-3 and r.energy_v == 3e-4 and r.trips == 1
+
+
 # -- validity ----------------------------------------------------------------------------------------------
 
 
@@ -388,6 +566,52 @@ def test_a_fading_model_renders_its_weight_of_the_force():
     take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(0.01, 0.0, 0.0), kd=100.0, period_s=0.01)
     f = r.request((0.0, 0.0, 0.0), now=(0.045 + 0.08) / 2, period_s=T)  # half way down
     assert np.allclose(f, [0.5, 0.0, 0.0])
+
+
+def test_the_fade_ends_three_gaps_and_50_ms_after_the_model():
+    r = LocalRenderer()
+    for k in range(3):  # 64 Hz
+        r.take(model(period_s=0.01), arrived=k / 64)
+    assert r.gap() == 1 / 64 and r.fade_end() == pytest.approx(3 / 64 + END_EXTRA_S, rel=1e-15)
+
+
+def test_two_models_at_the_same_time_are_no_interval():
+    """A model taken at the same instant as the one before (two in one poll) is no 0 s interval:
+    the scene's period stays the 1/64 s between the others (a 0 would halve the median)."""
+    r = LocalRenderer()
+    for t in (0.0, 1 / 64, 1 / 64):
+        r.take(model(period_s=1 / 1024), arrived=t)
+    assert r.gap() == 1 / 64
+
+
+def test_the_scene_period_is_the_median_of_the_last_16_intervals_only():
+    """Intervals of 1/64 s, then 8 of 1/256 s and 8 of 1/128 s: the last 16 are the 8 and 8, their
+    median (1/256 + 1/128)/2 = 3/512 s; the 1/64 before them is forgotten (with it, 17 intervals
+    would have the median 1/128)."""
+    r = LocalRenderer()
+    t = 0.0
+    r.take(model(period_s=1 / 1024), arrived=t)
+    for dt in [1 / 64] + [1 / 256] * 8 + [1 / 128] * 8:
+        t += dt
+        r.take(model(period_s=1 / 1024), arrived=t)
+    assert r.gap() == 3 / 512
+
+
+def test_a_trip_is_counted_at_each_fall_to_zero_and_only_then():
+    """A 100 Hz scene's model (hold 45 ms, end 80 ms): valid at every millisecond of its life, no
+    trip; the fall after 80 ms is one; the scene back after 1 s (its period now taken as the
+    longest held, 0.1 s: the end 0.35 s after) and gone again: the second trip; a model first
+    looked at after its end never fell: no trip."""
+    r = LocalRenderer()
+    r.take(model(period_s=0.01), arrived=0.0)
+    assert all(r.validity(k * 1e-3) > 0.0 for k in range(80)) and r.trips == 0
+    assert r.validity(0.081) == 0.0 and r.trips == 1
+    r.take(model(period_s=0.01), arrived=1.0)
+    assert r.gap() == MAX_GAP_S and r.validity(1.0 + 0.34) > 0.0 and r.trips == 1
+    assert r.validity(1.0 + 0.351) == 0.0 and r.trips == 2
+    late = LocalRenderer()
+    late.take(model(period_s=0.01), arrived=0.0)
+    assert late.validity(0.5) == 0.0 and late.trips == 0
 
 
 # -- a closed loop: the emulated device against a slow scene's wall ---------------------------------------

@@ -114,7 +114,6 @@ class LocalRenderer:
         self._h: np.ndarray | None = None  # the handle at the last render
         self._f = np.zeros(3)  # the force last rendered
         self._damper = np.zeros(3)  # the controller's part of the force last requested
-        self._stretch: np.ndarray | None = None
         self._was_valid = False
 
     @property
