@@ -204,18 +204,26 @@ def test_a_grasp_offset_is_no_force_and_the_planes_stop_the_grasped_point():
     f = r.request((0.0, -0.015, 0.0), now=3 * T, period_s=T)
     assert np.allclose(f, [0.0, 200 * 0.005, 0.0], rtol=1e-12)
     assert np.allclose(r.proxy((0.0, -0.015, 0.0)), [0.0, 0.0, 0.0])  # the grasped point on the wall
+    assert np.allclose(r.proxy((0.01, 0.02, 0.0)), [0.01, 0.03, 0.0], rtol=0, atol=1e-15)  # h + c
 
 
 def test_the_couplings_free_lag_is_not_rendered_and_a_contacts_part_is():
     """A slow scene saw the hand at 60 cm/s and its god-object lags 6 mm behind the target on y,
-    exactly as a free one would (``lag``): no force. Where a contact held it back 2 mm more than
-    the free one (a body dragged on a surface), kd × 2 mm is rendered: the contact's part."""
+    exactly as a free one would (``lag``): in free space, no force. Where something held it back
+    2 mm more than the free one, kd × 2 mm is rendered. Near a contact (a plane published) the
+    whole stretch is (module docstring: the approach the budget's bank draws on)."""
     r = LocalRenderer()
     r.energy_in = r.energy_v = 1.0
     take_at(r, (0.0, 0.0, 0.0), 0.0, p_G=(0.0, -0.006, 0.0), lag=(0.0, -0.006, 0.0), kd=200.0)
     assert np.all(r.request((0.0, 0.001, 0.0), now=0.0, period_s=T) == 0.0)
     take_at(r, (0.0, 0.0, 0.0), T, p_G=(0.0, -0.008, 0.0), lag=(0.0, -0.006, 0.0), kd=200.0)
     assert np.allclose(r.request((0.0, 0.001, 0.0), now=T, period_s=T), [0.0, -200 * 0.002, 0.0])
+    # near a contact (a plane published, here a wall at x = -1 cm the hand has not reached) the
+    # whole stretch is rendered, lag included: kd × 8 mm
+    far_wall = ((-0.01, 0.0, 0.0), (1.0, 0.0, 0.0), INF)
+    planes = dict(p_G=(0.0, -0.008, 0.0), lag=(0.0, -0.006, 0.0), kd=200.0, planes=[far_wall])
+    take_at(r, (0.0, 0.0, 0.0), 2 * T, **planes)
+    assert np.allclose(r.request((0.0, 0.001, 0.0), now=2 * T, period_s=T), [0.0, -200 * 0.008, 0.0])
 
 
 def test_a_soft_plane_lets_the_proxy_in_by_kd_over_kd_plus_s_at_any_kd():

@@ -11,14 +11,18 @@ sends, clutch offset included), forces the device's frame (N).
 **The proxy** (a god-object at the device's rate, Zilles & Salisbury's, on Adachi's and Mark et
 al.'s local planes). When a model arrives, ``c = p_T − h_used`` (``h_used``: the pose the scene
 had taken) is where the target sits from the handle (the grasp offset), and the scene's stretch
-less the coupling's free lag, ``p_G − p_T − lag`` (``lag``: the stretch a god-object free of every
-contact would have, driven by the same targets: what slow motion makes of a moving hand), is
-split into what the model's *active* planes explain (the god-object rests on them: its component
-along their normals, pushing out) and the rest ``o`` (friction, a held body pressed where no plane
-is published). Each period the free proxy is ``y = h + c + o``, with ``h`` the handle now; the
-proxy ``x`` is ``y`` moved out of every plane it entered (a plane of stiffness ``s`` lets it in by
-``kd/(kd + s)`` of the way: rigid planes not at all), and the force is ``kd (x − h − c) + γd``
-times the stretch's rate: in free space ``kd o``, no drag from the coupling's lag.
+``p_G − p_T`` — in free space (no plane published) less the coupling's free lag ``lag`` (the
+stretch a god-object free of every contact would have, driven by the same targets: what slow
+motion makes of a moving hand) — is split into what the model's *active* planes explain (the
+god-object rests on them: its component along their normals, pushing out) and the rest ``o``
+(friction, a held body pressed where no plane is published). Each period the free proxy is
+``y = h + c + o``, with ``h`` the handle now; the proxy ``x`` is ``y`` moved out of every plane
+it entered (a plane of stiffness ``s`` lets it in by ``kd/(kd + s)`` of the way: rigid planes
+not at all), and the force is ``kd (x − h − c) + γd`` times the stretch's rate: in free space
+``kd o``, no drag from the coupling's lag. Near a contact (a plane within reach) the whole
+stretch is rendered: the hand pays for the approach as the scene computes it, which is what
+the budget's bank draws on when a slow scene's contact arrives late (the budget scales a late
+spring down, and pressing on keeps that scale).
 
 **The energy budget** (Hannaford & Ryu's passivity observer and controller). Two accounts of
 the work the hand has done on the device since the first model:
@@ -130,7 +134,9 @@ class LocalRenderer:
         h_used = p_T if h_used is None else np.array(h_used, float)
         self.planes = [(np.array(p, float), np.array(n, float), float(s)) for p, n, s in model.planes]
         self.grasp = p_T - h_used
-        stretch = p_G - p_T - np.array(model.lag, float)
+        stretch = p_G - p_T
+        if not self.planes:  # free space: the coupling's free lag is no force (module docstring)
+            stretch = stretch - np.array(model.lag, float)
         for point, normal, _ in self.planes:  # what the planes holding G explain
             if abs(float(np.dot(normal, p_G - point))) <= ACTIVE_M:
                 along = float(np.dot(normal, stretch))
