@@ -230,8 +230,8 @@ def test_turns_past_ninety_degrees_about_every_axis():
 
 def test_drake_crashes_on_a_distance_constraint_to_the_world_body():
     """Why the springs start on a welded anchor body (add_springs): in Drake 1.51.1 and 1.58.0 an
-    active distance constraint whose body A is the world ends the process in the first SAP step.
-    If a Drake release fixes it, this fails, and the anchor body can go."""
+    active distance constraint whose body A is the world ends the process in the first SAP step
+    (SIGSEGV). If a Drake release fixes it, this fails, and the anchor body can go."""
     code = textwrap.dedent(
         """
         from pydrake.all import *
@@ -244,8 +244,15 @@ def test_drake_crashes_on_a_distance_constraint_to_the_world_body():
         Simulator(b.Build()).AdvanceTo(0.01)
         """
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
-    assert done.returncode == -11, (done.returncode, done.stderr[-500:])
+    # undefined behaviour, not a check that fails: 12 of 12 runs here ended with SIGSEGV, and one
+    # in a fresh CI venv ran through; a fix is told by every one of five tries running through
+    codes = []
+    for _ in range(5):
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
+        codes.append(done.returncode)
+        if done.returncode == -11:
+            break
+    assert codes[-1] == -11, (codes, done.stderr[-500:])
 
 
 @pytest.mark.slow
