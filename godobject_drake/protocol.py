@@ -837,7 +837,7 @@ class LocalModel:
     the god-object's pose and velocity; ``p_T``: the coupling's target; ``lag``: the stretch
     ``p_G − p_T`` a god-object free of every contact would have now, driven by the same targets
     (the coupling's own lag as the hand moves: the scene's slow motion makes it large, and the
-    driver leaves it out of the force, docs/local_model.md); ``planes``: each
+    driver leaves it out of the force in free space, docs/local_model.md); ``planes``: each
     ``(point, normal, stiffness)``: the god-object's reference point may not cross the plane
     through ``point`` against the unit ``normal`` (pointing out of the obstacle), ``stiffness``
     N/m (``inf``: rigid)."""

@@ -107,7 +107,7 @@ class LocalRenderer:
         self.grasp = np.zeros(3)  # c: the target from the handle (the grasp offset)
         self.energy_in = 0.0  # E_in (J): the work the hand has done on the device (held forces)
         self.energy_v = 0.0  # E_v (J): the same, on the virtual environment (trapezoid)
-        self._env = None  # what the last request rendered: (offset, planes, kd, β)
+        self._env = None  # what the last request rendered: (c + o, c, planes, kd, β)
         self.spring = 0.0  # S (J) as last requested
         self.beta = 1.0
         self.weight = 0.0  # the model's validity at the last request
