@@ -109,6 +109,49 @@ def test_a_truncated_padded_or_foreign_payload_is_refused_naming_the_length_or_m
     assert struct.unpack_from(">d", raw, 213 + 48)[0] == INF  # the wall's stiffness, where the format says
 
 
+@pytest.mark.parametrize("name", ["p_G", "v_G", "q_G", "w_G", "p_T", "lag"])
+def test_a_vector_that_is_not_finite_is_refused_by_its_exact_name_and_values(name):
+    """The message names the field as the format does, with the values read: ``lag`` [0.0, nan, 0.0]."""
+    base = model(planes=[WALL])
+    values = [float(v) for v in getattr(base, name)]
+    values[1] = math.nan
+    with pytest.raises(LocalModelError) as refused:
+        parse_local_model(_bad(base, **{name: tuple(values)}))
+    assert str(refused.value) == f"local model: {name} {values} is not finite"
+
+
+def test_a_period_or_gain_that_is_not_finite_is_refused_by_its_exact_name():
+    with pytest.raises(LocalModelError) as refused:
+        parse_local_model(_bad(model(), period_s=math.nan))
+    assert str(refused.value) == "local model: period_s [nan] is not finite"
+    with pytest.raises(LocalModelError) as refused:
+        parse_local_model(_bad(model(), gamma_d=math.inf))
+    assert str(refused.value) == "local model: gains [200.0, inf, 0.0, 0.0] is not finite"
+
+
+def test_a_local_model_at_its_limits_is_read():
+    """Each limit's edge is inside it: no plane (the head alone, 213 bytes), the most planes, a
+    scene time of 0 µs, a stiffness just above 0 (a very soft plane)."""
+    bare = model()
+    assert len(bare.encode()) == 213 and parse_local_model(bare.encode()) == bare
+    most = model(planes=[WALL] * MAX_PLANES)
+    assert parse_local_model(most.encode()) == most
+    first = model(utime=0)
+    assert parse_local_model(first.encode()) == first
+    soft = model(planes=[((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 0.5)])
+    assert parse_local_model(soft.encode()).planes[0][2] == 0.5
+
+
+def test_the_length_and_magic_refusals_say_what_was_read_and_expected():
+    raw = model(planes=[WALL]).encode()
+    with pytest.raises(LocalModelError) as refused:
+        parse_local_model(raw + b"\0")
+    assert str(refused.value) == "local model: 270 bytes for 1 planes; expected 269"  # 213 + 56
+    with pytest.raises(LocalModelError) as refused:
+        parse_local_model(b"XLM1" + raw[4:])
+    assert str(refused.value) == "local model: magic b'XLM1', not b'GLM2'"
+
+
 @pytest.mark.parametrize("byte", [0, 50, 100, -1])
 def test_a_local_model_changed_on_the_link_is_unauthenticated_and_never_parsed(byte):
     """The local model rides the paired link like the wrench: a changed datagram is dropped
