@@ -75,16 +75,25 @@ MAX_DAMPING = 10.0  # N·s/m: the passivity controller's damper at most (a hand'
 
 
 def project(y: np.ndarray, planes, kd: float) -> np.ndarray:
-    """``y`` moved out of every plane it entered (module docstring): a plane of stiffness ``s``
-    lets it stay in by ``kd/(kd + s)`` of its depth (``s`` inf: none). Several planes: passes of
-    projections (exact for one plane, or for planes at right angles)."""
+    """``y`` moved out of every plane it entered (module docstring): the proxy ``x`` that balances
+    the coupling's spring ``kd (y − x)`` against the planes' pushes, a plane of stiffness ``s``
+    pushing ``s`` times the depth of ``x`` in it (``s`` inf: rigid, ``x`` not in it at all). One
+    plane: ``x`` stays in by ``kd/(kd + s)`` of the depth of ``y``. Several: projected
+    Gauss–Seidel on each plane's push (its share of ``x − y``, never pulling), :data:`SWEEPS`
+    passes; exact in one pass for planes at right angles, and a plane ``y`` never reached moves
+    nothing."""
     x = np.array(y, float)
+    pushed = [0.0] * len(planes)  # each plane's push so far, as a displacement along its normal (m)
     for _ in range(SWEEPS if len(planes) > 1 else 1):
-        for point, normal, stiffness in planes:
+        for i, (point, normal, stiffness) in enumerate(planes):
             depth = -float(np.dot(normal, x - point))
-            if depth > 0.0:
-                keep = 0.0 if math.isinf(stiffness) or kd == 0.0 else kd / (kd + stiffness)
-                x = x + (1.0 - keep) * depth * np.asarray(normal)
+            ratio = 0.0 if math.isinf(stiffness) or kd == 0.0 else kd / stiffness
+            # the change of push u − pushed with depth − (u − pushed) = ratio · u (balanced against
+            # this plane alone; a rigid plane: the depth), never below a push of zero
+            change = max(-pushed[i], (depth - ratio * pushed[i]) / (1.0 + ratio))
+            if change != 0.0:
+                x = x + change * np.asarray(normal)
+                pushed[i] += change
     return x
 
 
