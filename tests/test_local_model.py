@@ -362,6 +362,34 @@ def test_a_plane_holds_the_god_object_up_to_active_m_away():
         assert r.offset == pytest.approx([lag, 0.0, 0.0], abs=1e-18)
 
 
+def test_a_god_object_sunk_into_a_soft_plane_is_softened_once():
+    """A 600 N/m plane at its undeformed surface x = 0, kd 200: the scene's target 2 cm in, G sunk
+    to the balance 600 × 5 mm = 200 × 15 mm = 3 N. The plane holds G (G is in it), so at the
+    handle the scene used the force is the scene's kd (p_G − p_T) = 3 N; 1 cm deeper it is the
+    spring and the plane in series, 150 N/m × 3 cm = 4.5 N. (Before, a plane holding G had to be
+    within 0.1 mm of it either side: G 5 mm in was not held, its stretch became a free offset and
+    the force 3.75 N, and the scene put the plane through the sunk G: softened twice.)"""
+    soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)
+    r = LocalRenderer()
+    take_at(r, (-0.02, 0.0, 0.0), 0.0, p_G=(-0.005, 0.0, 0.0), planes=[soft], kd=200.0)
+    assert r.offset.tolist() == [0.0, 0.0, 0.0]
+    for h, force in ((-0.02, 3.0), (-0.03, 4.5)):  # the spring to the proxy, before any budget
+        assert 200.0 * (r.proxy((h, 0.0, 0.0))[0] - h) == pytest.approx(force, rel=1e-12)
+
+
+def test_the_scene_puts_a_soft_plane_at_the_undeformed_surface_and_a_rigid_one_through_g():
+    """``plane_point`` by hand, normal +z out of the obstacle, G at z = 1 cm: apart by 2 mm, either
+    plane is 2 mm below G; G 0.3 mm into a rigid pair (the solver's penetration), the plane
+    through G; G sunk 5 mm into a soft pair, the plane 5 mm above G (where the surface was)."""
+    from godobject_drake.devices.lcm import plane_point
+
+    g, n = np.array([0.0, 0.0, 0.01]), np.array([0.0, 0.0, 1.0])
+    assert plane_point(g, 0.002, n, INF).tolist() == pytest.approx([0.0, 0.0, 0.008], abs=1e-15)
+    assert plane_point(g, 0.002, n, 1e5).tolist() == pytest.approx([0.0, 0.0, 0.008], abs=1e-15)
+    assert plane_point(g, -0.0003, n, INF).tolist() == [0.0, 0.0, 0.01]
+    assert plane_point(g, -0.005, n, 1e5).tolist() == pytest.approx([0.0, 0.0, 0.015], abs=1e-15)
+
+
 def test_the_free_lag_is_kept_at_any_kd_above_zero_and_none_at_kd_zero():
     """kd 0 (no spring): the scene's stretch means nothing, o = 0; kd 0.5 N/m keeps it."""
     for kd, lag in ((0.0, 0.0), (0.5, 0.002), (200.0, 0.002)):

@@ -560,6 +560,17 @@ class FreeLag:
         return self.lag
 
 
+def plane_point(p_WG, distance: float, normal, stiffness: float) -> np.ndarray:
+    """Where a pair's plane passes: through the god-object's point ``p_WG`` moved against the
+    ``normal`` (out of the obstacle) by as much as it may still move toward it. A rigid pair
+    (``stiffness`` inf) by its gap while apart, and not at all once touching: a penetration is the
+    solver's, the proxy starts at G. A soft pair by its signed distance: G sunk by the contact's
+    compliance puts the plane back at the undeformed surface, which the driver lets the proxy into
+    by ``kd/(kd + s)`` of the way — the plane through G would soften the contact twice."""
+    gap = distance if math.isfinite(stiffness) else max(distance, 0.0)
+    return np.asarray(p_WG, float) - gap * np.asarray(normal, float)
+
+
 class LocalModelPublisher(LeafSystem):
     """The local model every device period, at most every :data:`LOCAL_MODEL_MIN_PERIOD_S` of
     simulated time (issue 44; docs/local_model.md):
@@ -569,8 +580,8 @@ class LocalModelPublisher(LeafSystem):
     The planes: every geometry pair of the held body and another body within
     :data:`PLANE_MARGIN_M` (Drake's signed distance query, broad phase first), one plane per
     distinct normal (the nearest), at most :data:`~godobject_drake.protocol.MAX_PLANES`:
-    through the god-object's point moved ``max(distance, 0)`` against the normal (the god-object
-    may come that close), normal out of the obstacle, stiffness the pair's point-contact
+    through the god-object's point moved against the normal as far as it may still move
+    (:func:`plane_point`), normal out of the obstacle, stiffness the pair's point-contact
     stiffness in series (inf when the geometries state none)."""
 
     def __init__(self, device: LcmDevice, plant, gains, coupling=None):
@@ -639,7 +650,7 @@ class LocalModelPublisher(LeafSystem):
                 kept.append((distance, n, k))
         s2 = self._scale**2
         return [
-            (self._to_dev(p_WG - max(distance, 0.0) * n), tuple(self._R_DevW @ n), s2 * k)
+            (self._to_dev(plane_point(p_WG, distance, n, k)), tuple(self._R_DevW @ n), s2 * k)
             for distance, n, k in kept
         ]
 

@@ -67,7 +67,7 @@ from godobject_drake.protocol import LocalModel
 MAX_GAP_S = 0.1  # a scene slower than 10 Hz is held no longer than a 10 Hz one
 HOLD_GAPS, HOLD_EXTRA_S = 2.0, 0.025
 END_GAPS, END_EXTRA_S = 3.0, 0.05
-ACTIVE_M = 1e-4  # a plane within this of the god-object holds it (explains its stretch)
+ACTIVE_M = 1e-4  # a plane the god-object is in, or within this of, holds it (explains its stretch)
 SWEEPS = 8  # passes over the planes when projecting the proxy
 BANK_J = 2e-4  # J: what the accounts keep beyond the spring's energy (the rest the scene dissipated)
 ALLOWANCE_J = 1e-6  # J: the budget lends this much, so accounts standing at zero (rounding) still render
@@ -146,8 +146,8 @@ class LocalRenderer:
         stretch = p_G - p_T
         if not self.planes:  # free space: the coupling's free lag is no force (module docstring)
             stretch = stretch - np.array(model.lag, float)
-        for point, normal, _ in self.planes:  # what the planes holding G explain
-            if abs(float(np.dot(normal, p_G - point))) <= ACTIVE_M:
+        for point, normal, _ in self.planes:  # what the planes holding G (on or in them) explain
+            if float(np.dot(normal, p_G - point)) <= ACTIVE_M:
                 along = float(np.dot(normal, stretch))
                 if along > 0.0:
                     stretch = stretch - along * normal
