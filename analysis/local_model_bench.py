@@ -220,6 +220,11 @@ def hand_start(rows) -> float:
     return rows["t"][np.flatnonzero(rows["state"] != "waiting")[0]]
 
 
+def _unit(v) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return np.asarray(v, float) / n if n > 0 else np.zeros(3)
+
+
 def measure(rows, info, hand, t_kill, rate_hz) -> dict:
     t = rows["t"] - hand_start(rows)
     x = np.c_[rows["x"], rows["y"], rows["z"]]
@@ -243,6 +248,12 @@ def measure(rows, info, hand, t_kill, rate_hz) -> dict:
         "hold_N": float(np.mean(norm[held])) if held.any() else math.nan,
         "trips": int(np.sum(tripped)),
         "drag_N": float(np.mean(norm[drag])) if drag.any() else math.nan,
+        # its parts: against the hand's motion (the drag proper) and the mean force (a held
+        # body's weight shows here, not in the drag proper)
+        "drag_against_N": float(np.mean(-f[drag] @ _unit(x[drag][-1] - x[drag][0])))
+        if drag.any()
+        else math.nan,
+        "drag_mean_N": np.mean(f[drag], axis=0).round(4).tolist() if drag.any() else [],
         "pose_age_p99_ms": (info.get("spring_pose_age", {}).get("p99_s") or math.nan) * 1e3,
         "models": info.get("local_model", {}).get("models", 0),
         "overruns": int(info["counts"]["overruns"]),

@@ -6,11 +6,13 @@ Everything here is arithmetic on positions, forces and times handed in (no socke
 clock: the emulated device runs on a clock the test advances), so every figure is exact and
 holds on a loaded machine; the timing figures are analysis/local_model_bench.py's."""
 
+import itertools
 import math
 import struct
 
 import numpy as np
 import pytest
+from conftest import REPO
 from test_link import DRIVER_AT, SCENE_AT, ends, handshake
 
 from godobject_drake.driver.families import EmulatedDevice, HandPath
@@ -804,28 +806,28 @@ def test_the_local_model_wall_does_no_work_on_the_hand_where_the_held_wrench_doe
 
 def _held_samples_exactly(omega, samples, period):
     """The coupling's law for a free god-object, ``p̈ = ω² (p_D − p) + 2ω (v_D − ṗ)``, solved
-    exactly over each period with the sample held (the matrix exponential of the linear ODE):
-    the lag ``p − p_D`` after each period, the second method FreeLag is checked against."""
+    exactly over each period with the sample that started it held (the matrix exponential of the
+    linear ODE): the lag ``p − p_D`` of the next sample after each period, the second method
+    FreeLag is checked against."""
     from scipy.linalg import expm
 
     k, b = omega**2, 2 * omega
     p, v, lags = samples[0][0].copy(), np.zeros(3), []
-    for p_D, v_D in samples[1:]:
+    for (p_D, v_D), (p_next, _) in itertools.pairwise(samples):
         for axis in range(3):
             A = np.array([[0.0, 1.0, 0.0], [-k, -b, k * p_D[axis] + b * v_D[axis]], [0.0, 0.0, 0.0]])
             p[axis], v[axis], _ = expm(A * period) @ np.array([p[axis], v[axis], 1.0])
-        lags.append(p - p_D)
+        lags.append(p - p_next)
     return lags
 
 
 def test_the_free_lag_follows_the_coupling_law_for_a_free_god_object():
     """A hand starts at 6 cm/s from rest, sampled at 1 kHz (held between samples, the backward
     difference as its velocity): the coupling (ω 40 rad/s, critical) lags at most about
-    ``V/(e ω)`` = 0.55 mm, then follows the ramp with a constant lag of about half a sample's
-    motion. ``FreeLag`` (symplectic Euler, as Drake steps a free body) against the exact solution
-    of the same held samples: within ``3 ω h`` of the peak at h = 1 ms, half that at h = 0.5 ms
-    (first order). Its force cap: a 1 m jump of the target is met at ``ω² max_stretch`` m/s²
-    (0.2 m/s after the first millisecond at 0.125 m), not 40 m/s."""
+    ``V/(e ω)`` = 0.55 mm, then follows the ramp. ``FreeLag`` (symplectic Euler, as Drake steps a
+    free body) against the exact solution of the same held samples: within ``3 ω h`` of the peak
+    at h = 1 ms, half that at h = 0.5 ms (first order). Its force cap: a 1 m jump of the target
+    is met at ``ω² max_stretch`` m/s² (0.2 m/s after the first millisecond at 0.125 m), not 40 m/s."""
     from godobject_drake.devices.lcm import FreeLag
 
     omega, V, T = 40.0, np.array([0.0, 0.06, 0.0]), 1e-3
@@ -836,15 +838,59 @@ def test_the_free_lag_follows_the_coupling_law_for_a_free_god_object():
     worst = {}
     for h in (1e-3, 5e-4):
         free = FreeLag(omega**2, 2 * omega, math.inf, h)
-        free.reset(0.0, 3, samples[0][0], np.zeros(3), np.zeros(3))
+        free.reset(0.0, 3, samples[0][0], np.zeros(3), np.zeros(3), samples[0][1])
         lags = [np.array(free.advance(n * T, *samples[n])) for n in range(1, len(samples))]
         worst[h] = max(np.linalg.norm(a - b) for a, b in zip(lags, exact, strict=True))
     assert worst[1e-3] <= 3 * omega * 1e-3 * peak and 1.8 <= worst[1e-3] / worst[5e-4] <= 2.2, worst
     capped = FreeLag(omega**2, 2 * omega, 0.125, 1e-3)
-    capped.reset(0.0, 3, np.zeros(3), np.zeros(3), np.zeros(3))
-    capped.advance(1e-3, np.array([1.0, 0.0, 0.0]), np.zeros(3))
+    capped.reset(0.0, 3, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    capped.advance(1e-3, np.array([1.0, 0.0, 0.0]), np.zeros(3))  # the jump, held from 1 ms on
+    assert capped.v == (0.0, 0.0, 0.0)  # the first millisecond held the sample at 0
+    capped.advance(2e-3, np.array([1.0, 0.0, 0.0]), np.zeros(3))
     assert capped.v[0] == pytest.approx(1e-3 * omega**2 * 0.125)  # 0.2 m/s
     assert capped.v[1:] == (0.0, 0.0)
+
+
+def test_the_free_lag_is_the_brick_scenes_own_stretch_while_it_touches_nothing():
+    """The brick scene in Drake (h = 1 ms, the explicit coupling, ω 40 rad/s): the device grasps
+    brick_0, lifts it at 5.1 cm/s and carries it toward the wall at 35 cm/s (what a 6 cm/s hand is
+    to a scene at a sixth of real time), sampled at 1 kHz. ``FreeLag`` driven by the samples the
+    coupling logged, each given at the step it starts (as the publisher sees them), is the
+    scene's own stretch ``p_G − p_T`` within 1 µm while the brick touches nothing (before 0.52 s;
+    the stretch reaches 3 mm). Given each sample for the period before it, the twin ran one
+    sample ahead: 0.35 mm off at 35 cm/s, 0.12 N of drag at kd 200 N/m (measured)."""
+    from pydrake.systems.analysis import Simulator
+
+    from godobject_drake.config import scenario as sc
+    from godobject_drake.devices.lcm import FreeLag
+    from godobject_drake.station.build import build_station
+    from godobject_drake.systems.coupling import TERMS_LAYOUT
+
+    path = """
+device: !Scripted
+  path: ""
+  rate_hz: 1000.0
+  waypoints:
+  - {t: 0.0, xyz: [-0.10, 0.0, 0.0048], rpy_deg: [0, 0, 0], grasp: brick_0}
+  - {t: 0.3, xyz: [-0.10, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}
+  - {t: 0.7, xyz: [0.04, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}
+simulation: {duration_s: 0.52}
+"""
+    station = build_station(sc.load_scenario(REPO / "diagrams" / "lego.yaml", path))
+    simulator = Simulator(station.diagram)
+    simulator.AdvanceTo(0.52)
+    log = station.loggers["terms"].FindLog(simulator.get_context())
+    t, terms = log.sample_times(), log.data().T
+    held = terms[:, TERMS_LAYOUT["held_body"]]
+    p_T, V_T = terms[:, TERMS_LAYOUT["pose_WT"]][:, 4:], terms[:, TERMS_LAYOUT["V_WT"]][:, 3:]
+    p_G, V_G = terms[:, TERMS_LAYOUT["pose_WG"]][:, 4:], terms[:, TERMS_LAYOUT["V_WG"]][:, 3:]
+    coupling = station.god_object.coupling
+    assert held[0] >= 0 and np.all(held == held[0])
+    free = FreeLag(coupling._wn2, coupling._2zwn, coupling.max_stretch_m, station.plant.time_step())
+    free.reset(t[0], int(held[0]), p_T[0], p_G[0] - p_T[0], V_G[0], V_T[0])
+    off = [np.linalg.norm(p_G[k] - p_T[k] - free.advance(t[k], p_T[k], V_T[k])) for k in range(1, len(t))]
+    assert np.max(np.linalg.norm(p_G - p_T, axis=1)) > 3e-3  # the scene's own stretch: not a trivial check
+    assert max(off) < 1e-6, max(off)
 
 
 def test_the_free_lag_restarts_on_the_god_object_when_the_grasp_changes():
@@ -854,8 +900,9 @@ def test_the_free_lag_restarts_on_the_god_object_when_the_grasp_changes():
 
     free = FreeLag(1600.0, 80.0, math.inf, 1e-3)
     assert free.advance(0.0, np.ones(3), np.zeros(3)) == (0.0, 0.0, 0.0)  # nothing held yet
-    free.reset(0.004, 5, np.array([0.2, 0.1, 0.0]), np.array([0.0, 0.0, -0.003]), np.array([0.0, 0.5, 0.0]))
+    p_D, stretch, v_G = np.array([0.2, 0.1, 0.0]), np.array([0.0, 0.0, -0.003]), np.array([0.0, 0.5, 0.0])
+    free.reset(0.004, 5, p_D, stretch, v_G, np.zeros(3))
     assert free.lag == (0.0, 0.0, -0.003) and np.allclose(free.p, [0.2, 0.1, -0.003], rtol=0, atol=1e-15)
     assert free.v == (0.0, 0.5, 0.0)
-    free.reset(0.008, -1, np.array([0.3, 0.0, 0.0]), np.array([0.01, 0, 0]), np.zeros(3))
+    free.reset(0.008, -1, np.array([0.3, 0.0, 0.0]), np.array([0.01, 0, 0]), np.zeros(3), np.zeros(3))
     assert free.advance(0.009, np.array([0.3, 0.0, 0.0]), np.ones(3)) == (0.0, 0.0, 0.0)

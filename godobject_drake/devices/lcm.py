@@ -513,35 +513,46 @@ class FreeLag:
     The coupling pulls the held body by ``a = ωn² (p_T − p) + 2 ζ ωn (v_T − v)`` (per unit mass,
     gravity compensated, ``|a| ≤ ωn² max_stretch_m`` as its force cap); this integrates that law
     for a body nothing touches, as Drake steps a free body (symplectic Euler at the plant's step
-    ``h``), over each device period with the sample the coupling held over it. It follows the
-    device point D (the target is D carried by the grasp offset: the same lag while the device
-    does not turn). Where the scene's body touches nothing it moves the same way, so
-    ``p_G − p_T − lag`` is about zero however fast the target moved in simulated time (a scene at
-    a tenth of real time sees a 6 cm/s hand at 60 cm/s, and its god-object lags millimetres:
-    drag a hand would feel); where a contact held it back, the difference is what the contact did.
-    :meth:`reset` on each change of held body (to the god-object's stretch and velocity)."""
+    ``h``), over each device period with the sample the coupling held over it: the one given at
+    the period's start. Drake has the device's new sample on its output when the publisher runs
+    at ``t`` (measured: a free brick carried at 0.35 m/s had ``p_G − p_T`` 0 in the scene and
+    0.35 mm, one sample's motion, in a twin that took the sample at ``t`` for the period before
+    it), so :meth:`advance` is given the sample that starts at ``t`` and moves on with the one
+    before. It follows the device point D (the target is D carried by the grasp offset: the same
+    lag while the device does not turn). Where the scene's body touches nothing it moves the same
+    way, so ``p_G − p_T − lag`` is about zero however fast the target moved in simulated time (a
+    scene at a tenth of real time sees a 6 cm/s hand at 60 cm/s, and its god-object lags
+    millimetres: drag a hand would feel); where a contact held it back, the difference is what
+    the contact did. :meth:`reset` on each change of held body (to the god-object's stretch and
+    velocity)."""
 
     def __init__(self, omega_n2: float, two_zeta_omega: float, max_stretch_m: float, step_s: float):
         self.k, self.b, self.h = float(omega_n2), float(two_zeta_omega), float(step_s)
         self.a_max = self.k * float(max_stretch_m)  # inf: no cap
         self.held, self.t = None, None
         self.p = self.v = self.lag = (0.0, 0.0, 0.0)  # plain floats: this runs every device period
+        self.d = self.u = (0.0, 0.0, 0.0)  # the sample held from self.t on: p_D, v_D
 
-    def reset(self, t: float, held: int, p_D, stretch, v_G) -> None:
-        """Start on the scene's god-object: ``p_D + stretch`` moving at ``v_G`` (nothing held: on D)."""
+    def reset(self, t: float, held: int, p_D, stretch, v_G, v_D) -> None:
+        """Start on the scene's god-object: ``p_D + stretch`` moving at ``v_G`` (nothing held: on
+        D), the device's sample ``p_D``, ``v_D`` held from ``t`` on."""
         self.held, self.t = held, t
+        self.d, self.u = tuple(float(c) for c in p_D), tuple(float(c) for c in v_D)
         self.lag = tuple(float(c) for c in stretch) if held >= 0 else (0.0, 0.0, 0.0)
-        self.p = tuple(float(d) + e for d, e in zip(p_D, self.lag, strict=True))
-        self.v = tuple(float(c) for c in v_G) if held >= 0 else (0.0, 0.0, 0.0)
+        self.p = tuple(d + e for d, e in zip(self.d, self.lag, strict=True))
+        self.v = tuple(float(c) for c in v_G) if held >= 0 else self.u
 
     def advance(self, t: float, p_D, v_D) -> tuple:
-        """The lag at ``t`` (W, m): the device's sample ``p_D``, ``v_D`` held since the last call.
+        """The lag at ``t`` (W, m) from the device's sample ``p_D``, ``v_D`` that starts at ``t``:
+        the free god-object moved over the period since the last call with the sample given then.
         Plain floats: it runs every device period, where numpy on 3-vectors cost 20-70 µs."""
-        d0, d1, d2 = p_D.tolist() if isinstance(p_D, np.ndarray) else map(float, p_D)
-        u0, u1, u2 = v_D.tolist() if isinstance(v_D, np.ndarray) else map(float, v_D)
+        new_d = tuple(p_D.tolist()) if isinstance(p_D, np.ndarray) else tuple(map(float, p_D))
+        new_u = tuple(v_D.tolist()) if isinstance(v_D, np.ndarray) else tuple(map(float, v_D))
         if self.held is None or self.held < 0 or not t > self.t:  # nothing held: G is on D
-            self.t, self.p, self.v, self.lag = t, (d0, d1, d2), (u0, u1, u2), (0.0, 0.0, 0.0)
+            self.t, self.p, self.v, self.lag = t, new_d, new_u, (0.0, 0.0, 0.0)
+            self.d, self.u = new_d, new_u
             return self.lag
+        (d0, d1, d2), (u0, u1, u2) = self.d, self.u
         n = max(1, round((t - self.t) / self.h))
         dt, k, b, a_max = (t - self.t) / n, self.k, self.b, self.a_max
         (p0, p1, p2), (v0, v1, v2) = self.p, self.v
@@ -555,8 +566,8 @@ class FreeLag:
                 a0, a1, a2 = a0 * s, a1 * s, a2 * s
             v0, v1, v2 = v0 + dt * a0, v1 + dt * a1, v2 + dt * a2
             p0, p1, p2 = p0 + dt * v0, p1 + dt * v1, p2 + dt * v2
-        self.t, self.p, self.v = t, (p0, p1, p2), (v0, v1, v2)
-        self.lag = (p0 - d0, p1 - d1, p2 - d2)
+        self.t, self.p, self.v, self.d, self.u = t, (p0, p1, p2), (v0, v1, v2), new_d, new_u
+        self.lag = (p0 - new_d[0], p1 - new_d[1], p2 - new_d[2])
         return self.lag
 
 
@@ -666,7 +677,8 @@ class LocalModelPublisher(LeafSystem):
         if self.free is not None:
             if held != self.free.held:  # a new grasp: the free god-object starts on the scene's
                 p_WD = self._X_WD.Eval(context).translation()
-                self.free.reset(context.get_time(), held, p_WD, p_WG - pose_WT[4:], V_WG[3:])
+                V_WD = self._V_WD.Eval(context)[3:]
+                self.free.reset(context.get_time(), held, p_WD, p_WG - pose_WT[4:], V_WG[3:], V_WD)
             lag_W = np.array(self.free.lag)
         q = pose_WG[:4] / np.linalg.norm(pose_WG[:4])
         q_Dev = self._q_DevW.multiply(Quaternion(q)).wxyz()
