@@ -161,7 +161,7 @@ def run(scene: str, rate_hz: float, kd: float, local: bool, kill: bool, folder: 
         command = [sys.executable, __file__, "--serve", url, "--rate", str(rate_hz), "--kd", str(kd),
                    "--seconds", str(seconds + 3)]  # fmt: skip
     else:
-        hand, command = lego_command(url, rate_hz, kd, folder)
+        hand, command = lego_command(url, rate_hz, kd, folder, scene)
         env["GODOBJECT_TEST_SCENE_HZ"] = str(rate_hz)
         seconds = hand["waypoints"][-1]["t"] + 0.5
     (folder / "hand.json").write_text(json.dumps(hand))
@@ -270,24 +270,26 @@ def measure(rows, info, hand, t_kill, rate_hz) -> dict:
 # -- the brick scene -----------------------------------------------------------------------------------------
 
 
-def lego_command(url: str, rate_hz: float, kd: float, folder: Path):
-    """The brick scene as a process (diagrams/lego.yaml, device !Lcm on ``url``) and a hand that
-    grasps brick_0, carries it to the wall, presses 2.5 cm past the contact, holds, comes back
-    (tests/test_driver.py's frame: the device turned 90° about z, its −y the world's +x)."""
+def lego_command(url: str, rate_hz: float, kd: float, folder: Path, scene: str = "lego"):
+    """The brick scene as a process (diagrams/lego.yaml, device !Lcm on ``url``; ``lego_haptic``:
+    the haptic recipe, diagrams/lego_haptic.yaml, h = 5 ms and the implicit coupling, its device
+    sampled at the recipe's 200 Hz) and a hand that grasps brick_0, carries it to the wall, presses
+    2.5 cm past the contact, holds, comes back (tests/test_driver.py's frame: the device turned 90°
+    about z, its −y the world's +x)."""
     sys.path.insert(0, str(REPO / "tests"))
     from godobject_drake.config import scenario as sc
 
     yaml = f"""
 device: !Lcm
   url: {url}
-  rate_hz: 1000.0
+{"  rate_hz: 1000.0" if scene == "lego" else ""}
   start_xyz: [-0.10, 0.0, 0.0048]
   device_to_world: {{xyz: [-0.05, 0.0, 0.02], rpy_deg: [0, 0, 90.0]}}
 feedback: {{kd: {kd}}}
 simulation: {{duration_s: 600}}
 """
     scenario = folder / "scene.yaml"
-    scenario.write_text(sc.scenario_to_yaml(sc.load_scenario(REPO / "diagrams" / "lego.yaml", yaml)))
+    scenario.write_text(sc.scenario_to_yaml(sc.load_scenario(REPO / "diagrams" / f"{scene}.yaml", yaml)))
     metrics = folder / "metrics.json"
     contact_y = -0.030  # where brick_0 meets the wall (device y, m), read from a driver log
     press, out = contact_y - 0.025, contact_y + 0.01
@@ -329,7 +331,7 @@ simulation: {{duration_s: 600}}
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scene", choices=("scripted", "lego"), default="scripted")
+    p.add_argument("--scene", choices=("scripted", "lego", "lego_haptic"), default="scripted")
     p.add_argument("--rates", type=float, nargs="+", default=[1000, 200, 100, 30])
     p.add_argument("--kds", type=float, nargs="+", default=[50, 200, 1000])
     p.add_argument("--baseline", action="store_true", help="also run the driver on the held wrench")

@@ -512,22 +512,25 @@ class FreeLag:
 
     The coupling pulls the held body by ``a = ωn² (p_T − p) + 2 ζ ωn (v_T − v)`` (per unit mass,
     gravity compensated, ``|a| ≤ ωn² max_stretch_m`` as its force cap); this integrates that law
-    for a body nothing touches, as Drake steps a free body (symplectic Euler at the plant's step
-    ``h``), over each device period with the sample the coupling held over it: the one given at
-    the period's start. Drake has the device's new sample on its output when the publisher runs
-    at ``t`` (measured: a free brick carried at 0.35 m/s had ``p_G − p_T`` 0 in the scene and
-    0.35 mm, one sample's motion, in a twin that took the sample at ``t`` for the period before
-    it), so :meth:`advance` is given the sample that starts at ``t`` and moves on with the one
-    before. It follows the device point D (the target is D carried by the grasp offset: the same
-    lag while the device does not turn). Where the scene's body touches nothing it moves the same
-    way, so ``p_G − p_T − lag`` is about zero however fast the target moved in simulated time (a
-    scene at a tenth of real time sees a 6 cm/s hand at 60 cm/s, and its god-object lags
-    millimetres: drag a hand would feel); where a contact held it back, the difference is what
-    the contact did. :meth:`reset` on each change of held body (to the god-object's stretch and
-    velocity)."""
+    for a body nothing touches as Drake steps it at the plant's step ``h``: symplectic Euler for
+    the explicit coupling (an applied force), backward Euler for the implicit one (``implicit``:
+    SAP steps its springs), over each device period with the sample the coupling held over it.
+    In Drake that is the sample a publish event at the period's *start* reads (measured: a free
+    brick carried at 0.35 m/s had ``p_G − p_T`` 0 in the scene and 0.35 mm, one sample's motion,
+    in a twin that used the sample read at ``t`` for the period before ``t``), so :meth:`advance`
+    is given the sample read at ``t`` and moves on with the one read at the call before. It
+    follows the device point D (the target is D carried by the grasp offset: the same lag while
+    the device does not turn). Where the scene's body touches nothing it moves the same way, so
+    ``p_G − p_T − lag`` is about zero however fast the target moved in simulated time (a scene at
+    a tenth of real time sees a 6 cm/s hand at 60 cm/s, and its god-object lags millimetres: drag
+    a hand would feel); where a contact held it back, the difference is what the contact did.
+    :meth:`reset` on each change of held body (to the god-object's stretch and velocity)."""
 
-    def __init__(self, omega_n2: float, two_zeta_omega: float, max_stretch_m: float, step_s: float):
+    def __init__(
+        self, omega_n2: float, two_zeta_omega: float, max_stretch_m: float, step_s: float, implicit=False
+    ):
         self.k, self.b, self.h = float(omega_n2), float(two_zeta_omega), float(step_s)
+        self.implicit = bool(implicit)  # the implicit coupling's springs: backward Euler, as SAP steps them
         self.a_max = self.k * float(max_stretch_m)  # inf: no cap
         self.held, self.t = None, None
         self.p = self.v = self.lag = (0.0, 0.0, 0.0)  # plain floats: this runs every device period
@@ -556,6 +559,14 @@ class FreeLag:
         n = max(1, round((t - self.t) / self.h))
         dt, k, b, a_max = (t - self.t) / n, self.k, self.b, self.a_max
         (p0, p1, p2), (v0, v1, v2) = self.p, self.v
+        if self.implicit:  # v⁺ (1 + h b + h² k) = v + h (k (d − p) + b u), p⁺ = p + h v⁺
+            den = 1.0 + dt * b + dt * dt * k
+            for _ in range(n):
+                v0 = (v0 + dt * (k * (d0 - p0) + b * u0)) / den
+                v1 = (v1 + dt * (k * (d1 - p1) + b * u1)) / den
+                v2 = (v2 + dt * (k * (d2 - p2) + b * u2)) / den
+                p0, p1, p2 = p0 + dt * v0, p1 + dt * v1, p2 + dt * v2
+            n = 0
         for _ in range(n):
             a0 = k * (d0 - p0) + b * (u0 - v0)
             a1 = k * (d1 - p1) + b * (u1 - v1)
@@ -624,7 +635,8 @@ class LocalModelPublisher(LeafSystem):
         self.free = None
         if hasattr(coupling, "_wn2"):  # a rigid coupling (explicit or implicit): its gains
             step = min(plant.time_step(), device.period_s) if plant.time_step() > 0 else device.period_s
-            self.free = FreeLag(coupling._wn2, coupling._2zwn, coupling.max_stretch_m, step)
+            implicit = getattr(coupling, "integrates_implicitly", False)
+            self.free = FreeLag(coupling._wn2, coupling._2zwn, coupling.max_stretch_m, step, implicit)
 
     def _to_dev(self, p_W) -> tuple:
         return tuple((self._R_DevW @ (np.asarray(p_W) - self._p_WDev)) / self._scale)

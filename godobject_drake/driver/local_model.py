@@ -87,13 +87,12 @@ def project(y: np.ndarray, planes, kd: float) -> np.ndarray:
     for _ in range(SWEEPS if len(planes) > 1 else 1):
         for i, (point, normal, stiffness) in enumerate(planes):
             depth = -float(np.dot(normal, x - point))
-            ratio = 0.0 if math.isinf(stiffness) or kd == 0.0 else kd / stiffness
+            ratio = kd / stiffness  # a rigid plane (inf) or no spring (kd 0): 0
             # the change of push u − pushed with depth − (u − pushed) = ratio · u (balanced against
             # this plane alone; a rigid plane: the depth), never below a push of zero
             change = max(-pushed[i], (depth - ratio * pushed[i]) / (1.0 + ratio))
-            if change != 0.0:
-                x = x + change * np.asarray(normal)
-                pushed[i] += change
+            x = x + change * np.asarray(normal)
+            pushed[i] += change
     return x
 
 

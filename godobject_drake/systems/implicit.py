@@ -218,6 +218,10 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
     computed when read (the feedback port and the drawing read them at their own rates).
     """
 
+    # SAP integrates its springs by backward Euler: what a twin of the coupling (the scene's free
+    # lag, godobject_drake.devices.lcm.FreeLag) integrates it with
+    integrates_implicitly = True
+
     def __init__(
         self,
         plant: MultibodyPlant,
