@@ -5,6 +5,7 @@ the scene's publication rate (Hz of wall time) and the feedback gain ``kd``.
 
     python analysis/local_model_bench.py                       # scripted wall scene, full table
     python analysis/local_model_bench.py --scene lego --rates 1000 30 --kds 200
+    python analysis/local_model_bench.py --scene lego_haptic --rates 200 30   # the haptic recipe
     python analysis/local_model_bench.py --baseline            # also the held wrench (before)
 
 Two scenes:
@@ -18,7 +19,8 @@ Two scenes:
 - ``lego``: the brick scene (diagrams/lego.yaml, ``python -m godobject_drake run``, device
   ``!Lcm`` on ``udp://``) throttled by the test-only ``GODOBJECT_TEST_SCENE_HZ``; the hand
   grasps brick_0, carries it into the wall and presses, holds, comes back (the contact found
-  from the driver's own log).
+  from the driver's own log); ``lego_haptic``: the same on the haptic recipe
+  (diagrams/lego_haptic.yaml: h = 5 ms, the implicit coupling, the device at its 200 Hz).
 
 For each run: the work the device did on the hand over press, hold and release (mJ, from the
 driver's log: each period's rendered force times the handle's move over the period, the force
@@ -348,8 +350,9 @@ def main(argv=None) -> int:
     if args.serve:
         serve(args.serve, os.environ["GODOBJECT_LINK_KEY"], args.rate, args.kd, args.seconds)
         return 0
-    label = ("SCRIPTED wall scene (not Drake: a god-object at ω 40 rad/s against a rigid wall)"
-             if args.scene == "scripted" else "the brick scene (diagrams/lego.yaml, Drake)")  # fmt: skip
+    label = f"the brick scene (diagrams/{args.scene}.yaml, Drake)"
+    if args.scene == "scripted":
+        label = "SCRIPTED wall scene (not Drake: a god-object at ω 40 rad/s against a rigid wall)"
     rt = f"driver --rt-priority {args.rt_priority}" if args.rt_priority else "driver on the normal scheduler"
     print(f"local model benchmark: {label}; {rt}; {machine()}")
     header = (f"{'driver':13s} {'scene Hz':>8s} {'kd':>6s} {'work mJ':>8s} {'ripple N':>9s} {'p1-p99':>7s} "

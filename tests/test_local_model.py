@@ -280,13 +280,14 @@ def test_a_soft_plane_lets_the_proxy_in_by_kd_over_kd_plus_s_at_any_kd():
 
 
 def test_the_proxy_is_a_new_float_array_whatever_it_is_given():
-    """Integer millimetres in, no plane reached: the same point back as floats, in a new array
-    (the caller's is never changed)."""
+    """Integer coordinates in, no plane or none reached: the same point back as floats, in a new
+    array (the caller's is never changed)."""
     y = np.array([1, 2, 3])
-    x = project(y, [WALL], 200.0)
-    assert x.dtype == np.float64 and x.tolist() == [1.0, 2.0, 3.0] and x is not y
-    x[0] = 5.0
-    assert y.tolist() == [1, 2, 3]
+    for planes in ([], [WALL]):  # no plane published (free space), or one not entered
+        x = project(y, planes, 200.0)
+        assert x.dtype == np.float64 and x.tolist() == [1.0, 2.0, 3.0] and x is not y
+        x[0] = 5.0
+        assert y.tolist() == [1, 2, 3]
 
 
 def test_a_soft_plane_lets_the_proxy_in_as_far_with_a_plane_it_never_reaches():
