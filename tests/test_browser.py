@@ -133,9 +133,10 @@ def test_recording_plays_at_real_speed(browser, tmp_path):
     page.close()
 
 
-def test_live_page_grasps_lifts_and_stops_the_run(browser, tmp_path):
-    """The brick scene live: open the controls, click Grasp, raise the target with the O key
-    (z up, 2 mm a press), click Stop. The run stops early with the brick lifted into free space."""
+def start_live_lego(tmp_path):
+    """The brick scene live (``--device meshcat``, 60 s at most) in a process of its own:
+    ``(process, metrics file, the stderr lines read, the live page's URL)``. The URL is None if
+    the run never printed it within 60 s; the process is killed if reading its output fails."""
     metrics = tmp_path / "m.json"
     scene = str(REPO / "diagrams" / "lego.yaml")
     command = [sys.executable, "-m", "godobject_drake", "run", scene, "--device", "meshcat",
@@ -143,14 +144,25 @@ def test_live_page_grasps_lifts_and_stops_the_run(browser, tmp_path):
     proc = subprocess.Popen(
         command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
     )
+    lines, url = [], None
     try:
-        url = None
         deadline = time.monotonic() + 60
         while url is None and time.monotonic() < deadline:
-            line = proc.stderr.readline()
-            found = re.search(r"(http://localhost:\d+)", line)
+            lines.append(proc.stderr.readline())
+            found = re.search(r"(http://localhost:\d+)", lines[-1])
             url = found.group(1) if found else None
-        assert url, "the live run never printed its Meshcat URL"
+    except BaseException:
+        proc.kill()
+        raise
+    return proc, metrics, lines, url
+
+
+def test_live_page_grasps_lifts_and_stops_the_run(browser, tmp_path):
+    """The brick scene live: open the controls, click Grasp, raise the target with the O key
+    (z up, 2 mm a press), click Stop. The run stops early with the brick lifted into free space."""
+    proc, metrics, lines, url = start_live_lego(tmp_path)
+    try:
+        assert url, f"the live run never printed its Meshcat URL: {lines}"
         page = browser.new_page(viewport=VIEW)
         page.goto(url)
         page.get_by_text("Open Controls").click()

@@ -6,8 +6,6 @@ shows, in real Chromium, what a ``file://`` page does to a live run."""
 
 import json
 import re
-import subprocess
-import sys
 import time
 
 import pytest
@@ -104,26 +102,15 @@ def test_a_file_page_reads_grasps_lifts_and_stops_a_live_run(tmp_path):
     """What a ``file://`` page can do to the live page, in headless Chromium: connect to its
     websocket, receive the scene, grasp the nearest brick, raise the z slider and stop the run. The
     run ends stopped by that page with the brick lifted; its first line had said any page can."""
-    from test_browser import ARGS, CHROMIUM
+    from test_browser import ARGS, CHROMIUM, start_live_lego
 
     playwright = pytest.importorskip("playwright.sync_api")
     if not __import__("pathlib").Path(CHROMIUM).is_file():
         pytest.skip(f"no Chromium at {CHROMIUM}")
-    metrics = tmp_path / "m.json"
-    scene = str(REPO / "diagrams" / "lego.yaml")
-    command = [sys.executable, "-m", "godobject_drake", "run", scene, "--device", "meshcat",
-               "--duration", "60", "--metrics", str(metrics), "--no-progress"]  # fmt: skip
-    proc = subprocess.Popen(
-        command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-    )
+    proc, metrics, lines, url = start_live_lego(tmp_path)
     try:
-        lines, port = [], None
-        deadline = time.monotonic() + 60
-        while port is None and time.monotonic() < deadline:
-            lines.append(proc.stderr.readline())
-            found = re.search(r"http://localhost:(\d+)", lines[-1])
-            port = found.group(1) if found else None
-        assert port, f"the live run never printed its Meshcat URL: {lines}"
+        assert url, f"the live run never printed its Meshcat URL: {lines}"
+        port = url.rsplit(":", 1)[1]
         assert lines[0].startswith("WARNING: the live page takes commands from ANY web page"), lines
         attack = tmp_path / "elsewhere.html"
         attack.write_text(ATTACK.replace("PORT", port))
