@@ -863,6 +863,21 @@ def test_the_free_lag_follows_the_coupling_law_for_a_free_god_object():
     assert capped.v[1:] == (0.0, 0.0)
 
 
+def _carry(rate_hz: float) -> str:
+    """A brick scene's device, scripted: grasp brick_0 where it rests, lift it 1.5 cm at 5.1 cm/s,
+    carry it toward the wall at 35 cm/s, sampled at ``rate_hz``; 0.52 s (before it reaches the wall)."""
+    return f"""
+device: !Scripted
+  path: ""
+  rate_hz: {rate_hz}
+  waypoints:
+  - {{t: 0.0, xyz: [-0.10, 0.0, 0.0048], rpy_deg: [0, 0, 0], grasp: brick_0}}
+  - {{t: 0.3, xyz: [-0.10, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}}
+  - {{t: 0.7, xyz: [0.04, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}}
+simulation: {{duration_s: 0.52}}
+"""
+
+
 def test_the_free_lag_is_the_brick_scenes_own_stretch_while_it_touches_nothing():
     """The brick scene in Drake (h = 1 ms, the explicit coupling, ω 40 rad/s): the device grasps
     brick_0, lifts it at 5.1 cm/s and carries it toward the wall at 35 cm/s (what a 6 cm/s hand is
@@ -879,16 +894,7 @@ def test_the_free_lag_is_the_brick_scenes_own_stretch_while_it_touches_nothing()
     from godobject_drake.station.build import build_station
     from godobject_drake.systems.coupling import TERMS_LAYOUT
 
-    path = """
-device: !Scripted
-  path: ""
-  rate_hz: 1000.0
-  waypoints:
-  - {t: 0.0, xyz: [-0.10, 0.0, 0.0048], rpy_deg: [0, 0, 0], grasp: brick_0}
-  - {t: 0.3, xyz: [-0.10, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}
-  - {t: 0.7, xyz: [0.04, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}
-simulation: {duration_s: 0.52}
-"""
+    path = _carry(rate_hz=1000.0)
     station = build_station(sc.load_scenario(REPO / "diagrams" / "lego.yaml", path))
     simulator = Simulator(station.diagram)
     simulator.AdvanceTo(0.52)
@@ -924,16 +930,7 @@ def test_the_implicit_free_lag_is_the_haptic_recipes_own_stretch_to_a_fiftieth()
     from godobject_drake.systems.coupling import TERMS_LAYOUT
     from godobject_drake.systems.implicit import STATE_LAYOUT, implicit_terms
 
-    path = """
-device: !Scripted
-  path: ""
-  rate_hz: 200.0
-  waypoints:
-  - {t: 0.0, xyz: [-0.10, 0.0, 0.0048], rpy_deg: [0, 0, 0], grasp: brick_0}
-  - {t: 0.3, xyz: [-0.10, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}
-  - {t: 0.7, xyz: [0.04, 0.0, 0.020], rpy_deg: [0, 0, 0], grasp: brick_0}
-simulation: {duration_s: 0.52}
-"""
+    path = _carry(rate_hz=200.0)
     station = build_station(sc.load_scenario(REPO / "diagrams" / "lego_haptic.yaml", path))
     tool, plant = station.god_object, station.plant
     simulator = Simulator(station.diagram)
