@@ -559,24 +559,26 @@ class FreeLag:
         n = max(1, round((t - self.t) / self.h))
         dt, k, b, a_max = (t - self.t) / n, self.k, self.b, self.a_max
         (p0, p1, p2), (v0, v1, v2) = self.p, self.v
-        if self.implicit:  # v⁺ (1 + h b + h² k) = v + h (k (d − p) + b u), p⁺ = p + h v⁺
+        if self.implicit:
+            # v⁺ (1 + h b + h² k) = v + h (k (d − p) + b u), p⁺ = p + h v⁺; the implicit coupling
+            # caps the stretch (its target within max_stretch_m), which a free body never reaches
             den = 1.0 + dt * b + dt * dt * k
             for _ in range(n):
                 v0 = (v0 + dt * (k * (d0 - p0) + b * u0)) / den
                 v1 = (v1 + dt * (k * (d1 - p1) + b * u1)) / den
                 v2 = (v2 + dt * (k * (d2 - p2) + b * u2)) / den
                 p0, p1, p2 = p0 + dt * v0, p1 + dt * v1, p2 + dt * v2
-            n = 0
-        for _ in range(n):
-            a0 = k * (d0 - p0) + b * (u0 - v0)
-            a1 = k * (d1 - p1) + b * (u1 - v1)
-            a2 = k * (d2 - p2) + b * (u2 - v2)
-            norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            if norm > a_max:
-                s = a_max / norm
-                a0, a1, a2 = a0 * s, a1 * s, a2 * s
-            v0, v1, v2 = v0 + dt * a0, v1 + dt * a1, v2 + dt * a2
-            p0, p1, p2 = p0 + dt * v0, p1 + dt * v1, p2 + dt * v2
+        else:
+            for _ in range(n):
+                a0 = k * (d0 - p0) + b * (u0 - v0)
+                a1 = k * (d1 - p1) + b * (u1 - v1)
+                a2 = k * (d2 - p2) + b * (u2 - v2)
+                norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+                if norm > a_max:
+                    s = a_max / norm
+                    a0, a1, a2 = a0 * s, a1 * s, a2 * s
+                v0, v1, v2 = v0 + dt * a0, v1 + dt * a1, v2 + dt * a2
+                p0, p1, p2 = p0 + dt * v0, p1 + dt * v1, p2 + dt * v2
         self.t, self.p, self.v, self.d, self.u = t, (p0, p1, p2), (v0, v1, v2), new_d, new_u
         self.lag = (p0 - new_d[0], p1 - new_d[1], p2 - new_d[2])
         return self.lag
