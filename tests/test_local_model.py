@@ -293,7 +293,7 @@ def test_the_proxy_is_a_new_float_array_whatever_it_is_given():
 def test_a_soft_plane_lets_the_proxy_in_as_far_with_a_plane_it_never_reaches():
     """A plane the proxy never enters changes nothing: with a rigid floor 0.5 m away, a 600 N/m
     plane still lets it in by kd/(kd + s) = 1/4 of the 2 cm (before: the passes for several
-    planes let it in by a quarter of a quarter ..., 8 times: the force 2.0 N, not 1.5 N)."""
+    planes let it in by a quarter of a quarter ..., 8 times: the force 4.0 N, not 3.0 N)."""
     soft = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 600.0)
     floor = ((0.0, 0.0, -0.5), (0.0, 0.0, 1.0), INF)
     y = np.array([-0.02, 0.0, 0.0])
