@@ -94,6 +94,7 @@ import stat
 import struct
 import sys
 import tempfile
+import threading
 import time
 import urllib.parse
 from collections.abc import Callable
@@ -695,6 +696,9 @@ class UdpLcm:
         self.url = f"{SCHEME}://{bind[0]}:{self.port}"  # where it listens (the port picked, if 0)
         self._handlers: dict[str, list[Callable[[bytes], None]]] = {}
         self.key_file: Path | None = None
+        # a scene's heartbeat thread publishes beside its main loop: sealing (the session's
+        # counter) and sending are one step under this lock, so datagrams leave in counter order
+        self._lock = threading.Lock()
 
     @staticmethod
     def _address(url: str) -> tuple[str, int]:
@@ -756,9 +760,10 @@ class UdpLcm:
         self._handlers.setdefault(channel, []).append(handler)
 
     def Publish(self, channel: str, buffer: bytes, time_sec=None) -> None:
-        datagram = self.end.seal(channel, bytes(buffer))
-        if datagram is not None:
-            self._send(datagram, self.end.peer)
+        with self._lock:
+            datagram = self.end.seal(channel, bytes(buffer))
+            if datagram is not None:
+                self._send(datagram, self.end.peer)
 
     def _send(self, datagram: bytes, address) -> None:
         try:
@@ -774,9 +779,10 @@ class UdpLcm:
         channel's handlers; waits up to ``timeout_millis`` for the first only if none is
         waiting. A driver says HELLO first when it has to. Returns how many were handled."""
         if isinstance(self.end, DriverEnd):
-            hello = self.end.hello(self.clock())
-            if hello is not None:
-                self._send(hello, self.end.peer)
+            with self._lock:
+                hello = self.end.hello(self.clock())
+                if hello is not None:
+                    self._send(hello, self.end.peer)
         handled = 0
         self.sock.settimeout(max(timeout_millis, 0) * 1e-3)  # 0: do not wait
         try:
@@ -787,13 +793,14 @@ class UdpLcm:
                     break
                 finally:
                     self.sock.setblocking(False)
-                self.counts["udp_received"] += 1
-                if isinstance(self.end, DriverEnd):
-                    message, reply = self.end.receive(datagram, sender, self.clock())
-                else:
-                    message, reply = self.end.receive(datagram, sender)
-                if reply is not None:
-                    self._send(reply, sender)
+                with self._lock:
+                    self.counts["udp_received"] += 1
+                    if isinstance(self.end, DriverEnd):
+                        message, reply = self.end.receive(datagram, sender, self.clock())
+                    else:
+                        message, reply = self.end.receive(datagram, sender)
+                    if reply is not None:
+                        self._send(reply, sender)
                 if message is None:
                     continue
                 for handler in self._handlers.get(message[0], ()):
@@ -921,3 +928,30 @@ def parse_local_model(raw: bytes) -> LocalModel:
             raise LocalModelError(f"local model: plane {i} stiffness {stiffness!r} must be > 0 (inf: rigid)")
         planes.append((point, normal, stiffness))
     return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, lag, tuple(planes))
+
+
+# -- the scene's word that it is alive (issue 44) -----------------------------------------------------------
+
+ALIVE_CHANNEL = "GODOBJECT_LOCAL_MODEL_ALIVE"
+ALIVE_MAGIC = b"GLA1"
+_ALIVE = struct.Struct(">4sq")  # the magic, then the scene time (µs) of the newest model sent
+
+
+def alive_message(scene_utime: int) -> bytes:
+    """The scene's heartbeat: it is alive and its newest model (``scene_utime``) still stands
+    (devices/lcm.py ``SceneHeartbeat``, docs/local_model.md "Validity")."""
+    return _ALIVE.pack(ALIVE_MAGIC, int(scene_utime))
+
+
+def parse_alive(raw: bytes) -> int:
+    """The model time a heartbeat vouches for (µs), or :class:`LocalModelError` naming the
+    length, the magic or the time that is wrong."""
+    raw = bytes(raw)
+    if len(raw) != _ALIVE.size:
+        raise LocalModelError(f"scene heartbeat: {len(raw)} bytes; expected {_ALIVE.size}")
+    magic, scene_utime = _ALIVE.unpack(raw)
+    if magic != ALIVE_MAGIC:
+        raise LocalModelError(f"scene heartbeat: magic {magic!r}, not {ALIVE_MAGIC!r}")
+    if scene_utime < 0:
+        raise LocalModelError(f"scene heartbeat: time {scene_utime} µs must be ≥ 0")
+    return scene_utime
