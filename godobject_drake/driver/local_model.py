@@ -49,10 +49,14 @@ zero (``E_v < −1 µJ``: nothing would be rendered until it is repaid), a dampe
 ``α = deficit/(|v|² T)`` (at most :data:`MAX_DAMPING`) against the handle's velocity ``v`` asks
 it back over the next period: at a steady press it is Colgate's ``kd T / 2``.
 
-**Validity**: a model holds fully for ``2 gap + 25 ms`` after it arrived (``gap``: the scene's
-period, its stated one or the median of the last 16 intervals between models when longer, at
-most :data:`MAX_GAP_S`), then fades linearly to zero at ``3 gap + 50 ms``: a scene killed
-between two messages leaves no force after that. Each fade to zero is a watchdog trip.
+**Validity**: a model holds fully for ``2 gap + 25 ms`` after the scene's last word about it
+(``gap``: the scene's period, its stated one or the median of the last 16 intervals between
+models when longer, at most :data:`MAX_GAP_S`), then fades linearly to zero at ``3 gap + 50
+ms``: a scene killed between two messages leaves no force after that. The scene's last word is
+the model's arrival, or a later heartbeat naming that model's time (:meth:`alive`: the scene's
+loop is held up, by a fold of its logs or a long step, and the model stands; the scene stops
+vouching for a model :data:`~godobject_drake.devices.lcm.STALL_LIMIT_S` after sending it). Each
+fade to zero is a watchdog trip.
 """
 
 from __future__ import annotations
@@ -109,6 +113,8 @@ class LocalRenderer:
     def __init__(self):
         self.model: LocalModel | None = None
         self.arrived = -math.inf
+        self.alive_at = -math.inf  # the newest heartbeat naming the model's time
+        self.beats = 0  # heartbeats taken
         self.gaps: deque = deque(maxlen=16)
         self.planes: list = []
         self.offset = np.zeros(3)  # o: the stretch no plane explains
@@ -152,6 +158,14 @@ class LocalRenderer:
                     stretch = stretch - along * normal
         self.offset = stretch if kd > 0 else np.zeros(3)
 
+    def alive(self, scene_utime: int, arrived: float) -> None:
+        """The scene's heartbeat of ``arrived``: alive, its newest model of ``scene_utime``
+        standing. Holds the model as its arrival would, if it names the model rendered (a
+        heartbeat for another model, one lost or not yet here, holds nothing)."""
+        if self.model is not None and scene_utime == self.model.scene_utime:
+            self.alive_at = max(self.alive_at, float(arrived))
+            self.beats += 1
+
     def gap(self) -> float:
         """The scene's period (s): its stated one, or the median of the last 16 intervals between
         its models when longer (a scene slower than it says), at most :data:`MAX_GAP_S`."""
@@ -161,15 +175,17 @@ class LocalRenderer:
         return min(max(seen, self.model.period_s), MAX_GAP_S)
 
     def fade_end(self) -> float:
-        """How long after its arrival the newest model is rendered at all (s): ``3 gap + 50 ms``."""
+        """How long after the scene's last word the newest model is rendered at all (s):
+        ``3 gap + 50 ms``."""
         return END_GAPS * self.gap() + END_EXTRA_S
 
     def validity(self, now: float) -> float:
-        """The model's weight at ``now``: 1 until ``2 gap + 25 ms`` after it arrived, then linear
-        to 0 at ``3 gap + 50 ms``; 0 with no model. Counts a trip at each fall to 0."""
+        """The model's weight at ``now``: 1 until ``2 gap + 25 ms`` after the scene's last word
+        (its arrival or a later heartbeat), then linear to 0 at ``3 gap + 50 ms``; 0 with no
+        model. Counts a trip at each fall to 0."""
         if self.model is None:
             return 0.0
-        gap, age = self.gap(), now - self.arrived
+        gap, age = self.gap(), now - max(self.arrived, self.alive_at)
         hold, end = HOLD_GAPS * gap + HOLD_EXTRA_S, self.fade_end()
         weight = 1.0 if age <= hold else 0.0 if age >= end else (end - age) / (end - hold)
         valid = weight > 0.0

@@ -27,9 +27,11 @@ Each device period the loop:
 3. computes the force: from the scene's newest **local model** once one is heard (a scene of
    this version publishes one after each step, on ``GODOBJECT_LOCAL_MODEL``): the spring to a
    proxy kept out of the model's planes, with the handle's pose read this period, paid for by
-   an energy budget, valid for 2 scene periods + 25 ms and faded to zero at 3 scene periods +
-   50 ms (:mod:`~godobject_drake.driver.local_model`, docs/local_model.md; the watchdog below
-   is then the model's validity); else (an older scene, or ``--no-local-model``) the newest
+   an energy budget, valid for 2 scene periods + 25 ms after the scene's last word about it
+   (the model, or a heartbeat naming it on ``GODOBJECT_LOCAL_MODEL_ALIVE`` while the scene's
+   loop is held up) and faded to zero at 3 scene periods + 50 ms
+   (:mod:`~godobject_drake.driver.local_model`, docs/local_model.md; the watchdog below is
+   then the model's validity); else (an older scene, or ``--no-local-model``) the newest
    feedback wrench (``lcmt_force_torque``, already in the device's frame: the scene maps it),
    held. Either is rendered through :class:`ForceSafety`:
 
@@ -79,6 +81,7 @@ from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, Han
 from godobject_drake.driver.local_model import LocalRenderer
 from godobject_drake.driver.safety import FeedbackGate, ForceSafety
 from godobject_drake.protocol import (
+    ALIVE_CHANNEL,
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
@@ -94,6 +97,7 @@ from godobject_drake.protocol import (
     driver_lcm,
     is_udp_url,
     key_fingerprint,
+    parse_alive,
     parse_local_model,
     pose_message,
     status_message,
@@ -194,6 +198,7 @@ class Driver:
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
         if local_model:
             lcm.Subscribe(LOCAL_MODEL_CHANNEL, self._on_local_model)
+            lcm.Subscribe(ALIVE_CHANNEL, self._on_alive)
 
     POSES_KEPT = 4096  # 4 s at 1 kHz: the pose a local model was computed from is looked up here
 
@@ -214,6 +219,16 @@ class Driver:
         if not self.heard_scene:
             self.heard_scene = True
             self.device.on_scene()
+
+    def _on_alive(self, raw: bytes) -> None:
+        try:
+            scene_utime = parse_alive(raw)
+        except LocalModelError:
+            self.bad_local_models += 1
+            self.counts["bad_feedback"] += 1
+            return
+        now = time.monotonic() if self._arrived_after is None else self._arrived_after
+        self.local.alive(scene_utime, now)
 
     def _on_feedback(self, raw: bytes) -> None:
         from drake import lcmt_force_torque
@@ -361,6 +376,7 @@ class Driver:
             "feedback_gap": self.gaps.summary(),
             "local_model": {
                 "models": self.local.models,
+                "heartbeats": self.local.beats,
                 "bad": self.bad_local_models,
                 "energy_in_j": self.local.energy_in,
                 "unpaid_j": self.local.unpaid,
