@@ -66,12 +66,13 @@ UNITS = {
     # controller, taking a model: everything of LocalRenderer but the validity), the validity (the
     # scene's period, the fade, the trips). heard and reserve are properties, which mutmut 3.8
     # leaves unmutated (it skips decorated functions); they are named for when it does not
-    "link: local model": ("protocol", None, {"parse_local_model", "_finite"}),
+    "link: local model": ("protocol", None, {"parse_local_model", "_finite", "alive_message", "parse_alive"}),
     "link: local model payload": ("protocol", "LocalModel", None),
     "driver: local model proxy": ("driver.local_model", None, {"project"}),
     "driver: energy budget": ("driver.local_model", "LocalRenderer", {
         "__init__", "heard", "take", "proxy", "request", "_environment", "_account", "rendered", "reserve"}),
-    "driver: local model validity": ("driver.local_model", "LocalRenderer", {"gap", "fade_end", "validity"}),
+    "driver: local model validity": ("driver.local_model", "LocalRenderer", {"alive", "gap", "fade_end",
+                                                                              "validity"}),
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
 NAME = re.compile(r"godobject_drake\.([\w.]+?)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")

@@ -326,6 +326,56 @@ def test_the_force_is_zero_within_the_local_models_fade_after_the_scene_is_kille
     assert log["state"][-1] == "exit" and f[-1] == 0.0
 
 
+def test_a_scene_loop_held_up_keeps_the_wall_and_one_that_hangs_lets_it_go(tmp_path, monkeypatch):
+    """The scene here, the driver a process of its own, the hand pushing on the wall (as in
+    the test above). Twice the scene's loop is held up in Python, holding the interpreter (as a
+    fold of its logs does: 0.1 to 0.2 s on a loaded machine, docs/local_model.md), right after
+    it sent a model: 0.3 s at 3.0 s of scene time, then 1.5 s at 3.3 s (a loop that hangs).
+    Without a model for 0.3 s, past the model's own validity (3 scene periods + 50 ms, 62 ms
+    here), the scene's heartbeat keeps the wall: no period of the first hold-up renders zero.
+    The second: the scene stops vouching 0.5 s after its last model (STALL_LIMIT_S), and from
+    then plus the fade on the driver renders exactly zero until the loop runs again."""
+    from godobject_drake.devices import lcm
+    from godobject_drake.devices.lcm import STALL_LIMIT_S
+
+    held_up, publish = [], lcm.LocalModelPublisher._publish
+
+    def publish_held_up(self, context):
+        sent = self.published
+        publish(self, context)
+        t = context.get_time()
+        if self.published > sent and len(held_up) < 2 and t >= (3.0, 3.3)[len(held_up)]:
+            start = time.monotonic()
+            while time.monotonic() < start + (0.3, 1.5)[len(held_up)]:  # Python, never letting go
+                pass
+            held_up.append((start, time.monotonic()))
+
+    monkeypatch.setattr(lcm.LocalModelPublisher, "_publish", publish_held_up)
+    url = f"udp://127.0.0.1:{free_port()}"
+    driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
+    try:
+        result = simulate(build_station(lcm_scenario(url, 3.6)), progress=False)
+        assert driver.wait(timeout=120) == 0, driver.stderr.read()
+    finally:
+        driver.kill()
+    m = result.metrics
+    assert not m["diverged"] and len(held_up) == 2
+    log = drv.read_log(tmp_path / "driver.csv")
+    summary = json.loads((tmp_path / "driver.json").read_text())
+    f = np.linalg.norm(rendered(log), axis=1)
+    (a0, a1), (b0, b1) = held_up
+    first = (log["t"] >= a0) & (log["t"] <= a1)
+    fade_s = summary["local_model"]["fade_end_s"]
+    silent = (log["t"] >= b0 + STALL_LIMIT_S + fade_s) & (log["t"] <= b1)
+    print(f"held up 0.3 s: {first.sum()} periods, |f| {f[first].min():.3f} to {f[first].max():.3f} N, "
+          f"weight ≥ {log['weight'][first].min():.3f}; hung 1.5 s: zero from "
+          f"{log['t'][silent][0] - b0:.3f} s on ({silent.sum()} periods); heartbeats: scene "
+          f"{m['lcm_heartbeats']}, driver {summary['local_model']['heartbeats']}")  # fmt: skip
+    assert first.sum() > 100 and f[first].min() > 0.5 and log["weight"][first].min() > 0.0
+    assert silent.sum() > 100 and np.all(f[silent] == 0.0)
+    assert summary["local_model"]["heartbeats"] > 0 and m["lcm_heartbeats"] > 0
+
+
 def test_driver_status_reaches_the_scene_metrics():
     """A paired driver's counts message lands in the device's metrics as driver_*."""
     scene = scene_link()

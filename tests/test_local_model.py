@@ -29,10 +29,13 @@ from godobject_drake.driver.local_model import (
     project,
 )
 from godobject_drake.protocol import (
+    ALIVE_CHANNEL,
     LOCAL_MODEL_CHANNEL,
     MAX_PLANES,
     LocalModel,
     LocalModelError,
+    alive_message,
+    parse_alive,
     parse_local_model,
 )
 
@@ -748,6 +751,104 @@ def test_a_trip_is_counted_at_each_fall_to_zero_and_only_then():
     late = LocalRenderer()
     late.take(model(period_s=0.01), arrived=0.0)
     assert late.validity(0.5) == 0.0 and late.trips == 0
+
+
+# -- the scene's heartbeat ---------------------------------------------------------------------------------
+
+
+def test_a_heartbeat_is_read_back_as_written_and_a_wrong_one_is_refused_by_length_magic_or_time():
+    raw = alive_message(1_234_567)
+    assert len(raw) == 12 and raw[:4] == b"GLA1" and parse_alive(raw) == 1_234_567
+    assert parse_alive(alive_message(0)) == 0
+    with pytest.raises(LocalModelError, match=r"^scene heartbeat: 11 bytes; expected 12$"):
+        parse_alive(raw[:-1])
+    with pytest.raises(LocalModelError, match=r"^scene heartbeat: 13 bytes; expected 12$"):
+        parse_alive(raw + b"\0")
+    with pytest.raises(LocalModelError, match=r"^scene heartbeat: magic b'GLM2', not b'GLA1'$"):
+        parse_alive(b"GLM2" + raw[4:])
+    with pytest.raises(LocalModelError, match=r"^scene heartbeat: time -1 µs must be ≥ 0$"):
+        parse_alive(struct.pack(">4sq", b"GLA1", -1))
+    assert ALIVE_CHANNEL != LOCAL_MODEL_CHANNEL
+
+
+def test_a_heartbeat_naming_the_model_holds_it_as_its_arrival_would():
+    """A 64 Hz scene's model (hold 2/64 s + 25 ms, end 3/64 s + 50 ms, times exact in binary)
+    taken at 1 s, faded (a trip) at 1.25 s when a heartbeat naming it arrives: the model is whole
+    again, until hold after the beat,
+    fades to half half way, and is zero (one trip) just past end after it."""
+    r = LocalRenderer()
+    for k in range(5):
+        r.take(model(period_s=0.01, utime=7), arrived=1.0 - (4 - k) / 64)
+    gap = 1 / 64
+    hold, end = 2 * gap + HOLD_EXTRA_S, 3 * gap + END_EXTRA_S
+    assert r.validity(1.0 + hold) == 1.0
+    assert r.validity(1.25) == 0.0 and r.trips == 1  # past its own end: faded
+    r.alive(7, arrived=1.25)
+    assert (r.alive_at, r.beats) == (1.25, 1)
+    assert r.validity(1.25) == 1.0 and r.validity(1.25 + hold) == 1.0
+    assert r.validity(1.25 + (hold + end) / 2) == pytest.approx(0.5)
+    assert r.validity(1.25 + end + 1e-12) == 0.0 and r.trips == 2
+    assert r.gap() == gap  # a heartbeat is no model: the scene's period is the models'
+
+
+def test_a_heartbeat_for_another_model_or_before_any_holds_nothing():
+    """A beat naming an older model, a newer one (lost, or not here yet), or any before the
+    first model changes nothing; an older beat arriving after a newer one does not move the
+    scene's last word back."""
+    r = LocalRenderer()
+    r.alive(5, arrived=0.0)
+    assert (r.alive_at, r.beats, r.heard) == (-INF, 0, False)
+    r.take(model(period_s=0.01, utime=5), arrived=0.0)  # hold 45 ms, end 80 ms
+    r.alive(4, arrived=0.07)
+    r.alive(6, arrived=0.07)
+    assert (r.alive_at, r.beats) == (-INF, 0) and r.validity(0.081) == 0.0
+    r.alive(5, arrived=0.2)
+    r.alive(5, arrived=0.1)
+    assert (r.alive_at, r.beats) == (0.2, 2) and r.validity(0.2 + 0.045) == 1.0
+
+
+def test_the_scene_beats_while_its_loop_is_held_up_and_only_then():
+    """The scene's side (devices/lcm.py SceneHeartbeat, beat 5 ms, limit 0.5 s, decided on the
+    times given): no beat before a model; none while the model is younger than a beat; one at
+    each tick from 5 ms to 0.5 s after it, naming its time; none past the limit (a loop that
+    hangs is vouched for no longer); none once stopped."""
+    from godobject_drake.devices.lcm import BEAT_S, STALL_LIMIT_S, SceneHeartbeat
+
+    sent = []
+    beat = SceneHeartbeat(sent.append, clock=lambda: 0.0)
+    beat._thread = "not started"  # the decisions alone: no thread
+    assert not beat.tick(1.0) and sent == []
+    beat.model_sent(42_000, now=10.0)
+    assert not beat.tick(10.0 + BEAT_S / 2)
+    assert beat.tick(10.0 + BEAT_S) and beat.tick(10.0 + STALL_LIMIT_S)
+    assert not beat.tick(10.0 + STALL_LIMIT_S + 1e-9)
+    assert [parse_alive(raw) for raw in sent] == [42_000, 42_000] and beat.beats == 2
+    beat.model_sent(43_000, now=11.0)  # the loop goes on: a newer model, beats again
+    assert beat.tick(11.0 + BEAT_S) and parse_alive(sent[-1]) == 43_000
+    beat.stop()
+    assert not beat.tick(11.0 + 2 * BEAT_S) and beat.beats == 3
+
+
+def test_the_scenes_heartbeat_thread_speaks_while_the_main_thread_computes():
+    """The thread the first model starts beats while this (main) thread runs Python for 0.2 s
+    without a pause, as a fold of the logs does (the interpreter hands the thread its turn);
+    stopped, it ends."""
+    import time
+
+    from godobject_drake.devices.lcm import SceneHeartbeat
+
+    sent = []
+    beat = SceneHeartbeat(sent.append)
+    beat.model_sent(1, now=time.monotonic())
+    deadline = time.monotonic() + 10.0
+    while len(sent) < 3 and time.monotonic() < deadline:
+        end = time.monotonic() + 0.2
+        while time.monotonic() < end:
+            pass
+    assert len(sent) >= 3 and all(parse_alive(raw) == 1 for raw in sent)
+    beat.stop()
+    beat._thread.join(timeout=5.0)
+    assert not beat._thread.is_alive()
 
 
 # -- a closed loop: the emulated device against a slow scene's wall ---------------------------------------

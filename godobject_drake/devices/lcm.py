@@ -17,7 +17,10 @@ Messages (the ``lcmt_*`` types the drake wheel ships; README "Real devices over 
   :class:`~godobject_drake.protocol.LocalModel`, the god-object, the feedback gains and the
   contact planes near the held body, in the device's frame, every device period and at most
   every :data:`LOCAL_MODEL_MIN_PERIOD_S` of simulated time (:class:`LocalModelPublisher`;
-  docs/local_model.md): the driver renders from it at its own rate.
+  docs/local_model.md): the driver renders from it at its own rate. Between two models, while
+  the scene's loop is held up (folding its logs, a long step), a thread of its own says on
+  ``GODOBJECT_LOCAL_MODEL_ALIVE`` that the scene is alive and its newest model stands
+  (:class:`SceneHeartbeat`), for at most :data:`STALL_LIMIT_S` after that model.
 
 What arrives is checked at each device sample (:class:`LcmReceiver`), and every fault is
 counted in the metrics (:data:`LCM_STATUS_KEYS`):
@@ -62,6 +65,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 
@@ -79,6 +83,7 @@ from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGu
 from godobject_drake.config.gains import GRASP_NEAREST
 from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.protocol import (
+    ALIVE_CHANNEL,
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
@@ -90,6 +95,7 @@ from godobject_drake.protocol import (
     POSE_NAMES,
     STOP_SUFFIX,
     LocalModel,
+    alive_message,
     decode,
     parse_robot_state,
 )
@@ -305,6 +311,7 @@ class LcmDevice(DeviceSource):
             if publisher is not None:  # the local model's cost on the scene's side (issue 44)
                 counts["lcm_local_models"] = publisher.published
                 counts["lcm_local_model_ms"] = 1e3 * publisher.seconds / max(publisher.published, 1)
+                counts["lcm_heartbeats"] = publisher.heartbeat.beats  # the loop was held up: the scene spoke
         return counts
 
     def status(self, context) -> dict:
@@ -314,6 +321,9 @@ class LcmDevice(DeviceSource):
         """Publish a zero ``lcmt_force_torque`` on the feedback channel, stamped ``t``: whatever
         stopped the run (its end, Stop, a divergence, an error, a signal), the device's last
         feedback message asks for no force."""
+        publisher = getattr(self, "local_publisher", None)
+        if publisher is not None:  # a stopped scene vouches for no model
+            publisher.heartbeat.stop()
         message = lcmt_force_torque()
         message.timestamp = round(t * 1e6)
         self.lcm.Publish(self.feedback_channel, message.encode())
@@ -595,6 +605,76 @@ def plane_point(p_WG, distance: float, normal, stiffness: float) -> np.ndarray:
     return np.asarray(p_WG, float) - gap * np.asarray(normal, float)
 
 
+BEAT_S = 0.005  # s of wall time between two heartbeats while no model is sent
+STALL_LIMIT_S = 0.5  # s: a scene whose loop has sent no model for this long vouches for none
+
+
+class SceneHeartbeat:
+    """The scene's word that it is alive while its loop is held up (issue 44, docs/local_model.md
+    "Validity"): a thread of its own, every :data:`BEAT_S` of wall time, publishes
+    :func:`~godobject_drake.protocol.alive_message` with the newest model's time, when that
+    model is at least ``beat_s`` old and at most ``stall_limit_s``. The driver holds the model
+    for as long as it hears this (its validity counts from the newest of the model and its
+    heartbeats), so a loop paused by a fold of its logs or a long step (0.1 to 0.2 s on a
+    loaded machine, where the model's own validity is 3 scene periods + 50 ms) does not fade
+    the wall; a scene killed falls silent, and the fade bound holds from its last word; a loop
+    that hangs is vouched for ``stall_limit_s`` at most.
+
+    :meth:`tick` is the decision (plain arithmetic on the times given, tested exactly); the
+    thread, started by the first model, calls it. ``publish`` takes the payload."""
+
+    def __init__(
+        self,
+        publish: Callable[[bytes], None],
+        beat_s: float = BEAT_S,
+        stall_limit_s: float = STALL_LIMIT_S,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.publish, self.beat_s, self.stall_limit_s, self.clock = publish, beat_s, stall_limit_s, clock
+        self.utime: int | None = None  # the newest model's scene time (µs)
+        self.model_at = -math.inf  # when it was sent (``clock``)
+        self.beats = 0
+        self.stopped = False
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def model_sent(self, utime: int, now: float) -> None:
+        """The loop sent a model of scene time ``utime`` at ``now``; the first starts the thread."""
+        with self._lock:
+            self.utime, self.model_at = int(utime), float(now)
+        if self._thread is None and not self.stopped:
+            self._thread = threading.Thread(target=self._run, name="scene-heartbeat", daemon=True)
+            self._thread.start()
+
+    def tick(self, now: float) -> bool:
+        """Beat now if a model stands that is at least ``beat_s`` and at most ``stall_limit_s``
+        old; whether it beat."""
+        with self._lock:
+            if self.stopped or self.utime is None:
+                return False
+            age = now - self.model_at
+            if age < self.beat_s or age > self.stall_limit_s:
+                return False
+            utime = self.utime
+        self.publish(alive_message(utime))
+        self.beats += 1
+        return True
+
+    def stop(self) -> None:
+        """No more heartbeats (the scene stopped)."""
+        with self._lock:
+            self.stopped = True
+        self._wake.set()
+
+    def _run(self) -> None:
+        while not self._wake.wait(self.beat_s):
+            try:
+                self.tick(self.clock())
+            except (OSError, ValueError):  # the link closed under it: the scene is ending
+                self.stop()
+
+
 class LocalModelPublisher(LeafSystem):
     """The local model every device period, at most every :data:`LOCAL_MODEL_MIN_PERIOD_S` of
     simulated time (issue 44; docs/local_model.md):
@@ -633,6 +713,7 @@ class LocalModelPublisher(LeafSystem):
         self._stiffness: dict = {}
         self.published = 0
         self.seconds = 0.0  # spent building and sending the models (the scene's cost)
+        self.heartbeat = SceneHeartbeat(lambda raw: device.lcm.Publish(ALIVE_CHANNEL, raw))
         # the coupling's free lag (None: a coupling without the gains: no lag is left out)
         self.free = None
         if hasattr(coupling, "_wn2"):  # a rigid coupling (explicit or implicit): its gains
@@ -720,6 +801,8 @@ class LocalModelPublisher(LeafSystem):
         if skip or (throttle is not None and not throttle.due(context.get_time())):
             self.seconds += time.perf_counter() - start
             return
-        self.device.lcm.Publish(LOCAL_MODEL_CHANNEL, self.model(context).encode())
+        model = self.model(context)
+        self.device.lcm.Publish(LOCAL_MODEL_CHANNEL, model.encode())
+        self.heartbeat.model_sent(model.scene_utime, time.monotonic())
         self.seconds += time.perf_counter() - start
         self.published += 1
