@@ -333,10 +333,12 @@ def test_a_scene_loop_held_up_keeps_the_wall_and_one_that_hangs_lets_it_go(tmp_p
     it sent a model: 0.3 s at 3.0 s of scene time, then 1.5 s at 3.3 s (a loop that hangs).
     Without a model for 0.3 s, past the model's own validity (3 scene periods + 50 ms, 62 ms
     here), the scene's heartbeat keeps the wall: no period of the first hold-up renders zero.
-    The second: the scene stops vouching 0.5 s after its last model (STALL_LIMIT_S), and from
-    then plus the fade on the driver renders exactly zero until the loop runs again."""
+    The second: the wall holds through the first 0.45 s, the scene stops vouching 0.5 s after
+    its last model (STALL_LIMIT_S), and from then plus the longest fade (0.35 s) on the driver
+    renders exactly zero until the loop runs again (measured: zero from 0.57 to 0.64 s on)."""
     from godobject_drake.devices import lcm
     from godobject_drake.devices.lcm import STALL_LIMIT_S
+    from godobject_drake.driver.local_model import MAX_GAP_S
 
     held_up, publish = [], lcm.LocalModelPublisher._publish
 
@@ -365,14 +367,18 @@ def test_a_scene_loop_held_up_keeps_the_wall_and_one_that_hangs_lets_it_go(tmp_p
     f = np.linalg.norm(rendered(log), axis=1)
     (a0, a1), (b0, b1) = held_up
     first = (log["t"] >= a0) & (log["t"] <= a1)
-    fade_s = summary["local_model"]["fade_end_s"]
-    silent = (log["t"] >= b0 + STALL_LIMIT_S + fade_s) & (log["t"] <= b1)
+    # vouched for: the hang's first 0.45 s; silent: from the limit plus the longest fade a
+    # driver holds (3 × MAX_GAP_S + 50 ms: its measured period under load varies) to the end
+    vouched = (log["t"] >= b0) & (log["t"] <= b0 + STALL_LIMIT_S - 0.05)
+    silent = (log["t"] >= b0 + STALL_LIMIT_S + 3 * MAX_GAP_S + 0.05) & (log["t"] <= b1)
+    hung = (log["t"] >= b0) & (log["t"] <= b1)
     print(f"held up 0.3 s: {first.sum()} periods, |f| {f[first].min():.3f} to {f[first].max():.3f} N, "
           f"weight ≥ {log['weight'][first].min():.3f}; hung 1.5 s: zero from "
-          f"{log['t'][silent][0] - b0:.3f} s on ({silent.sum()} periods); heartbeats: scene "
+          f"{log['t'][hung & (f == 0.0)][0] - b0:.3f} s on; heartbeats: scene "
           f"{m['lcm_heartbeats']}, driver {summary['local_model']['heartbeats']}")  # fmt: skip
-    assert first.sum() > 100 and f[first].min() > 0.5 and log["weight"][first].min() > 0.0
-    assert silent.sum() > 100 and np.all(f[silent] == 0.0)
+    assert first.sum() > 50 and f[first].min() > 0.5 and log["weight"][first].min() > 0.0
+    assert vouched.sum() > 50 and f[vouched].min() > 0.5
+    assert silent.sum() > 50 and np.all(f[silent] == 0.0)
     assert summary["local_model"]["heartbeats"] > 0 and m["lcm_heartbeats"] > 0
 
 
