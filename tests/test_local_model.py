@@ -827,12 +827,15 @@ def test_the_scene_beats_while_its_loop_is_held_up_and_only_then():
     assert beat.tick(11.0 + BEAT_S) and parse_alive(sent[-1]) == 43_000
     beat.stop()
     assert not beat.tick(11.0 + 2 * BEAT_S) and beat.beats == 3
+    beat.model_sent(44_000, now=20.0)  # the same scene run again: it vouches again
+    assert beat.tick(20.0 + 2 * BEAT_S) and parse_alive(sent[-1]) == 44_000
+    beat.stop()
 
 
 def test_the_scenes_heartbeat_thread_speaks_while_the_main_thread_computes():
     """The thread the first model starts beats while this (main) thread runs Python for 0.2 s
     without a pause, as a fold of the logs does (the interpreter hands the thread its turn);
-    stopped, it ends."""
+    stopped, it ends; a model after the stop (the scene run again) starts a new one."""
     import time
 
     from godobject_drake.devices.lcm import SceneHeartbeat
@@ -846,6 +849,17 @@ def test_the_scenes_heartbeat_thread_speaks_while_the_main_thread_computes():
         while time.monotonic() < end:
             pass
     assert len(sent) >= 3 and all(parse_alive(raw) == 1 for raw in sent)
+    beat.stop()
+    first = beat._thread
+    first.join(timeout=5.0)
+    assert not first.is_alive()
+    beat.model_sent(2, now=time.monotonic())  # run again: a new thread, which speaks too
+    deadline = time.monotonic() + 10.0
+    while parse_alive(sent[-1]) != 2 and time.monotonic() < deadline:
+        end = time.monotonic() + 0.2
+        while time.monotonic() < end:
+            pass
+    assert beat._thread is not first and parse_alive(sent[-1]) == 2
     beat.stop()
     beat._thread.join(timeout=5.0)
     assert not beat._thread.is_alive()

@@ -640,11 +640,18 @@ class SceneHeartbeat:
         self._thread: threading.Thread | None = None
 
     def model_sent(self, utime: int, now: float) -> None:
-        """The loop sent a model of scene time ``utime`` at ``now``; the first starts the thread."""
+        """The loop sent a model of scene time ``utime`` at ``now``; the first starts the thread,
+        and the first after a stop (the same scene run again) a new one."""
         with self._lock:
             self.utime, self.model_at = int(utime), float(now)
-        if self._thread is None and not self.stopped:
-            self._thread = threading.Thread(target=self._run, name="scene-heartbeat", daemon=True)
+            if self.stopped:
+                self.stopped, self._wake, self._thread = False, threading.Event(), None
+            start = self._thread is None
+            if start:
+                self._thread = threading.Thread(
+                    target=self._run, args=(self._wake,), name="scene-heartbeat", daemon=True
+                )
+        if start:
             self._thread.start()
 
     def tick(self, now: float) -> bool:
@@ -667,8 +674,8 @@ class SceneHeartbeat:
             self.stopped = True
         self._wake.set()
 
-    def _run(self) -> None:
-        while not self._wake.wait(self.beat_s):
+    def _run(self, wake: threading.Event) -> None:
+        while not wake.wait(self.beat_s):
             try:
                 self.tick(self.clock())
             except (OSError, ValueError):  # the link closed under it: the scene is ending
