@@ -656,20 +656,20 @@ class SceneHeartbeat:
 
     def tick(self, now: float) -> bool:
         """Beat now if a model stands that is at least ``beat_s`` and at most ``stall_limit_s``
-        old; whether it beat."""
+        old; whether it beat. Sent under the lock, so a stop returns only once a beat under way
+        has left: none follows the scene's stop message."""
         with self._lock:
             if self.stopped or self.utime is None:
                 return False
             age = now - self.model_at
             if age < self.beat_s or age > self.stall_limit_s:
                 return False
-            utime = self.utime
-        self.publish(alive_message(utime))
-        self.beats += 1
-        return True
+            self.publish(alive_message(self.utime))
+            self.beats += 1
+            return True
 
     def stop(self) -> None:
-        """No more heartbeats (the scene stopped)."""
+        """No more heartbeats (the scene stopped); a beat being sent has left when it returns."""
         with self._lock:
             self.stopped = True
         self._wake.set()
