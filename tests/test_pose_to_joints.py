@@ -235,14 +235,14 @@ def fem_press(duration_s: float):
     s = scenario("laparoscopy", "--duration", str(duration_s))
     s.organs.model = "fem"
     s.device = dk.Scripted(waypoints=[
-        Waypoint(t=0.0, xyz=[0.0, 0.0, 0.06], grasp="*"), Waypoint(t=0.3, xyz=[0.0, 0.0, 0.05], grasp="*"),
-        Waypoint(t=1.0, xyz=DOWN, grasp="*"), Waypoint(t=1.6, xyz=DOWN, grasp="*"),
+        Waypoint(t=0.0, xyz=[0.0, 0.0, 0.06], grasp="*"), Waypoint(t=0.1, xyz=DOWN, grasp="*"),
+        Waypoint(t=max(duration_s, 0.2), xyz=DOWN, grasp="*"),
     ], rate_hz=60.0)  # fmt: skip
     tissue = analyze(s, quick=True, verify=False)["tissue"]
     station = build_station(s)
     plant, tool = station.plant, station.coupling.tool
     v = plant.GetJointByName("insertion", plant.GetModelInstanceByName("grasper")).velocity_start()
-    q_end = station.device.samples(1.6)[-1]
+    q_end = station.device.samples(max(duration_s, 0.2))[-1]
     per_kd = sum(float(J[3:, v] @ J[3:, v]) for J in tool.com_jacobians(q_end))  # N/m at the tip per kd
     s.feedback.kd = tissue["tool_stiffness_n_m"] / per_kd
     return s, tissue["stiffness_n_m"]
@@ -257,18 +257,21 @@ def pressed(result):
     return F, float(np.mean(held[:, 0]))
 
 
-@pytest.mark.slow(seconds=300)
+@pytest.mark.slow(seconds=60)
 def test_the_hand_feels_the_fem_uterus_stiffness_analyze_predicts():
     """A scripted pose device presses the grasper's closed jaws straight down into the shipped
-    scene's FEM uterus and holds (:func:`fem_press`): the force the device is sent, over the
-    tissue's indentation at the hold, is the tissue's stiffness there: within 15 % of
-    ``analyze``'s. Measured: 0.5758 N over 0.952 mm, 605.0 N/m against 606.6 (−0.3 %)."""
-    s, k = fem_press(1.6)
+    scene's FEM uterus in 0.1 s and holds (:func:`fem_press`; the tissue settles within 0.2 s
+    of the arrival): the force the device is sent, over the tissue's indentation over the last
+    50 ms of 0.5 s, is the tissue's stiffness there: within 15 % of ``analyze``'s. Measured:
+    0.5756 N over 0.958 mm, 600.9 N/m against 606.6 (−0.9 %; pressed over 1 s and held to 1.6 s,
+    605.0 N/m)."""
+    s, k = fem_press(0.5)
     result = simulate(build_station(s), progress=False)
     assert not result.metrics["diverged"] and result.metrics["tool_tip_inside_tissue_steps"] == 0
     F, u = pressed(result)
     assert 0.5e-3 < u < 2e-3
     assert np.linalg.norm(F[3:5]) < 0.05 * F[5]  # up the tube (the organ's mesh tilts it by ~2 %)
+    print(f"scripted press: F {F[5]:.4g} N over {u * 1e3:.4g} mm = {F[5] / u:.4g} N/m (analyze {k:.4g})")
     assert F[5] / u == pytest.approx(k, rel=0.15), f"F = {F[5]:.4g} N, u = {u * 1e3:.4g} mm, k = {k:.4g} N/m"
 
 
