@@ -22,7 +22,7 @@ from pathlib import Path
 from godobject_drake import __version__
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import INTERPOLATIONS
-from godobject_drake.config.devices import DEVICE_KINDS, kind_of, kinds_in
+from godobject_drake.config.devices import DEVICE_KINDS, kinds_in
 from godobject_drake.config.flags import Flag, on_off
 from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
@@ -378,7 +378,12 @@ def switch_device(s: sc.Scenario, name: str, log: Path | None) -> object:
     """The scenario's device as the ``--device`` kind ``name`` of the same space (pose or joint): a new
     kind keeps the old one's sampling settings and starts where the old one starts."""
     old = s.device
-    space = kind_of(old).space
+    if s.tools:
+        raise sc.ScenarioError(
+            f"--device {name}: this scene has tools ({', '.join(s.tools)}), each with its own device: set "
+            "one with --set 'tools.NAME.device=!KIND {...}'"
+        )
+    space = sc.tool_records(s)[""].device.space
     kinds = kinds_in(space)
     if name not in kinds:
         raise sc.ScenarioError(

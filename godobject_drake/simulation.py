@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.config.devices import kind_of
-from godobject_drake.config.scenario import Scenario
+from godobject_drake.config.scenario import Scenario, tool_records
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.metrics import SceneMetrics
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
@@ -179,7 +178,8 @@ class _Run:
         duration = sim.duration_s if duration_s is None else float(duration_s)
         if not (duration > 0 and np.isfinite(duration)):
             raise ValueError(f"duration_s={duration!r} s must be > 0")
-        logged = any(kind_of(view.device).needs_log for view in scenario.per_tool().values())
+        records = station.records
+        logged = any(r.device.needs_log for r in records.values())
         if duration > sim.duration_s and logged:
             raise ValueError(
                 f"duration_s={duration!r} s is past the scenario's simulation.duration_s={sim.duration_s!r} "
@@ -193,8 +193,7 @@ class _Run:
                 "or pass build_station(..., meshcat=start_meshcat(port=0))"
             )
         live = station.live or scenario.visualization.serve
-        views = scenario.per_tool()
-        on_wall_clock = live or any(kind_of(view.device).real_time for view in views.values())
+        on_wall_clock = live or any(r.device.real_time for r in records.values())
         rate = 1.0 if on_wall_clock else (sim.realtime_rate if realtime_rate is None else realtime_rate)
         self.station, self.plant, self.god = station, station.plant, _AllTools(station)
         self.h = h = self.plant.time_step()
@@ -357,7 +356,7 @@ class _Run:
                 try:
                     own.update(tool.device_metrics(self.root))
                 except Exception as e:
-                    errors.append(f"{name + ': ' if name else ''}{type(e).__name__}: {e}")
+                    errors.append(f"{self.station.records[name].who}{type(e).__name__}: {e}")
             out[name] = own
         if len(out) == 1:
             flat = dict(out[""] if "" in out else next(iter(out.values())))
@@ -399,14 +398,14 @@ class _Run:
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
         metrics.update(self.tool_metrics(with_devices=True))
-        metrics.update(penetration_verdict(metrics, self.scenario))
+        metrics.update(penetration_verdict(metrics, self.scenario, self.station.records))
         result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
         return result
 
 
-def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
+def penetration_verdict(metrics: dict, scenario: Scenario, records: dict | None = None) -> dict:
     """The run's deepest penetration against its budget (``metrics.penetration_budget_m``): the keys
     ``penetration_budget_m`` and ``over_penetration_budget``, and a
     :class:`~godobject_drake.station.rigid_tool.PenetrationBudgetWarning` past it naming what is near
@@ -414,6 +413,8 @@ def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
     depth: a coupling ringing near its explicit limit goes deeper with no warning at build). A run
     that measures no penetration (None) gives nothing. The position baseline (``simulation.mode:
     position``, the device's pose imposed) goes into obstacles by design: the keys, no warning.
+    ``records``: the scenario's tools (:func:`~godobject_drake.config.scenario.tool_records`), made
+    here if None.
     """
     depth, budget = metrics.get("max_penetration_m"), scenario.metrics.penetration_budget_m
     if depth is None or not math.isfinite(depth):
@@ -421,7 +422,7 @@ def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
     out = {"penetration_budget_m": budget, "over_penetration_budget": bool(depth > budget)}
     if depth > budget and scenario.simulation.mode != "position":  # the baseline goes in: its point
         predicted = metrics.get("predicted_static_penetration_m")
-        near = _what_is_near_its_limit(scenario)
+        near = _what_is_near_its_limit(scenario.time_step, records or tool_records(scenario))
         said = (
             f" (the capped pull's static depth predicted at build: {predicted * 1e3:.3g} mm)"
             if predicted
@@ -436,12 +437,12 @@ def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
     return out
 
 
-def _what_is_near_its_limit(scenario: Scenario) -> str:
-    """Each tool's coupling bandwidths as a share of their explicit limit at the run's step: a gain
-    near 100 % rings, and its overshoot is what drives the god-object deeper."""
-    h, parts = scenario.time_step, []
-    for name, view in scenario.per_tool().items():
-        gains = getattr(view.god_object, "gains", None)
+def _what_is_near_its_limit(h: float, records: dict) -> str:
+    """Each tool's coupling bandwidths as a share of their explicit limit at the run's step ``h``: a
+    gain near 100 % rings, and its overshoot is what drives the god-object deeper."""
+    parts = []
+    for record in records.values():
+        gains = getattr(record.view.god_object, "gains", None)
         if not all(hasattr(gains, a) for a in ("omega_n", "omega_r", "zeta", "zeta_r")):
             continue
         for label, w, z in (
@@ -449,9 +450,7 @@ def _what_is_near_its_limit(scenario: Scenario) -> str:
             ("omega_n_rot", gains.omega_r, gains.zeta_r),
         ):
             share = w * h / explicit_limit_omega_h(z)
-            parts.append(
-                (share, f"{name + ': ' if name else ''}{label} {w:g} rad/s is at {100 * share:.4g} %")
-            )
+            parts.append((share, f"{record.who}{label} {w:g} rad/s is at {100 * share:.4g} %"))
     if not parts:
         return "Lower the time step or the coupling's gains, or stiffen the contact"
     parts.sort(reverse=True)
@@ -553,11 +552,10 @@ def wait_for_devices(station: Station, clock=time.monotonic) -> None:
     device is first heard, so starting the scene or the driver first gives the same run); saying
     so while waiting, and raising :class:`DeviceNotHeardError` naming the fix past the wait."""
     log = logging.getLogger("godobject_drake.realtime")
-    views = station.scenario.per_tool()
     for name, tool in station.tools.items():
         source = getattr(tool.source, "pose_device", tool.source)  # a pose device on a grasper: its own
         receiver = getattr(source, "receiver", None)
-        config = views[name].device
+        config = station.records[name].view.device
         wait_s = config.first_wait_s() if hasattr(config, "first_wait_s") else 0.0
         if receiver is None or wait_s <= 0 or receiver.latest is not None:
             continue
@@ -830,7 +828,7 @@ def configuration(scenario: Scenario, station: Station) -> dict:
     out = {
         "contact": scenario.contact.geometry,
         "contact_approximation": scenario.plant.discrete_contact_approximation,
-        "device": kind_of(scenario.device).name,
+        "device": station.records[next(iter(station.tools))].device.name,
         "device_rate_hz": scenario.device.rate_hz,
         "omega_n_rad_s": god.gains.omega_n,
         "omega_n_rot_rad_s": god.gains.omega_r,

@@ -34,7 +34,7 @@ class Caught(BaseException):
 
 @pytest.fixture
 def catch(monkeypatch):
-    def finish(builder, scenario, scene, tools, meshcat=None):
+    def finish(builder, scenario, scene, tools, meshcat=None, records=None):
         (god,) = tools.values()  # a scene of one tool: its tool, by the name ""
         raise Caught(scenario, god)
 

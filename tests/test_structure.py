@@ -215,3 +215,30 @@ def loaded_after(statement: str) -> list[str]:
 def test_what_a_part_loads(statement, forbidden):
     loaded = [m for m in loaded_after(statement) if m.startswith(forbidden)]
     assert not loaded, f"{statement} loads {loaded[:8]}"
+
+
+# Each tool is resolved once (config.scenario.tool_records, returned by check_scenario and carried
+# by the station as ``records``): its scenario view and its device's kind are asked for nowhere
+# else. kind_of stays where a kind is looked up by its config: the registry itself and the
+# device factory.
+RESOLVED_IN = {
+    "per_tool": {"godobject_drake.config.scenario"},
+    "kind_of": {
+        "godobject_drake.config.scenario",
+        "godobject_drake.config.devices",
+        "godobject_drake.devices.factory",
+    },
+}
+
+
+@pytest.mark.parametrize("function", sorted(RESOLVED_IN))
+def test_each_tool_is_resolved_in_one_place(function):
+    found = []
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", None)
+                if name == function and module not in RESOLVED_IN[function]:
+                    found.append(f"{path.relative_to(REPO)}:{node.lineno}")
+    assert found == [], f"{function}() called outside {sorted(RESOLVED_IN[function])}: read the tool's record"

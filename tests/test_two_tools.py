@@ -184,3 +184,14 @@ def test_analyze_gives_each_tools_rows_and_the_contact_between_their_bricks():
     assert between["subject"] == "left and right: brick_2::brick against brick_1::brick"
     assert between["value"] == pytest.approx(0.0023 * 20.0**2 * 0.2 / 1e4, rel=1e-9)
     assert between["verdict"] == "ok" and between["limit"] == s.metrics.penetration_budget_m
+
+
+def test_device_flag_on_a_scene_of_tools_names_the_field_to_set(capsys):
+    """``--device`` switches the top-level device, which a scene of tools leaves unset: refused
+    (exit 2) naming the tools and the ``--set`` that sets one tool's device."""
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["run", "lego_two_hands", "--device", "replay", "--no-progress"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "--device replay: this scene has tools (left, right)" in err
+    assert "--set 'tools.NAME.device=!KIND {...}'" in err

@@ -173,11 +173,11 @@ def check_inputs(scenario, models_dir: Path, where: str = "scenario") -> None:
     :class:`InputFileError`. Its paths are absolute already (``resolve_paths``)."""
     walk = _Walk(models_dir)
     walk.directives(scenario.directives, f"{where}: directives", None)
-    views = scenario.per_tool() if scenario.tools else {"": scenario}
-    for name, view in views.items():
+    holders = scenario.tools or {"": scenario}  # each tool's device: its own, or the scenario's
+    for name, holder in holders.items():
         at = f"tools.{name}." if name else ""
         for attribute in ("path", "log"):
-            value = getattr(view.device, attribute, "")
+            value = getattr(holder.device, attribute, "")
             if isinstance(value, str) and value and "://" not in value:
                 # a log is read a row at a time, up to where the run reaches: no size limit
                 check_input_file(value, f"{where}: {at}device.{attribute}", size_limit=attribute == "path")

@@ -42,6 +42,7 @@ from godobject_drake.config.device_files import JointWaypoint, SampleGuard, Wayp
 # every type a scenario file names (``sc.Rigid``, ``sc.Haptic``, ``sc.Lcm``, ...).
 from godobject_drake.config.devices import (  # noqa: F401
     DEVICE_KINDS,
+    DeviceKind,
     DeviceToWorld,
     Lcm,
     LcmJoints,
@@ -223,6 +224,55 @@ class Scenario:
     def time_step(self) -> float:
         """The plant step h (s)."""
         return self.plant.time_step
+
+
+@dataclasses.dataclass(frozen=True)
+class ToolRecord:
+    """One tool of a scene, resolved once (:func:`tool_records`, returned by :func:`check_scenario`
+    and carried by the built station): what everything after the checks reads instead of working
+    it out again.
+
+    Attributes
+    ----------
+    name : str
+        The tool's key in ``tools``; ``""`` for the one tool of a scene of one.
+    view : Scenario
+        The scenario as this tool sees it (:meth:`Scenario.per_tool`).
+    device : DeviceKind
+        Its device's registered kind (live, on the wall clock, rendering the feedback, ...).
+    """
+
+    name: str
+    view: Scenario
+    device: DeviceKind
+
+    def named(self, what: str) -> str:
+        """A system's or a log's name in this tool's loop: ``NAME/what``, or ``what`` alone."""
+        return f"{self.name}/{what}" if self.name else what
+
+    def field(self, path: str) -> str:
+        """One of this tool's scenario fields as a user writes it: ``tools.NAME.path``, or ``path``."""
+        return f"tools.{self.name}.{path}" if self.name else path
+
+    @property
+    def who(self) -> str:
+        """What a message about this tool starts with: ``NAME: ``, or nothing."""
+        return f"{self.name}: " if self.name else ""
+
+
+def tool_records(s: Scenario, where: str = "scenario", names=None) -> dict[str, ToolRecord]:
+    """Each tool of ``s`` resolved once, by name (``{"": ...}`` for a scene of one tool); a device
+    of no registered kind is refused (:class:`ScenarioError`). ``names``: tools of a diagram of
+    one's own that are not the scenario's, each seeing the whole scenario."""
+    views = s.per_tool() if names is None else dict.fromkeys(names, s)
+    records = {}
+    for name, view in views.items():
+        try:
+            device = kind_of(view.device)
+        except ValueError as e:
+            raise ScenarioError(f"{where}: {'tools.' + name + '.' if name else ''}{e}") from None
+        records[name] = ToolRecord(name, view, device)
+    return records
 
 
 def _retype_device() -> None:
@@ -452,8 +502,9 @@ SCENE_PARTS = ("contact", "simulation", "visualization", "recording", "metrics",
 TOOL_PARTS = ("haptic", "device", "god_object", "workspace")
 
 
-def check_scenario(s: Scenario, where: str = "scenario") -> None:
+def check_scenario(s: Scenario, where: str = "scenario") -> dict[str, ToolRecord]:
     """Raise :class:`ScenarioError` naming the field, its value and the fix; no value is clamped.
+    Returns the tools' records (:func:`tool_records`).
 
     Each part checks itself (its ``check()``); this adds Drake's plant settings and the rules that
     span two parts."""
@@ -511,17 +562,16 @@ def check_scenario(s: Scenario, where: str = "scenario") -> None:
     _check_scene(s, where)
     if s.tools:
         _check_tools(s, where)
-    for name, view in s.per_tool().items():
-        _check_tool(view, where, f"tools.{name}." if name else "")
+    records = tool_records(s, where)
+    for record in records.values():
+        _check_tool(record, where)
+    return records
 
 
-def _check_tool(s: Scenario, where: str, at: str) -> None:
-    """One tool's parts (its device, tool, haptic chain, workspace) and the rules between them;
-    ``at`` prefixes the field names (``tools.left.``) in a scene of several."""
-    try:
-        device_kind = kind_of(s.device)
-    except ValueError as e:
-        raise ScenarioError(f"{where}: {at}{e}") from None
+def _check_tool(record: ToolRecord, where: str) -> None:
+    """One tool's parts (its device, tool, haptic chain, workspace) and the rules between them,
+    its fields named as the user writes them (``tools.left.``) in a scene of several."""
+    s, at, device_kind = record.view, record.field(""), record.device
     for part in TOOL_PARTS:
         try:
             getattr(s, part).check(s) if part == "god_object" else getattr(s, part).check()

@@ -57,7 +57,10 @@ def make_device(
             f"device: !{type(config).__name__} has no factory; register one with "
             "godobject_drake.devices.factory.device_factory"
         )
-    config.check()
+    try:
+        config.check()
+    except ValueError as e:
+        raise ValueError(f"device.{e}") from None
     if kind.live and meshcat is None:
         raise ValueError(f"device: !{type(config).__name__} needs the scene's Meshcat")
     scene = dict(seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s)

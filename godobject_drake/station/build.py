@@ -23,7 +23,6 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.config.devices import kind_of
 from godobject_drake.safeguards import check_wiring
 from godobject_drake.sleeping import SleepManager
 from godobject_drake.station.kinds import GodObject, kind_for
@@ -40,49 +39,46 @@ from godobject_drake.systems.page import set_view
 
 
 def build_station(
-    scenario: sc.Scenario, meshcat: Meshcat | None = None, *, check_gains: bool = True
+    scenario: sc.Scenario,
+    meshcat: Meshcat | None = None,
+    *,
+    check_gains: bool = True,
+    records: "dict[str, sc.ToolRecord] | None" = None,
 ) -> "Station":
     """Build any scenario into a diagram (module docstring); ``meshcat`` None makes the one
     the scenario asks for (:func:`make_meshcat`). ``check_gains=False`` builds gains past
     the explicit limit instead of refusing them: for stability analysis only
     (:mod:`godobject_drake.studies.analyze` simulates them to find the limit). A scene of several
-    tools builds each tool's loop alike on the one plant, its systems named ``NAME/...``."""
-    sc.check_scenario(scenario)
-    meshcat = meshcat or make_meshcat(scenario)
+    tools builds each tool's loop alike on the one plant, its systems named ``NAME/...``.
+    ``records``: what :func:`~godobject_drake.config.scenario.check_scenario` returned for this
+    very scenario, which is then not checked again; None checks it here."""
+    records = sc.check_scenario(scenario) if records is None else records
+    meshcat = meshcat or make_meshcat(scenario, records)
     builder = DiagramBuilder()
-    views = scenario.per_tool()  # {"": scenario} for a scene of one tool
-    kinds = {name: kind_for(view.god_object) for name, view in views.items()}
-    devices = {
-        name: add_device(builder, view, meshcat, name=_named(name, "device"), tool=name)
-        for name, view in views.items()
-    }
-    added = {name: {} for name in views}
+    kinds = {name: kind_for(r.view.god_object) for name, r in records.items()}
+    devices = {name: add_device(builder, r, meshcat) for name, r in records.items()}
+    added = {name: {} for name in records}
 
     def before_finalize(plant, scene_graph):
-        for name, view in views.items():
+        for name, r in records.items():
             added[name].update(
                 kinds[name].add_to_plant(
-                    plant, scene_graph, view, devices[name], check_gains=check_gains, name=name
+                    plant, scene_graph, r.view, devices[name], check_gains=check_gains, name=name
                 )
             )
 
     scene = add_plant(builder, scenario, before_finalize)
     tools = {}
-    for name, view in views.items():
+    for name, r in records.items():
         before = set(builder.GetSystems())
         tools[name] = kinds[name].build(
-            builder, scene, view, devices[name], added[name], check_gains=check_gains
+            builder, scene, r.view, devices[name], added[name], check_gains=check_gains
         )
         for system in set(builder.GetSystems()) - before:
-            system.set_name(_named(name, system.get_name()))
+            system.set_name(r.named(system.get_name()))
     check_grasps(tools)
     share_grasps(builder, [tool.coupling for tool in tools.values() if tool.holds_free_bodies])
-    return finish(builder, scenario, scene, tools, meshcat)
-
-
-def _named(tool: str, name: str) -> str:
-    """A system's name in a tool's loop: ``NAME/name`` in a scene of several tools, ``name`` alone."""
-    return f"{tool}/{name}" if tool else name
+    return finish(builder, scenario, scene, tools, meshcat, records)
 
 
 def check_grasps(tools: dict[str, GodObject]) -> None:
@@ -112,24 +108,29 @@ def finish(
     scene: SceneParts,
     tools: "dict[str, GodObject] | GodObject",
     meshcat: Meshcat | None = None,
+    records: "dict[str, sc.ToolRecord] | None" = None,
 ) -> "Station":
     """The loggers and the drawing added, the diagram built, its wiring and penetration budget
     checked, resting bodies put to sleep where the tools allow: the :class:`Station`. ``tools``:
-    the tools by name, or one tool (a diagram of one's own)."""
+    the tools by name, or one tool (a diagram of one's own); ``records`` the scenario's tools'
+    (:func:`~godobject_drake.config.scenario.tool_records`), made here if None."""
     if isinstance(tools, GodObject):
         tools = {"": tools}
+    if records is None:
+        records = sc.tool_records(scenario)
+        if set(records) != set(tools):  # tools of one's own: each sees the whole scenario
+            records = sc.tool_records(scenario, names=list(tools))
     if scene.forces is not None:
         scene.forces.connect(builder)  # every tool's forces into the plant
-    loggers, tool_loggers = add_loggers(builder, scene.plant, tools)
+    loggers, tool_loggers = add_loggers(builder, scene.plant, tools, records)
     if meshcat is not None:
-        add_visualization(builder, meshcat, scene, tools, scenario)
+        add_visualization(builder, meshcat, scene, tools, scenario, records)
     diagram = builder.Build()
     check_start_overlaps(diagram, scene.plant, scene.scene_graph, scenario.plant.penetration_allowance)
-    views = scenario.per_tool() if set(tools) == set(scenario.per_tool()) else dict.fromkeys(tools, scenario)
     predicted = []
     for name, tool in tools.items():
         check_wiring(diagram, mode=tool.mode)
-        depth = check_penetration_budget(tool, scene, views[name])
+        depth = check_penetration_budget(tool, scene, records[name].view)
         if depth is not None:
             predicted.append(depth)
     sleeper = None
@@ -138,11 +139,13 @@ def finish(
         sleeper = SleepManager(scene.plant, scene.scene_graph, scenario.sleep, couplings, meshcat)
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
-        max(predicted) if predicted else None, sleeper, tool_loggers,
+        max(predicted) if predicted else None, sleeper, tool_loggers, records,
     )  # fmt: skip
 
 
-def add_loggers(builder: DiagramBuilder, plant, tools: dict[str, GodObject]):
+def add_loggers(
+    builder: DiagramBuilder, plant, tools: dict[str, GodObject], records: dict[str, sc.ToolRecord]
+):
     """Per-step logs of what the metrics read: each tool's (``logged_ports``), the plant's state
     once. Returns ``(loggers by name, each tool's {its own name: the logger's name})``; in a scene
     of one tool the names are the tool's own (``state``, ``terms``, ...)."""
@@ -150,7 +153,7 @@ def add_loggers(builder: DiagramBuilder, plant, tools: dict[str, GodObject]):
     for name, tool in tools.items():
         tool_loggers[name] = {}
         for key, port in tool.logged_ports(plant).items():
-            full = key if key == "state" else _named(name, key)
+            full = key if key == "state" else records[name].named(key)
             if full not in loggers:
                 loggers[full] = LogVectorOutput(port, builder, plant.time_step())
                 loggers[full].set_name(f"{full}_log")  # named, so GetGraphvizString reads well
@@ -187,17 +190,17 @@ def add_visualization(
     scene: SceneParts,
     tools: dict[str, GodObject],
     scenario: sc.Scenario,
+    records: dict[str, sc.ToolRecord],
 ) -> None:
     """Drake's MeshcatVisualizer, each tool kind's own drawing (in its own colour and Meshcat folder
     in a scene of several, each adding its lines to the page's legend), the scenario's camera, and
     no grid or axes (:func:`~godobject_drake.systems.page.set_view`)."""
     add_meshcat_visualization(builder, meshcat, scene.scene_graph, scenario.visualization.publish_period_s)
-    views = scenario.per_tool() if set(tools) == set(scenario.per_tool()) else dict.fromkeys(tools, scenario)
     for k, (name, tool) in enumerate(tools.items()):
         before = set(builder.GetSystems())
-        tool.add_drawing(builder, meshcat, scene, views[name], Drawing(name, k))
+        tool.add_drawing(builder, meshcat, scene, records[name].view, Drawing(name, k))
         for system in set(builder.GetSystems()) - before:
-            system.set_name(_named(name, system.get_name()))
+            system.set_name(records[name].named(system.get_name()))
     observers = [tool.tissue_observer for tool in tools.values() if getattr(tool, "tissue_observer", None)]
     if scene.tissue is not None and observers:  # the organ once, whichever tool's observer reads it
         period = scenario.visualization.publish_period_s
@@ -222,23 +225,22 @@ LOCAL_PAGES_WARNING = (
 )
 
 
-def haptic_tools(scenario: sc.Scenario) -> list[str]:
+def haptic_tools(records: dict[str, sc.ToolRecord]) -> list[str]:
     """The tools whose feedback reaches a hand: a simulated haptic device (``haptic.mode``) or a
     device that renders the feedback (``!Lcm``), each as ``what (field)``."""
     found = []
-    for name, view in scenario.per_tool().items():
-        at = f"tools.{name}." if name else ""
-        if view.haptic.mode != "none":
-            found.append(f"--haptic {view.haptic.mode} ({at}haptic.mode)")
-        if kind_of(view.device).renders_feedback:
-            found.append(f"!{type(view.device).__name__} renders the feedback ({at}device)")
+    for r in records.values():
+        if r.view.haptic.mode != "none":
+            found.append(f"--haptic {r.view.haptic.mode} ({r.field('haptic.mode')})")
+        if r.device.renders_feedback:
+            found.append(f"!{type(r.view.device).__name__} renders the feedback ({r.field('device')})")
     return found
 
 
-def check_page_with_haptics(scenario: sc.Scenario) -> None:
+def check_page_with_haptics(scenario: sc.Scenario, records: dict[str, sc.ToolRecord]) -> None:
     """Refuse to serve the live page with a haptic device unless ``visualization.trust_local_pages``
     (``--trust-local-pages``) says so: any page on the machine could drive the forces on a hand."""
-    haptics = haptic_tools(scenario)
+    haptics = haptic_tools(records)
     if haptics and not scenario.visualization.trust_local_pages:
         raise sc.ScenarioError(
             f"visualization: a live page with a haptic device ({'; '.join(haptics)}): any web page open on "
@@ -249,14 +251,16 @@ def check_page_with_haptics(scenario: sc.Scenario) -> None:
         )
 
 
-def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
+def make_meshcat(scenario: sc.Scenario, records: "dict[str, sc.ToolRecord] | None" = None) -> Meshcat | None:
     """The scenario's Meshcat, on ``visualization.host`` (this machine only, by default): at
     ``visualization.port`` when it is live (``visualization.serve`` or a browser device), on
     any free port for a recording only, None otherwise
-    (:func:`~godobject_drake.systems.drawing.start_meshcat`)."""
+    (:func:`~godobject_drake.systems.drawing.start_meshcat`). ``records``: the scenario's tools
+    (:func:`~godobject_drake.config.scenario.tool_records`), made here if None."""
     vis = scenario.visualization
-    if vis.serve or any(kind_of(view.device).live for view in scenario.per_tool().values()):
-        check_page_with_haptics(scenario)
+    records = sc.tool_records(scenario) if records is None else records
+    if vis.serve or any(r.device.live for r in records.values()):
+        check_page_with_haptics(scenario, records)
         logger.warning(LOCAL_PAGES_WARNING)  # before Drake's "Meshcat listening": the run's first line
         return start_meshcat(vis.host, vis.port)
     if not scenario.recording.file:
@@ -301,6 +305,9 @@ class Station:
     tool_loggers : dict[str, dict[str, str]]
         Each tool's logger names: its own name for a log (``terms``) to the station's
         (``left/terms``).
+    records : dict[str, ToolRecord]
+        Each tool resolved once (:class:`~godobject_drake.config.scenario.ToolRecord`): its
+        scenario view, its device's kind, its names.
     """
 
     scenario: sc.Scenario
@@ -313,6 +320,7 @@ class Station:
     predicted_penetration_m: float | None = None
     sleeper: SleepManager | None = None
     tool_loggers: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
+    records: dict[str, sc.ToolRecord] = dataclasses.field(default_factory=dict)
 
     @property
     def god_object(self) -> GodObject:
@@ -333,9 +341,11 @@ class Station:
         if list(self.tools) == [name] and not self.scenario.tools:
             return self  # the one-tool form: the scenario is the tool's
         loggers = {key: self.loggers[full] for key, full in self.tool_loggers[name].items()}
-        view = self.scenario.per_tool()[name]
-        return dataclasses.replace(self, scenario=view, tools={name: self.tools[name]}, loggers=loggers,
-                                   tool_loggers={name: {k: k for k in loggers}})  # fmt: skip
+        record = self.records[name]
+        return dataclasses.replace(
+            self, scenario=record.view, tools={name: self.tools[name]}, loggers=loggers,
+            tool_loggers={name: {k: k for k in loggers}}, records={name: record},
+        )  # fmt: skip
 
     @property
     def device(self):
@@ -353,4 +363,4 @@ class Station:
     @property
     def live(self) -> bool:
         """Driven from the browser (some tool's device kind says so)."""
-        return any(kind_of(view.device).live for view in self.scenario.per_tool().values())
+        return any(r.device.live for r in self.records.values())

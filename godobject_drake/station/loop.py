@@ -5,7 +5,7 @@ Each step is one function, and a tool kind's builder (:mod:`~godobject_drake.sta
 is these steps in this order; a diagram of one's own calls the same ones
 (``examples/compose_diagram.py``)::
 
-    device = add_device(builder, scenario.device, ...)            # the user's device (its target)
+    device = add_device(builder, record, meshcat)                 # the user's device (its target)
     coupling = add_coupling(builder, plant, device, gains, ...)   # paper Eq. 2: spring to the target
     chain = add_haptic_chain(builder, scenario.haptic, device, coupling)   # none/impedance/admittance
     feedback = add_feedback(builder, chain, coupling, gains)      # paper Eq. 8: the device's wrench
@@ -24,7 +24,6 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Adder
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.config.devices import kind_of
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.devices import factory
 from godobject_drake.devices.sources import DeviceSource, JointDevice
@@ -50,31 +49,27 @@ def make_device(
     as the run reaches (a log of any length costs what the run uses). ``tool``: the tool it drives
     in a scene of several (a live device's sliders and buttons are named by it).
     """
-    kind_of(config)  # an unregistered config is refused, naming the known kinds
-    try:
-        config.check()
-    except ValueError as e:
-        raise sc.ScenarioError(f"device.{e}") from None
     try:
         return factory.make_device(
             config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s, tool=tool
         )
     except ValueError as e:
-        if str(e).startswith("device:"):  # what the kind needs from the scene (a Meshcat, a workspace)
+        # an unregistered kind, a field its check refuses (``device.FIELD ...``), what the kind needs
+        # from the scene (a Meshcat, a workspace): each names the device
+        if str(e).startswith("device"):
             raise sc.ScenarioError(str(e)) from None
         raise
 
 
-def add_device(
-    builder: DiagramBuilder, scenario: sc.Scenario, meshcat=None, *, name: str = "device", tool: str = ""
-):
-    """The scenario's device, added to ``builder`` as ``name`` (:func:`make_device`); ``tool`` the
-    tool's name in a scene of several (a live device's controls carry it)."""
+def add_device(builder: DiagramBuilder, record: sc.ToolRecord, meshcat=None):
+    """A tool's device (:func:`make_device` of ``record.view.device``), added to ``builder`` as
+    ``device`` (``NAME/device`` in a scene of several, its live controls carrying the name)."""
+    view = record.view
     device = make_device(
-        scenario.device, seed=scenario.random_seed, meshcat=meshcat, workspace=scenario.workspace,
-        duration_s=scenario.simulation.duration_s, tool=tool,
+        view.device, seed=view.random_seed, meshcat=meshcat, workspace=view.workspace,
+        duration_s=view.simulation.duration_s, tool=record.name,
     )  # fmt: skip
-    return builder.AddNamedSystem(name, device)
+    return builder.AddNamedSystem(record.named("device"), device)
 
 
 # -- the plant's force inputs, shared by every tool -------------------------------------------------------

@@ -1199,9 +1199,9 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     start = time.perf_counter()
     verify = (not quick) if verify is None else verify
     s = analysis_scenario(scenario)
-    sc.check_scenario(s)
+    records = sc.check_scenario(s)
     if s.tools:
-        return _analyze_tools(s, quick, verify, start)
+        return _analyze_tools(s, records, quick, verify, start)
     station = _quiet_build(s)
     out: dict = {
         "scene": s.name,
@@ -1230,14 +1230,14 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     return out
 
 
-def _analyze_tools(s: sc.Scenario, quick: bool, verify: bool, start: float) -> dict:
+def _analyze_tools(s: sc.Scenario, records: dict, quick: bool, verify: bool, start: float) -> dict:
     """A scene of several tools: each tool's rows from its own view of the scene (its loop, its
     contacts, its device; the other tools' models there as bodies no loop drives), named by the
     tool, under ``tools``; then the contact between each two tools' held bodies."""
     out: dict = {"scene": s.name, "time_step_s": s.time_step, "quick": quick, "verify": verify, "tools": {}}
     checks: list[dict] = []
-    for name, view in s.per_tool().items():
-        own = analyze(view, quick=quick, verify=verify)
+    for name, record in records.items():
+        own = analyze(record.view, quick=quick, verify=verify)
         for row in own["checks"]:
             row["subject"] = f"{name}: {row['subject']}"
         out["tools"][name] = own
