@@ -87,7 +87,8 @@ def within(row: dict, track: float | None) -> bool:
     return track is None or (row.get("free_tracking_rms_m") or math.inf) <= track
 
 
-def main(argv=None) -> int:
+def parse_args(argv):
+    """The command line, checked: ``--rounds`` ≥ 1, 0 < ``--duration`` ≤ 8.5."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -100,19 +101,27 @@ def main(argv=None) -> int:
         parser.error(f"--rounds {args.rounds}: give at least 1")
     if not 0 < args.duration <= 8.5:
         parser.error(f"--duration {args.duration}: the brick path is 8.5 s; give 0 < duration ≤ 8.5")
-    mujoco = not args.no_mujoco
-    if mujoco:
-        try:
-            import mujoco as _
-        except ImportError:
-            print("MuJoCo not installed (pip install -e .[bench]): its rows are skipped", file=sys.stderr)
-            mujoco = False
-    args.out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    todo = cases(args.duration, mujoco)
+    return args
+
+
+def with_mujoco(asked: bool) -> bool:
+    """Whether the MuJoCo rows run: asked for, and MuJoCo importable (else say so on stderr)."""
+    if not asked:
+        return False
+    try:
+        import mujoco as _  # noqa: F401 (only whether it imports)
+    except ImportError:
+        print("MuJoCo not installed (pip install -e .[bench]): its rows are skipped", file=sys.stderr)
+        return False
+    return True
+
+
+def run_rounds(todo: list, rounds: int, t0: float) -> tuple[list, list]:
+    """Every case once per round, in the same order: (each case's first run, its CPU s per
+    simulated s of every round). A refused or diverging case runs once only."""
     runs: list[dict | None] = [None] * len(todo)
     walls: list[list[float]] = [[] for _ in todo]  # CPU s per simulated s, one per round
-    for k in range(args.rounds):
+    for k in range(rounds):
         for i, (_, case) in enumerate(todo):
             if runs[i] is not None and (runs[i]["refused"] or runs[i]["diverged"]):
                 continue  # a refused or diverging configuration has no cost to measure
@@ -120,7 +129,12 @@ def main(argv=None) -> int:
             walls[i] += r["cpu_s_per_sim_s"]
             if runs[i] is None:
                 runs[i] = r
-        print(f"round {k + 1}/{args.rounds} done at {time.perf_counter() - t0:.0f} s", flush=True)
+        print(f"round {k + 1}/{rounds} done at {time.perf_counter() - t0:.0f} s", flush=True)
+    return runs, walls
+
+
+def table_rows(todo: list, runs: list, walls: list) -> tuple[list, list, dict]:
+    """(the path's rows, each with its cost over the baseline's; the scale rows; the baseline row)."""
     rows = []
     for (what, _), r, w in zip(todo, runs, walls, strict=True):
         rows.append({
@@ -141,6 +155,11 @@ def main(argv=None) -> int:
             if r["cost_median_s"] and base["cost_median_s"]
             else None
         )
+    return rows, scale, base
+
+
+def cost_lines(args, rows: list, base: dict) -> list[str]:
+    """The report's head and its table of every row's cost over the baseline's."""
     md = [
         "# Explicit and implicit coupling, and MuJoCo, over the whole brick path",
         "",
@@ -161,9 +180,13 @@ def main(argv=None) -> int:
             f"{fmt(r['true_penetration_m'], ' mm', 1e3)} | "
             f"{fmt(r['free_tracking_rms_m'], ' mm', 1e3)} | {note} |"
         )
-    summary = {"machine": machine(), "duration_s": args.duration, "rounds": args.rounds,
-               "baseline": base["label"], "rows": rows, "budgets": []}  # fmt: skip
-    md += [
+    return md
+
+
+def budget_lines(rows: list, budgets: list) -> list[str]:
+    """The fastest row of each kind within each budget, and their speed ratios; each budget's
+    summary is appended to ``budgets``."""
+    md = [
         "",
         "## The fastest within each budget",
         "",
@@ -188,27 +211,46 @@ def main(argv=None) -> int:
             + " | ".join(f"`{r['label']}`" if r else "none within" for r in (e, i, m))
             + f" | {fmt(speedup, '×', digits=2)} | {fmt(vs_mujoco, digits=2)} |"
         )
-        summary["budgets"].append({
+        budgets.append({
             "penetration_budget_m": PENETRATION_BUDGET_M, "tracking_budget_m": track,
             "explicit": e and e["label"], "implicit": i and i["label"], "mujoco": m and m["label"],
             "implicit_speed_over_explicit": speedup, "drake_speed_over_mujoco": vs_mujoco,
         })  # fmt: skip
-    md += [
+    return md
+
+
+def scale_lines(scale: list, table: list) -> list[str]:
+    """64 bricks against 8, each coupling; each coupling's summary is appended to ``table``."""
+    md = [
         "",
         f"## Scale: 64 bricks against 8 (the path's first {SCALE_S:g} s, h = 1 ms, sleeping on)",
         "",
         "| coupling | 8 bricks CPU s/s | 64 bricks CPU s/s | 64 / 8 |",
         "|---|---|---|---|",
     ]
-    summary["scale"] = []
     for coupling in ("explicit", "implicit"):
         by_n = {r["bricks"]: r for r in scale if r["coupling"] == coupling}
         c8, c64 = (by_n[n]["cost_median_s"] if n in by_n else None for n in SCALE_BRICKS)
         ratio = c64 / c8 if (c8 and c64) else None
         md.append(f"| {coupling} | {fmt(c8)} | {fmt(c64)} | {fmt(ratio, '×', digits=3)} |")
-        summary["scale"].append(
-            {"coupling": coupling, "cost_8_s": c8, "cost_64_s": c64, "ratio_64_over_8": ratio}
-        )
+        table.append({"coupling": coupling, "cost_8_s": c8, "cost_64_s": c64, "ratio_64_over_8": ratio})
+    return md
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    mujoco = with_mujoco(not args.no_mujoco)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    todo = cases(args.duration, mujoco)
+    runs, walls = run_rounds(todo, args.rounds, t0)
+    rows, scale, base = table_rows(todo, runs, walls)
+    md = cost_lines(args, rows, base)
+    summary = {"machine": machine(), "duration_s": args.duration, "rounds": args.rounds,
+               "baseline": base["label"], "rows": rows, "budgets": []}  # fmt: skip
+    md += budget_lines(rows, summary["budgets"])
+    summary["scale"] = []
+    md += scale_lines(scale, summary["scale"])
     elapsed = time.perf_counter() - t0
     summary["elapsed_s"] = elapsed
     md += ["", f"Run time {elapsed:.0f} s on this machine.", ""]

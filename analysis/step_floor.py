@@ -13,6 +13,10 @@ step:
 - the sleeping bricks are locked and unlocked, and the quaternions projected, at the steps the
   scene did it (every 10 ms and 50 ms at most), between ``AdvanceTo`` calls.
 
+The scene's run is read through ``simulate``'s ``observe`` hook, before every plant step: the
+plant's force input, the sleeper's bodies, the springs' moves; the replay's projections are its
+own safeguards' checks, polled at the scene's check steps (public ports and attributes only).
+
 The replay is checked against the scene: the plant's final state must agree bit for bit, so
 the floor steps exactly the states the scene stepped. Then the scene (both couplings), the
 replays and the resting floor run round-robin in one process, timed by CPU time
@@ -42,7 +46,6 @@ from godobject_drake.config.scenario import replace, shipped_scenario
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.station.plant import add_plant
-from godobject_drake.systems.coupling import GodObjectCoupling
 
 
 def scenario_for(coupling: str, seconds: float | None, bricks: int | None = None):
@@ -60,53 +63,45 @@ def scenario_for(coupling: str, seconds: float | None, bricks: int | None = None
 def record(scenario, keep_logs: bool = False):
     """Run the scene once, recording what it did to its plant: ``(result, forces, events)``.
 
-    ``forces``: {t: generalized force vector} the explicit coupling gave the plant at each step
-    (the last value computed at t: the one the plant's step at t read). ``events``: the
-    monitor's writes into the plant's context, ``(t, kind, payload)`` in call order.
+    Read before every plant step through ``simulate``'s ``observe``, after the safeguards and the
+    tools' hooks at that step. ``forces``: {t: generalized force vector} the plant's
+    ``applied_generalized_force`` input at t, what its step at t reads (the explicit coupling's;
+    none when that input is not connected). ``events``: what was done to the plant's context
+    before its step at t, ``(t, kind, payload)``: ``project`` at each safeguard check (the
+    quaternions put back on unit norm), ``lock`` and ``unlock`` for each body the sleeper put to
+    sleep or woke (its name), ``springs`` when the implicit coupling's hook moved the springs
+    (the coupling's state it applied).
     """
     forces: dict[float, np.ndarray] = {}
     events: list = []
-    calc = GodObjectCoupling._calc_generalized_forces
+    station = build_station(scenario)
+    plant = station.plant
+    h = plant.time_step()
+    every = sg.Safeguards(plant, check_period_s=scenario.simulation.check_period_s).every
+    port = plant.get_applied_generalized_force_input_port()
+    sleeper = station.sleeper
+    hook = getattr(station.god_object, "hook", None)
+    seen = {"asleep": None, "moves": 0}  # what the last step saw: the sleepers, the springs' moves
 
-    def recorded_calc(self, context, output):
-        calc(self, context, output)
-        forces[context.get_time()] = output.get_value().copy()
-
-    project = sg.Safeguards._project
-
-    def recorded_project(self):
-        events.append((self._plant_context.get_time(), "project", None))
-        project(self)
-
-    GodObjectCoupling._calc_generalized_forces = recorded_calc
-    sg.Safeguards._project = recorded_project
-    try:
-        station = build_station(scenario)
-        sleeper = station.sleeper
+    def observe(plant_context, root_context):
+        t = root_context.get_time()
+        n = round(t / h)
+        if n >= every and n % every == 0:
+            events.append((t, "project", None))
         if sleeper is not None:
-            check = sleeper.check
+            before = seen["asleep"] if seen["asleep"] is not None else np.zeros_like(sleeper.asleep)
+            for k in np.flatnonzero(before != sleeper.asleep):
+                events.append((t, "lock" if sleeper.asleep[k] else "unlock", sleeper.bodies[k].name))
+            seen["asleep"] = sleeper.asleep.copy()
+        if hook is not None and hook.moves != seen["moves"]:
+            seen["moves"] = hook.moves
+            coupling = hook.coupling
+            s = coupling.state(coupling.GetMyContextFromRoot(root_context))
+            events.append((t, "springs", np.array(s, copy=True)))
+        if port.HasValue(plant_context):
+            forces[t] = np.array(port.Eval(plant_context), copy=True)
 
-            def recorded_check(plant_context, root_context):
-                before = sleeper.asleep.copy()
-                check(plant_context, root_context)
-                t = plant_context.get_time()
-                for k in np.flatnonzero(before != sleeper.asleep):
-                    events.append((t, "lock" if sleeper.asleep[k] else "unlock", sleeper.bodies[k].name))
-
-            sleeper.check = recorded_check
-        hook = getattr(station.god_object, "hook", None)
-        if hook is not None:
-            apply = hook.apply
-
-            def recorded_apply(plant_context, s):
-                events.append((plant_context.get_time(), "springs", np.array(s, copy=True)))
-                apply(plant_context, s)
-
-            hook.apply = recorded_apply
-        result = simulate(station, progress=False, keep_logs=keep_logs)
-    finally:
-        GodObjectCoupling._calc_generalized_forces = calc
-        sg.Safeguards._project = project
+    result = simulate(station, progress=False, keep_logs=keep_logs, observe=observe)
     return result, forces, events
 
 
@@ -152,8 +147,9 @@ class Floor:
             joint = plant.get_joint(JointIndex(j))
             joints[joint.child_body().scoped_name().get_full()] = joint
         self.joints = joints
-        self.guard = sg.Safeguards(plant)
-        self.guard._plant_context = self.ctx
+        # the scene's safeguards on this simulator, polled at the recorded checks (``project``)
+        self.guard = sg.Safeguards(plant, check_period_s=scenario.simulation.check_period_s)
+        self.guard.install(self.simulator, polled=True)
         by_time: dict[float, list] = {}
         for t, kind, payload in events:
             by_time.setdefault(t, []).append((kind, payload))
@@ -188,7 +184,7 @@ class Floor:
             c0 = time.process_time()
             for kind, payload in todo:
                 if kind == "project":
-                    self.guard._project()
+                    self.guard.poll()  # the check due at t: the quaternions back on unit norm
                 elif kind == "lock":
                     self.joints[payload].Lock(self.ctx)
                     locked.add(payload)

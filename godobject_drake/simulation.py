@@ -128,6 +128,7 @@ def simulate(
     keep_logs: bool = True,
     checkpoint=None,
     checkpoint_period_s: float = 10.0,
+    observe=None,
 ) -> RunResult:
     """Run ``station`` and measure it, in memory that does not grow with the run's length.
 
@@ -156,6 +157,11 @@ def simulate(
     checkpoint : callable | None
         ``checkpoint(metrics)`` every ``checkpoint_period_s`` of wall time with the metrics so far
         (marked ``partial``): the command line writes them, so a killed run leaves its last ones.
+    observe : callable | None
+        ``observe(plant_context, root_context)`` before every plant step, after the safeguards'
+        checks and the tools' own hooks at that step: the context the plant steps from, for an
+        analysis to read through public ports and attributes (analysis/step_floor.py). It makes
+        the safeguards a monitor called at every step; the run is the same bit for bit.
 
     Notes
     -----
@@ -163,7 +169,7 @@ def simulate(
     it ran, its metrics marked ``partial``; Ctrl-C does too, then raises :class:`RunInterrupted`
     carrying the result.
     """
-    run = _Run(station, duration_s, record, realtime_rate, keep_logs)
+    run = _Run(station, duration_s, record, realtime_rate, keep_logs, observe)
     run.loop(progress, checkpoint, checkpoint_period_s)
     return run.finish()
 
@@ -172,7 +178,7 @@ class _Run:
     """One run of :func:`simulate`: its setup (the constructor), its :meth:`loop` and its
     :meth:`finish`, sharing what they measure as attributes."""
 
-    def __init__(self, station: Station, duration_s, record, realtime_rate, keep_logs: bool):
+    def __init__(self, station: Station, duration_s, record, realtime_rate, keep_logs: bool, observe=None):
         scenario = self.scenario = station.scenario
         sim = scenario.simulation
         duration = sim.duration_s if duration_s is None else float(duration_s)
@@ -201,7 +207,7 @@ class _Run:
         self.root = root = self.simulator.get_mutable_context()
         self.god.prepare(self.plant.GetMyMutableContextFromRoot(root))
         self.simulator.set_target_realtime_rate(rate)
-        before_step = self.god.before_step(self.plant)
+        before_step = _then(self.god.before_step(self.plant), observe)
         self.lag = None
         if rate > 0:  # at real time: how late each plant step comes, against the wall clock
             periods = [getattr(tool.source, "period_s", h) for tool in station.tools.values()]
@@ -721,6 +727,18 @@ class RealtimeLag:
             "realtime_late_threshold_s": self.late_s,
             "realtime_warning": self.warned,
         }
+
+
+def _then(first, second):
+    """``first`` then ``second``, two ``before_step`` hooks or None, as one hook or None."""
+    if first is None or second is None:
+        return second if first is None else first
+
+    def both(plant_context, root_context):
+        first(plant_context, root_context)
+        second(plant_context, root_context)
+
+    return both
 
 
 class _Logs:

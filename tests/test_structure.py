@@ -242,3 +242,27 @@ def test_each_tool_is_resolved_in_one_place(function):
                 if name == function and module not in RESOLVED_IN[function]:
                     found.append(f"{path.relative_to(REPO)}:{node.lineno}")
     assert found == [], f"{function}() called outside {sorted(RESOLVED_IN[function])}: read the tool's record"
+
+
+ANALYSIS = REPO / "analysis"
+
+
+def test_no_function_over_a_hundred_lines_in_analysis():
+    """The scripts under analysis/ keep the package's rule: a function longer than 100 lines is
+    split into named steps (each failure names the file, the function and its length)."""
+    long = []
+    for path in sorted(ANALYSIS.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long.append(f"{path.relative_to(REPO)}: {node.name} (line {node.lineno}) is {n} lines")
+    assert not long, long
+
+
+def test_every_analysis_script_is_in_the_index():
+    """analysis/README.md names every script of analysis/ (as ``NAME.py`` in backticks), so the
+    index says what each one is for."""
+    index = (ANALYSIS / "README.md").read_text()
+    missing = [p.name for p in sorted(ANALYSIS.glob("*.py")) if f"`{p.name}`" not in index]
+    assert not missing, f"analysis/README.md does not list {missing}: add each with its question and command"
