@@ -79,15 +79,15 @@ def serve(url: str, key_file: str, rate_hz: float, kd: float, seconds: float) ->
     """A wall scene that is not Drake (module docstring), publishing at ``rate_hz`` of wall time."""
     from drake import lcmt_force_torque
 
-    from godobject_drake.protocol import (
+    from godobject_drake.link.messages import (
         FEEDBACK_CHANNEL,
         LOCAL_MODEL_CHANNEL,
         POSE_CHANNEL,
         POSE_NAMES,
         LocalModel,
-        UdpLcm,
         parse_robot_state,
     )
+    from godobject_drake.link.transport import UdpLcm
 
     lcm = UdpLcm.listen(url, key_file)
     latest = {}

@@ -9,12 +9,12 @@ the scene, the scene's feedback wrench to the device, and every safety on the de
 
 FAMILY is ``emulated``, ``haply``, ``forcedimension`` or ``openhaptics``
 (:mod:`godobject_drake.driver.families`; docs/haptic_devices.md). The scene runs with
-``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.protocol`).
+``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.link.transport`).
 
 **Pairing**: the driver and the scene pair with a key both read from the user's own key file
 (``--key-file``, the scene's ``device.key_file``; by default ``~/.config/godobject/link.key``,
 created on first use): every datagram is authenticated, replays are dropped, and nothing but
-the paired scene's feedback reaches the device (:mod:`godobject_drake.protocol`). Until a scene
+the paired scene's feedback reaches the device (:mod:`godobject_drake.link.transport`). Until a scene
 answers, the driver sends only its HELLO and renders nothing. A ``--scene`` that is not
 ``udp://`` (Drake's multicast) is refused unless ``--allow-unauthenticated``.
 
@@ -80,28 +80,24 @@ import numpy as np
 from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
 from godobject_drake.driver.local_model import LocalRenderer
 from godobject_drake.driver.safety import FeedbackGate, ForceSafety
-from godobject_drake.protocol import (
+from godobject_drake.link.keys import KEY_ENV, KeyFileError, key_fingerprint
+from godobject_drake.link.logs import StderrHandler
+from godobject_drake.link.messages import (
     ALIVE_CHANNEL,
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
-    KEY_ENV,
-    LINK_REJECTED,
     LOCAL_MODEL_CHANNEL,
     POSE_CHANNEL,
     STOP_SUFFIX,
-    KeyFileError,
     LocalModelError,
-    StderrHandler,
     decode,
-    driver_lcm,
-    is_udp_url,
-    key_fingerprint,
     parse_alive,
     parse_local_model,
     pose_message,
     status_message,
 )
+from godobject_drake.link.transport import LINK_REJECTED, driver_lcm, is_udp_url
 
 __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "ForceSafety", "HandPath",
            "Quantiles", "main"]  # fmt: skip
@@ -142,7 +138,7 @@ class Quantiles:
 
 class Driver:
     """The loop (module docstring), on an opened device and a transport (``Publish``, ``Subscribe``,
-    ``HandleSubscriptions``: :class:`~godobject_drake.protocol.UdpLcm` or a ``DrakeLcm``).
+    ``HandleSubscriptions``: :class:`~godobject_drake.link.transport.UdpLcm` or a ``DrakeLcm``).
 
     Its memory stays bounded however long it runs: without a log file it keeps the last
     :attr:`ROWS_KEPT` periods (:attr:`rows`), and the timing figures are histograms
@@ -259,7 +255,7 @@ class Driver:
         return grasp, pressed(self.clutch_button)
 
     def link_counts(self) -> dict:
-        """The link's own counts (a :class:`~godobject_drake.protocol.UdpLcm`'s), or none."""
+        """The link's own counts (a :class:`~godobject_drake.link.transport.UdpLcm`'s), or none."""
         return dict(getattr(self.lcm, "counts", {}))
 
     def publish_status(self, now: float) -> None:
