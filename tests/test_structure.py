@@ -225,3 +225,16 @@ def loaded_after(statement: str) -> list[str]:
 def test_what_a_part_loads(statement, forbidden):
     loaded = [m for m in loaded_after(statement) if m.startswith(forbidden)]
     assert not loaded, f"{statement} loads {loaded[:8]}"
+
+
+def test_no_module_reads_a_test_only_environment_variable():
+    """A test or a benchmark injects what it needs (analysis/throttled_scene.py: the scene's
+    publication rate); the package reads no ``GODOBJECT_TEST_*`` setting, so nothing a user's
+    environment holds can switch on a test's behaviour."""
+    found = [
+        f"{m}:{n}"
+        for m, path in MODULES.items()
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if "GODOBJECT_TEST_" in line
+    ]
+    assert not found, f"the package names a GODOBJECT_TEST_ variable: {found}"

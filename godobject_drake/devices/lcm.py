@@ -93,7 +93,7 @@ from godobject_drake.link.messages import (
     decode,
     parse_robot_state,
 )
-from godobject_drake.link.scene_model import LocalModelPublisher, WallThrottle
+from godobject_drake.link.scene_model import LocalModelPublisher
 
 
 class LcmReceiver:
@@ -233,7 +233,7 @@ class LcmDevice(DeviceSource):
         self._q0 = X_WD0.rotation().ToQuaternion().wxyz()
         self._grasp = ""
         self._polled_at = -math.inf
-        self.throttle = WallThrottle.from_environment()
+        self.throttle = None  # the wrench publisher's, test-only (ForceTorquePublisher)
         super().__init__(self._read, period_s, latency_s, interpolation=interpolation, guard=guard)
 
     def _read(self, t: float):
@@ -434,7 +434,9 @@ class ForceTorquePublisher(LeafSystem):
         self.lcm, self.channel = lcm, channel
         self._in = self.DeclareAbstractInputPort("lcm_message", AbstractValue.Make(lcmt_force_torque()))
         self.DeclarePeriodicPublishEvent(period_s, 0.0, self._publish)
-        self.throttle = None  # a WallThrottle (test-only: the scene's rate of wall time)
+        # test-only: publish a step only if throttle.due(t) (analysis/throttled_scene.py emulates
+        # a scene that sustains only a given rate of wall time); None: every period
+        self.throttle = None
 
     def _publish(self, context):
         if self.throttle is not None and not self.throttle.due(context.get_time()):

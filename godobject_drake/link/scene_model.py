@@ -12,7 +12,6 @@ one of the link that loads ``pydrake.systems``).
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
 from collections.abc import Callable
@@ -36,46 +35,6 @@ from godobject_drake.link.messages import (
 
 if TYPE_CHECKING:
     from godobject_drake.devices.lcm import LcmDevice
-
-THROTTLE_ENV = "GODOBJECT_TEST_SCENE_HZ"
-
-
-class WallThrottle:
-    """Test-only: lets a scene's link publish at most ``rate_hz`` times a second of *wall* time,
-    to emulate a scene that sustains only that rate (analysis/local_model_bench.py). Set by the
-    environment variable :data:`THROTTLE_ENV` (unset: no throttle). Each publisher has its own
-    (the wrench's and the local model's steps differ); within one, a step's answer is memoised."""
-
-    def __init__(self, rate_hz: float, clock=None):
-
-        if not (math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"{THROTTLE_ENV}={rate_hz!r}: give a rate in Hz > 0 (e.g. 30), or unset it")
-        self.interval, self.clock = 1.0 / rate_hz, clock or time.monotonic
-        self._next = -math.inf
-        self._step, self._due = None, False
-
-    @classmethod
-    def from_environment(cls) -> WallThrottle | None:
-
-        text = os.environ.get(THROTTLE_ENV, "")
-        if not text:
-            return None
-        try:
-            rate = float(text)
-        except ValueError:
-            rate = math.nan
-        return cls(rate)
-
-    def due(self, step_time: float) -> bool:
-        """Whether the step at simulated ``step_time`` is published (the same answer for every
-        publisher of that step)."""
-        if step_time != self._step:
-            now = self.clock()
-            self._step, self._due = step_time, now >= self._next
-            if self._due:
-                self._next = max(self._next + self.interval, now - self.interval)
-        return self._due
-
 
 PLANE_MARGIN_M = 0.005  # contacts the god-object could reach: within this of its held body
 # The local model is published every device period, at most this often (s of simulated time):
@@ -285,7 +244,9 @@ class LocalModelPublisher(LeafSystem):
         self.DeclarePeriodicPublishEvent(device.period_s, 0.0, self._publish)
         self._X_WD = self.DeclareAbstractInputPort("X_WD", AbstractValue.Make(RigidTransform()))
         self._V_WD = self.DeclareVectorInputPort("V_WD", 6)
-        self.throttle = WallThrottle.from_environment()  # its own: its steps are not the wrench's
+        # test-only (analysis/throttled_scene.py): publish a step only if throttle.due(t), and say
+        # a period of at least throttle.interval; its own: its steps are not the wrench's
+        self.throttle = None
         self._geometries: dict = {}  # body index -> its collision geometries, filled as first held
         self._stiffness: dict = {}
         self.published = 0
