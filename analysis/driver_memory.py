@@ -11,7 +11,7 @@ memory at the start and the end and the spread about the line. Loopback only (12
     python analysis/driver_memory.py --minutes 2 --every 5 --csv rss.csv
 
 The link's key is a temporary one of this run (GODOBJECT_LINK_KEY), never the user's own. With
-``--scene`` this process plays the scene's end of the link (godobject_drake.protocol.UdpLcm):
+``--scene`` this process plays the scene's end of the link (godobject_drake.link.transport.UdpLcm):
 it pairs with the driver and sends it a 1 N feedback wrench every millisecond, so the driver's
 every period holds a force and a feedback gap. Linux only (/proc).
 """
@@ -46,7 +46,8 @@ def play_scene(url: str, stop: threading.Event) -> dict:
     """The scene's end of the link: answer the driver, send 1 N along x every millisecond."""
     from drake import lcmt_force_torque
 
-    from godobject_drake.protocol import FEEDBACK_CHANNEL, UdpLcm
+    from godobject_drake.link.messages import FEEDBACK_CHANNEL
+    from godobject_drake.link.transport import UdpLcm
 
     link = UdpLcm.listen(url)
     message = lcmt_force_torque()

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from godobject_drake.config import scenario as sc
-from godobject_drake.protocol import POSE_CHANNEL, pose_message
+from godobject_drake.link.messages import POSE_CHANNEL, pose_message
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.station.loop import make_device

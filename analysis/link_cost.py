@@ -1,5 +1,5 @@
 """What does pairing cost per message? (issue 45: every datagram of a udp:// link is tagged and
-checked, godobject_drake.protocol.)
+checked, godobject_drake.link.transport.)
 
 Times, per message, on this machine's CPU (no socket): sealing a driver's pose (~170 bytes with
 its head and tag) and the scene's checks of it, and sealing a scene's feedback (~110 bytes) and
@@ -22,14 +22,8 @@ from pathlib import Path
 
 from drake import lcmt_force_torque
 
-from godobject_drake.protocol import (
-    FEEDBACK_CHANNEL,
-    POSE_CHANNEL,
-    DriverEnd,
-    SceneEnd,
-    UdpLcm,
-    pose_message,
-)
+from godobject_drake.link.messages import FEEDBACK_CHANNEL, POSE_CHANNEL, pose_message
+from godobject_drake.link.transport import DriverEnd, SceneEnd, UdpLcm
 
 KEY = bytes(range(32))
 

@@ -17,7 +17,7 @@ Two scenes:
   integrated at 1 ms of wall time, stopped by a rigid wall at x = 0 of the device's frame, which
   publishes the wrench and a local model (the wall as a plane) at the throttled rate;
 - ``lego``: the brick scene (diagrams/lego.yaml, ``python -m godobject_drake run``, device
-  ``!Lcm`` on ``udp://``) throttled by the test-only ``GODOBJECT_TEST_SCENE_HZ``; the hand
+  ``!Lcm`` on ``udp://``) throttled by the test-only analysis/throttled_scene.py; the hand
   grasps brick_0, carries it into the wall and presses, holds, comes back (the contact found
   from the driver's own log); ``lego_haptic``: the same on the haptic recipe
   (diagrams/lego_haptic.yaml: h = 5 ms, the implicit coupling, the device at its 200 Hz).
@@ -79,15 +79,15 @@ def serve(url: str, key_file: str, rate_hz: float, kd: float, seconds: float) ->
     """A wall scene that is not Drake (module docstring), publishing at ``rate_hz`` of wall time."""
     from drake import lcmt_force_torque
 
-    from godobject_drake.protocol import (
+    from godobject_drake.link.messages import (
         FEEDBACK_CHANNEL,
         LOCAL_MODEL_CHANNEL,
         POSE_CHANNEL,
         POSE_NAMES,
         LocalModel,
-        UdpLcm,
         parse_robot_state,
     )
+    from godobject_drake.link.transport import UdpLcm
 
     lcm = UdpLcm.listen(url, key_file)
     latest = {}
@@ -164,7 +164,6 @@ def run(scene: str, rate_hz: float, kd: float, local: bool, kill: bool, folder: 
                    "--seconds", str(seconds + 3)]  # fmt: skip
     else:
         hand, command = lego_command(url, rate_hz, kd, folder, scene)
-        env["GODOBJECT_TEST_SCENE_HZ"] = str(rate_hz)
         seconds = hand["waypoints"][-1]["t"] + 0.5
     (folder / "hand.json").write_text(json.dumps(hand))
     scene_process = subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.DEVNULL,
@@ -317,8 +316,8 @@ simulation: {{duration_s: 600}}
     }
     command = [
         sys.executable,
-        "-m",
-        "godobject_drake",
+        str(REPO / "analysis" / "throttled_scene.py"),  # its link at rate_hz of wall time
+        str(rate_hz),
         "run",
         str(scenario),
         "--no-progress",

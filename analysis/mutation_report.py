@@ -47,8 +47,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# The units that decide what a user feels (the goal applies to these), as (module, class, a
-# tuple of classes or None, function names or None for all). A mutant is counted in the first unit it matches.
+# The units that decide what a user feels (the goal applies to these), as (module or a tuple of
+# modules, class, a tuple of classes or None, function names or None for all). A mutant is
+# counted in the first unit it matches.
 UNITS = {
     # GraspingCoupling: what the explicit and implicit couplings share (moved out of
     # GodObjectCoupling with no change of behaviour: its setup and caps, its grasp choice)
@@ -71,20 +72,21 @@ UNITS = {
     # and buzz damping; what the link lets through: the key file, each datagram, each end's rules
     "driver: watchdog and stop": ("driver.safety", "FeedbackGate", None),
     "driver: rated limits and buzz": ("driver.safety", "ForceSafety", None),
-    "link: key file": ("protocol", None, {"key_path", "_check_folder", "_create_key", "load_key",
+    "link: key file": ("link.keys", None, {"key_path", "_check_folder", "_create_key", "load_key",
                                           "key_fingerprint"}),
-    "link: datagrams and messages": ("protocol", "_Tagger", None),
-    "link: datagram checks": ("protocol", None, {"split", "data_fields", "decode", "parse_robot_state",
-                                                 "parse_url", "is_udp_url", "_derive"}),
-    "link: each end's rules": ("protocol", ("_End", "SceneEnd", "DriverEnd"), None),
-    "link: transport": ("protocol", "UdpLcm", None),
+    "link: datagrams and messages": ("link.transport", "_Tagger", None),
+    "link: datagram checks": (("link.transport", "link.messages"), None, {
+        "split", "data_fields", "decode", "parse_robot_state", "parse_url", "is_udp_url", "_derive"}),
+    "link: each end's rules": ("link.transport", ("_End", "SceneEnd", "DriverEnd"), None),
+    "link: transport": ("link.transport", "UdpLcm", None),
     # the local model (issue 44): its payload on the link, and the driver's renderer
     # (driver/local_model.py): the proxy on the planes, the energy budget (the two accounts, the
     # controller, taking a model: everything of LocalRenderer but the validity), the validity (the
     # scene's period, the fade, the trips). heard and reserve are properties, which mutmut 3.8
     # leaves unmutated (it skips decorated functions); they are named for when it does not
-    "link: local model": ("protocol", None, {"parse_local_model", "_finite", "alive_message", "parse_alive"}),
-    "link: local model payload": ("protocol", "LocalModel", None),
+    "link: local model": ("link.messages", None, {"parse_local_model", "_finite", "alive_message",
+                                                  "parse_alive"}),
+    "link: local model payload": ("link.messages", "LocalModel", None),
     "driver: local model proxy": ("driver.local_model", None, {"project"}),
     "driver: energy budget": ("driver.local_model", "LocalRenderer", {
         "__init__", "heard", "take", "proxy", "request", "_environment", "_account", "rendered", "reserve"}),
@@ -102,7 +104,7 @@ FUNCTION = re.compile(r"godobject_drake\.([\w.]+?)\.x(?:ǁ(\w+)ǁ|_)(\w+)")
 
 def unit_of(module: str, cls: str | None, function: str) -> str:
     for unit, (m, c, functions) in UNITS.items():
-        if m != module:
+        if module not in (m if isinstance(m, tuple) else (m,)):
             continue
         if c == "*" or cls in (c if isinstance(c, tuple) else (c,)) or (c is None and cls is None):
             if functions is None or function in functions:
@@ -115,15 +117,16 @@ def goal_globs(units=UNITS) -> list[str]:
     ``--run`` tests only these (the mutated modules' other functions are tested elsewhere;
     testing their mutants too took a fifth of the run)."""
     globs = []
-    for module, classes, functions in (UNITS[unit] for unit in units):
-        prefix = f"godobject_drake.{module}."
-        if classes == "*":
-            globs.append(prefix + "x*")
-            continue
-        for cls in classes if isinstance(classes, tuple) else (classes,):
-            head = prefix + ("x_" if cls is None else f"xǁ{cls}ǁ")
-            names = ["*"] if functions is None else [f"{f}__mutmut_*" for f in sorted(functions)]
-            globs += [head + name for name in names]
+    for modules, classes, functions in (UNITS[unit] for unit in units):
+        for module in modules if isinstance(modules, tuple) else (modules,):
+            prefix = f"godobject_drake.{module}."
+            if classes == "*":
+                globs.append(prefix + "x*")
+                continue
+            for cls in classes if isinstance(classes, tuple) else (classes,):
+                head = prefix + ("x_" if cls is None else f"xǁ{cls}ǁ")
+                names = ["*"] if functions is None else [f"{f}__mutmut_*" for f in sorted(functions)]
+                globs += [head + name for name in names]
     return globs
 
 
@@ -136,7 +139,9 @@ def unit_sources(root: Path = ROOT) -> dict[str, str]:
     puts in it (decorators included), in file order. A change to the unit's code, and to nothing
     else, changes it."""
     parts = collections.defaultdict(list)
-    for module in sorted({m for m, _, _ in UNITS.values()}):
+    for module in sorted(
+        {m for ms, _, _ in UNITS.values() for m in (ms if isinstance(ms, tuple) else (ms,))}
+    ):
         path = root / "godobject_drake" / (module.replace(".", "/") + ".py")
         source = path.read_text()
         lines = source.splitlines(keepends=True)
@@ -157,7 +162,7 @@ def configuration(root: Path = ROOT) -> str:
     """A hash of what decides the goal's mutants and tests: ``[tool.mutmut]``, the units, mutmut's
     version and the Python's. Another hash: the record says nothing of this configuration."""
     mutmut = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["mutmut"]
-    what = [mutmut, sorted((u, m, repr(c), sorted(f or [])) for u, (m, c, f) in UNITS.items()),
+    what = [mutmut, sorted((u, repr(m), repr(c), sorted(f or [])) for u, (m, c, f) in UNITS.items()),
             importlib.metadata.version("mutmut"), sys.version_info[:2]]  # fmt: skip
     return _sha(json.dumps(what, sort_keys=True, default=str).encode())
 

@@ -17,7 +17,7 @@ diagram"). The layers, each importing only those below it (docs/design.md):
   kinds registered once);
 - :mod:`~godobject_drake.systems`: the Drake systems of the loop (coupling, feedback, haptic
   devices, articulated tool, shell, tissue, drawing); :mod:`~godobject_drake.devices`: the device
-  sources; :mod:`~godobject_drake.protocol`: the LCM link to a driver process;
+  sources; :mod:`~godobject_drake.link`: the LCM link to a driver process;
   :mod:`~godobject_drake.metrics`, :mod:`~godobject_drake.safeguards`,
   :mod:`~godobject_drake.sleeping`, :mod:`~godobject_drake.outputs`;
 - :mod:`~godobject_drake.station`: a scenario into a diagram, in one straight line;
@@ -25,7 +25,7 @@ diagram"). The layers, each importing only those below it (docs/design.md):
 - :mod:`~godobject_drake.cli` and :mod:`~godobject_drake.studies` (stability and passivity,
   ``analyze``, the speed-against-error runs) on top;
 - :mod:`~godobject_drake.driver`: a haptic device's driver process, beside them, sharing only
-  :mod:`~godobject_drake.protocol`.
+  :mod:`~godobject_drake.link`.
 
 The names above are imported lazily, so ``import godobject_drake`` stays cheap.
 """

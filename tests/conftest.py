@@ -186,7 +186,7 @@ def no_drake_deprecation_logged():
 
 @pytest.fixture(autouse=True, scope="session")
 def link_key(tmp_path_factory):
-    """The tests' own link key (``udp://`` links pair with it, godobject_drake.protocol): a file
+    """The tests' own link key (``udp://`` links pair with it, godobject_drake.link.keys): a file
     of this session (in a folder of mode 0700), never the user's ~/.config/godobject/link.key.
     Processes the tests start inherit it through ``$GODOBJECT_LINK_KEY``."""
     path = tmp_path_factory.mktemp("link", numbered=True) / "link.key"

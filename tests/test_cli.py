@@ -15,7 +15,7 @@ from conftest import REPO, load_script
 import godobject_drake
 from godobject_drake import cli
 from godobject_drake.config import scenario as sc
-from godobject_drake.protocol import StderrHandler
+from godobject_drake.link.logs import StderrHandler
 
 MARKUP = ("``", ":func:", ":mod:", ":class:")
 

@@ -33,14 +33,14 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.devices.lcm import ForceTorqueMessage, LcmDevice
 from godobject_drake.driver import process as drv
 from godobject_drake.driver.families import RATED, HandPath
-from godobject_drake.protocol import (
+from godobject_drake.link.messages import (
     DRIVER_STATUS_CHANNEL,
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
-    UdpLcm,
     pose_message,
     status_message,
 )
+from godobject_drake.link.transport import UdpLcm
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 
@@ -336,11 +336,11 @@ def test_a_scene_loop_held_up_keeps_the_wall_and_one_that_hangs_lets_it_go(tmp_p
     The second: the wall holds through the first 0.45 s, the scene stops vouching 0.5 s after
     its last model (STALL_LIMIT_S), and from then plus the longest fade (0.35 s) on the driver
     renders exactly zero until the loop runs again (measured: zero from 0.57 to 0.64 s on)."""
-    from godobject_drake.devices import lcm
-    from godobject_drake.devices.lcm import STALL_LIMIT_S
     from godobject_drake.driver.local_model import MAX_GAP_S
+    from godobject_drake.link import scene_model
+    from godobject_drake.link.scene_model import STALL_LIMIT_S
 
-    held_up, publish = [], lcm.LocalModelPublisher._publish
+    held_up, publish = [], scene_model.LocalModelPublisher._publish
 
     def publish_held_up(self, context):
         sent = self.published
@@ -352,7 +352,7 @@ def test_a_scene_loop_held_up_keeps_the_wall_and_one_that_hangs_lets_it_go(tmp_p
                 pass
             held_up.append((start, time.monotonic()))
 
-    monkeypatch.setattr(lcm.LocalModelPublisher, "_publish", publish_held_up)
+    monkeypatch.setattr(scene_model.LocalModelPublisher, "_publish", publish_held_up)
     url = f"udp://127.0.0.1:{free_port()}"
     driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
     try:
@@ -534,7 +534,7 @@ def test_the_driver_keeps_bounded_memory_without_a_log():
 
 
 def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_package():
-    """A driver process imports godobject_drake.protocol and its own driver/ modules, nothing of the
+    """A driver process imports godobject_drake.link and its own driver/ modules, nothing of the
     scene's: no pydrake.systems (a fresh interpreter, so nothing else imported it first)."""
     code = (
         "import json, sys, godobject_drake.driver.process\n"
@@ -550,7 +550,11 @@ def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_packa
         "godobject_drake.driver.local_model",
         "godobject_drake.driver.process",
         "godobject_drake.driver.safety",
-        "godobject_drake.protocol",
+        "godobject_drake.link",
+        "godobject_drake.link.keys",
+        "godobject_drake.link.logs",
+        "godobject_drake.link.messages",
+        "godobject_drake.link.transport",
     ]
 
 
@@ -560,7 +564,7 @@ def test_a_key_others_can_read_or_a_link_that_cannot_be_paired_is_refused_before
     """Exit 2 (the driver) or a ValueError before the scene is built, each naming the value and
     the fix: a key file of mode 0644; Drake's multicast for the driver without the opt-in; a key
     file for a link that is not udp://."""
-    from godobject_drake.protocol import KeyFileError
+    from godobject_drake.link.keys import KeyFileError
 
     key = tmp_path / "keys" / "link.key"
     key.parent.mkdir(mode=0o700)

@@ -39,7 +39,8 @@ from godobject_drake.config.device_files import (
 )
 from godobject_drake.devices.lcm import LcmDevice
 from godobject_drake.devices.sources import DeviceSource
-from godobject_drake.protocol import LINK_CHANNEL, MAX_DATAGRAM, POSE_CHANNEL, POSE_NAMES
+from godobject_drake.link.messages import POSE_CHANNEL, POSE_NAMES
+from godobject_drake.link.transport import LINK_CHANNEL, MAX_DATAGRAM
 
 pytestmark = pytest.mark.slow  # hypothesis: seconds per property
 
@@ -227,7 +228,7 @@ junk = st.one_of(
 
 def junk_bytes(kind: str, arg, utime: int) -> bytes:
     """A junk message of ``kind``, ``utime`` being the last valid message's."""
-    from godobject_drake.protocol import pose_message
+    from godobject_drake.link.messages import pose_message
 
     q = (1.0, 0.0, 0.0, 0.0)
     if kind == "garbage":
@@ -253,7 +254,7 @@ EXAMPLES = itertools.count()
 @FUZZ
 @given(batches=st.lists(st.lists(st.one_of(valid, junk), max_size=5), min_size=1, max_size=12))
 def test_junk_interleaved_with_valid_lcm_messages_changes_nothing_they_do(batches):
-    from godobject_drake.protocol import pose_message
+    from godobject_drake.link.messages import pose_message
 
     rigs = []
     for side in "ab":
@@ -309,7 +310,7 @@ def test_junk_interleaved_with_valid_lcm_messages_changes_nothing_they_do(batche
 
 # -- the link, both ends, through an adversary ------------------------------------------------------------
 #
-# A scene's end and a driver's end of a udp:// link (godobject_drake.protocol) on 127.0.0.1, every
+# A scene's end and a driver's end of a udp:// link (godobject_drake.link.transport) on 127.0.0.1, every
 # datagram either way passing two sockets of the test's (the driver's peer is one; the scene sees
 # the driver at the other). There each datagram is forwarded, dropped, sent twice, truncated,
 # split in two, changed by a bit or held back and sent later; and between the ends' own messages
@@ -343,7 +344,7 @@ class Wire:
     sent to that end, in order, with where it came from (``wire`` or ``elsewhere``)."""
 
     def __init__(self, fates):
-        from godobject_drake.protocol import UdpLcm
+        from godobject_drake.link.transport import UdpLcm
 
         self.now = 0.0
         self.fates = iter(fates)
@@ -455,7 +456,7 @@ class Wire:
 
     def forged(self, to: str) -> bytes:
         """A well-formed datagram for ``to``, with the session's nonces, tagged with another key."""
-        from godobject_drake.protocol import DriverEnd, SceneEnd
+        from godobject_drake.link.transport import DriverEnd, SceneEnd
 
         scene_nonce, driver_nonce = self.scene.end.nonce, self.driver.end.nonce
         if to == "scene":
@@ -475,7 +476,7 @@ class Wire:
     def expected(self, side: str) -> list[tuple[str, bytes]]:
         """What ``side`` should have handed on: the other end's DATA that arrived intact, in order,
         each the first time, newer than the last, from the address that paired (the first)."""
-        from godobject_drake.protocol import COUNTER, DATA_HEAD, TAG_BYTES, data_fields
+        from godobject_drake.link.transport import COUNTER, DATA_HEAD, TAG_BYTES, data_fields
 
         other = "driver" if side == "scene" else "scene"
         theirs = {d for s, d in self.captured if s == other and d[4:5] in (b"D", b"S")}
@@ -495,7 +496,7 @@ class Wire:
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(actions=st.lists(WIRE_ACTIONS, min_size=1, max_size=60), fates=st.lists(FATES, max_size=80))
 def test_each_end_hands_on_exactly_the_intact_newer_messages_of_its_paired_end(actions, fates):
-    from godobject_drake.protocol import LINK_REJECTED
+    from godobject_drake.link.transport import LINK_REJECTED
 
     wire = Wire(fates)
     published = {"scene": 0, "driver": 0}
@@ -770,7 +771,7 @@ def test_any_scenario_file_runs_or_is_refused_with_a_message(text, capsys):
 
 
 def _valid_model(p_G, planes):
-    from godobject_drake.protocol import LocalModel
+    from godobject_drake.link.messages import LocalModel
 
     return LocalModel(1, 2, 0.001, 200.0, 0.0, 0.0, 0.0, tuple(p_G), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
                       (0.0, 0.0, 0.0), tuple(p_G), planes=tuple(planes))  # fmt: skip
@@ -793,7 +794,7 @@ def test_any_changed_local_model_is_read_whole_and_checked_or_refused_naming_why
     """A local model payload changed anywhere (bytes overwritten, cut short) is either refused
     with a LocalModelError (never another exception), or read into a model every value of which
     is within its limits: finite, gains ≥ 0, unit normals and quaternion, stiffness > 0."""
-    from godobject_drake.protocol import LocalModelError, parse_local_model
+    from godobject_drake.link.messages import LocalModelError, parse_local_model
 
     raw = bytearray(_valid_model(p_G, planes).encode())
     for at, value in edits:

@@ -17,7 +17,7 @@ from godobject_drake.config.scenario import ScenarioError
 from godobject_drake.devices.lcm import LcmDevice, LcmJointDevice
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.driver.replay import replay
-from godobject_drake.protocol import FEEDBACK_CHANNEL, JOINT_CHANNEL, POSE_CHANNEL, pose_message
+from godobject_drake.link.messages import FEEDBACK_CHANNEL, JOINT_CHANNEL, POSE_CHANNEL, pose_message
 from godobject_drake.simulation import DeviceNotHeardError, RealtimeLag, simulate
 
 T = 0.01  # the device's expected period (s)
@@ -389,7 +389,7 @@ def test_a_joint_device_waited_for_starts_at_its_drivers_values():
     the next sample, 1/60 s later, would have replaced)."""
     import threading
 
-    from godobject_drake.protocol import JOINT_CHANNEL
+    from godobject_drake.link.messages import JOINT_CHANNEL
 
     station = build_scene("laparoscopy", "--device", "lcm", "--lcm-url", "memq://", "--lcm-wait", "20",
                           "--duration", "0.05")  # fmt: skip

@@ -1,4 +1,4 @@
-"""The link's checks (godobject_drake.protocol, issue 45): the key file, the datagrams, each end's
+"""The link's checks (godobject_drake.link, issue 45): the key file, the datagrams, each end's
 rules (pairing, replays, other sessions, other addresses, a second driver, floods), exactly.
 
 Two layers: the ends (:class:`SceneEnd`, :class:`DriverEnd`) with datagrams handed between them
@@ -19,15 +19,16 @@ from pathlib import Path
 import pytest
 from drake import lcmt_force_torque, lcmt_robot_state
 
-from godobject_drake import protocol as pr
-from godobject_drake.protocol import (
+from godobject_drake.link import keys as key_files
+from godobject_drake.link import messages, transport
+from godobject_drake.link.keys import KeyFileError
+from godobject_drake.link.transport import (
     DRIVER_DATA,
     HELLO,
     LINK_CHANNEL,
     MAX_DATAGRAM,
     TAG_BYTES,
     DriverEnd,
-    KeyFileError,
     SceneEnd,
     UdpLcm,
 )
@@ -75,7 +76,7 @@ def received(link: UdpLcm, n: int) -> None:
 def accounted(counts: dict) -> bool:
     """Each datagram an end read is counted once: taken, a handshake, refused, or dropped."""
     outcomes = counts["udp_taken"] + counts["udp_handshakes"] + counts["udp_refused"]
-    return counts["udp_received"] == outcomes + sum(counts[k] for k in pr.LINK_REJECTED)
+    return counts["udp_received"] == outcomes + sum(counts[k] for k in transport.LINK_REJECTED)
 
 
 def nonzero(counts: dict) -> dict:
@@ -101,26 +102,26 @@ def ends(scene_nonce=b"s" * 16, driver_nonce=b"d" * 16):
 
 def test_the_key_is_created_on_first_use_user_only_and_read_back(tmp_path):
     path = tmp_path / "cfg" / "godobject" / "link.key"
-    key, where = pr.load_key(path)
+    key, where = key_files.load_key(path)
     assert where == path and len(key) == 32
     assert stat.S_IMODE(path.stat().st_mode) == 0o600 and stat.S_IMODE(path.parent.stat().st_mode) == 0o700
     assert path.read_text() == key.hex() + "\n"
-    assert pr.load_key(path) == (key, path)  # read back, not made again
+    assert key_files.load_key(path) == (key, path)  # read back, not made again
     assert sorted(p.name for p in path.parent.iterdir()) == ["link.key"]  # no temporary file left
-    assert pr.load_key(tmp_path / "another.key")[0] != key  # each new key is random
+    assert key_files.load_key(tmp_path / "another.key")[0] != key  # each new key is random
 
 
 def test_the_key_path_is_the_given_file_else_the_environment_else_the_config_folder(tmp_path, monkeypatch):
-    monkeypatch.setenv(pr.KEY_ENV, str(tmp_path / "env.key"))
+    monkeypatch.setenv(key_files.KEY_ENV, str(tmp_path / "env.key"))
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    assert pr.key_path(tmp_path / "given.key") == tmp_path / "given.key"
-    assert pr.key_path("~/k") == tmp_path / "home" / "k"
-    assert pr.key_path() == tmp_path / "env.key"
-    monkeypatch.delenv(pr.KEY_ENV)
-    assert pr.key_path() == tmp_path / "xdg" / "godobject" / "link.key"
+    assert key_files.key_path(tmp_path / "given.key") == tmp_path / "given.key"
+    assert key_files.key_path("~/k") == tmp_path / "home" / "k"
+    assert key_files.key_path() == tmp_path / "env.key"
+    monkeypatch.delenv(key_files.KEY_ENV)
+    assert key_files.key_path() == tmp_path / "xdg" / "godobject" / "link.key"
     monkeypatch.delenv("XDG_CONFIG_HOME")
-    assert pr.key_path() == tmp_path / "home" / ".config" / "godobject" / "link.key"
+    assert key_files.key_path() == tmp_path / "home" / ".config" / "godobject" / "link.key"
 
 
 def test_two_ends_creating_the_key_at_once_get_the_same_one(tmp_path):
@@ -130,7 +131,7 @@ def test_two_ends_creating_the_key_at_once_get_the_same_one(tmp_path):
 
     def load():
         start.wait()
-        keys.append(pr.load_key(path)[0])
+        keys.append(key_files.load_key(path)[0])
 
     threads = [threading.Thread(target=load) for _ in range(8)]
     for t in threads:
@@ -154,14 +155,14 @@ def _key_file(tmp_path, text="ab" * 32 + "\n", mode=0o600) -> Path:
 def test_a_key_others_may_read_or_change_is_refused_naming_its_mode_and_the_fix(tmp_path, mode):
     path = _key_file(tmp_path, mode=mode)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(path)
+        key_files.load_key(path)
     message = str(refused.value)
     assert message.startswith(f"key file {path}: mode {mode:04o}") and "at most 0600" in message
     assert f"chmod 600 {path}" in message
 
 
 def test_the_key_mode_0400_is_accepted(tmp_path):
-    assert pr.load_key(_key_file(tmp_path, mode=0o400))[0] == bytes([0xAB] * 32)
+    assert key_files.load_key(_key_file(tmp_path, mode=0o400))[0] == bytes([0xAB] * 32)
 
 
 @pytest.mark.parametrize("mode", [0o777, 0o775, 0o757, 0o1777])
@@ -170,7 +171,7 @@ def test_a_key_in_a_folder_others_can_write_is_refused(tmp_path, mode):
     folder.mkdir()
     folder.chmod(mode)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(folder / "link.key")
+        key_files.load_key(folder / "link.key")
     message = str(refused.value)
     assert f"its folder {folder} (mode {mode:04o}" in message and f"chmod 700 {folder}" in message
     assert not (folder / "link.key").exists()  # nothing created there
@@ -180,7 +181,7 @@ def test_a_key_folder_readable_by_others_is_accepted(tmp_path):
     folder = tmp_path / "readable"
     folder.mkdir()
     folder.chmod(0o755)
-    assert len(pr.load_key(folder / "link.key")[0]) == 32
+    assert len(key_files.load_key(folder / "link.key")[0]) == 32
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="changing a file's owner needs root")
@@ -188,9 +189,9 @@ def test_a_key_file_or_folder_of_another_user_is_refused(tmp_path):
     path = _key_file(tmp_path)
     os.chown(path, 65534, 65534)
     with pytest.raises(KeyFileError, match=r"owned by uid 65534, not by you \(uid 0\)"):
-        pr.load_key(path)
+        key_files.load_key(path)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(path)
+        key_files.load_key(path)
     assert str(refused.value) == (
         f"key file {path}: owned by uid 65534, not by you (uid 0); only your own key can pair your scene "
         "and driver: copy it to a file of yours (mode 0600)"
@@ -200,10 +201,10 @@ def test_a_key_file_or_folder_of_another_user_is_refused(tmp_path):
         folder.mkdir(mode=0o700)
         os.chown(folder, uid, uid)
         with pytest.raises(KeyFileError, match=rf"its folder .*owner uid {uid}\)"):
-            pr.load_key(folder / "link.key")
+            key_files.load_key(folder / "link.key")
     root_folder = tmp_path / "root_owned"  # root's own folders are accepted (the user's is too)
     root_folder.mkdir(mode=0o755)
-    assert len(pr.load_key(root_folder / "link.key")[0]) == 32
+    assert len(key_files.load_key(root_folder / "link.key")[0]) == 32
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="running a process as another user needs root")
@@ -211,7 +212,7 @@ def test_another_user_cannot_read_the_key(tmp_path):
     import subprocess
 
     path = tmp_path / "k" / "link.key"
-    pr.load_key(path)
+    key_files.load_key(path)
     os.chmod(tmp_path, 0o755)  # pytest's own folder is user-only: let the other user try the file itself
     done = subprocess.run(["cat", str(path)], user=65534, capture_output=True, text=True)
     assert done.returncode == 1 and "Permission denied" in done.stderr and done.stdout == ""
@@ -222,7 +223,7 @@ def test_a_symlink_a_folder_or_a_fifo_as_the_key_is_refused_naming_the_fix(tmp_p
     link = real.parent / "link.key.symlink"
     link.symlink_to(real)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(link)
+        key_files.load_key(link)
     assert str(refused.value) == (
         f"key file {link}: Too many levels of symbolic links; give the path of a regular file (not a "
         "link), or a new path where the key will be created"
@@ -232,7 +233,7 @@ def test_a_symlink_a_folder_or_a_fifo_as_the_key_is_refused_naming_the_fix(tmp_p
     os.mkfifo(fifo, 0o600)
     for path in (folder, fifo):  # a FIFO: refused, and no hang on opening it
         with pytest.raises(KeyFileError) as refused:
-            pr.load_key(path)
+            key_files.load_key(path)
         assert str(refused.value) == (
             f"key file {path}: not a regular file; give the path of the key file (64 hex digits), or a "
             "new path where the key will be created"
@@ -246,7 +247,7 @@ def test_a_symlink_a_folder_or_a_fifo_as_the_key_is_refused_naming_the_fix(tmp_p
 def test_anything_but_64_hex_digits_and_a_line_end_is_refused_naming_its_size(tmp_path, text):
     path = _key_file(tmp_path, text)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(path)
+        key_files.load_key(path)
     assert str(refused.value) == (
         f"key file {path}: not a key of 64 hex digits ({len(text.encode())} bytes); delete it so a new "
         "key is made, or copy the other end's key file here"
@@ -256,17 +257,17 @@ def test_anything_but_64_hex_digits_and_a_line_end_is_refused_naming_its_size(tm
 @pytest.mark.parametrize("end", ["", "\n", "\r\n", "\r"])
 def test_64_hex_digits_of_either_case_and_a_line_end_are_a_key(tmp_path, end):
     key = bytes(range(0x90, 0xB0))
-    assert pr.load_key(_key_file(tmp_path, key.hex().upper() + end)) == (
+    assert key_files.load_key(_key_file(tmp_path, key.hex().upper() + end)) == (
         key,
         tmp_path / "private" / "link.key",
     )
-    assert pr.load_key(_key_file(tmp_path, key.hex() + end))[0] == key
+    assert key_files.load_key(_key_file(tmp_path, key.hex() + end))[0] == key
 
 
 def test_the_key_file_messages_name_the_file_and_the_fix(tmp_path, caplog):
     path = _key_file(tmp_path, mode=0o644)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(path)
+        key_files.load_key(path)
     assert str(refused.value) == (
         f"key file {path}: mode 0644 lets others read or change it (at most 0600): chmod 600 {path}, and "
         "if others may have read it, delete it so a new key is made (then copy the new one to the other end)"
@@ -275,7 +276,7 @@ def test_the_key_file_messages_name_the_file_and_the_fix(tmp_path, caplog):
     folder.mkdir()
     folder.chmod(0o777)
     with pytest.raises(KeyFileError) as refused:
-        pr.load_key(folder / "k")
+        key_files.load_key(folder / "k")
     assert str(refused.value) == (
         f"key file {folder / 'k'}: its folder {folder} (mode 0777, owner uid {os.getuid()}) can be "
         "written by others, who could replace the key; keep the key in a folder only you can write "
@@ -283,8 +284,8 @@ def test_the_key_file_messages_name_the_file_and_the_fix(tmp_path, caplog):
     )
     with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
         new = tmp_path / "new" / "link.key"
-        pr.load_key(new)
-        pr.load_key(new)
+        key_files.load_key(new)
+        key_files.load_key(new)
     assert [r.getMessage() for r in caplog.records] == [
         f"created the link key {new} (mode 0600): a scene and a driver pair with the same file; copy it "
         "to the other computer if the driver runs there"
@@ -292,14 +293,14 @@ def test_the_key_file_messages_name_the_file_and_the_fix(tmp_path, caplog):
 
 
 def test_the_key_is_the_environments_when_none_is_given(link_key):
-    assert pr.load_key()[1] == link_key == Path(os.environ[pr.KEY_ENV])
+    assert key_files.load_key()[1] == link_key == Path(os.environ[key_files.KEY_ENV])
 
 
 def test_the_fingerprint_names_a_key_in_8_hex_digits():
     """The first 4 bytes of HMAC-SHA256(K, "godobject link fingerprint"), as docs/haptic_devices.md says."""
     expected = hmac.new(KEY, b"godobject link fingerprint", hashlib.sha256).hexdigest()[:8]
-    assert pr.key_fingerprint(KEY) == expected and len(expected) == 8
-    assert pr.key_fingerprint(KEY) != pr.key_fingerprint(OTHER_KEY)
+    assert key_files.key_fingerprint(KEY) == expected and len(expected) == 8
+    assert key_files.key_fingerprint(KEY) != key_files.key_fingerprint(OTHER_KEY)
     with pytest.raises(ValueError, match="a link key is 32 bytes, not 31"):
         SceneEnd(KEY[:31])
 
@@ -310,38 +311,42 @@ def test_the_fingerprint_names_a_key_in_8_hex_digits():
 def test_a_datagram_is_split_only_if_of_this_link_and_of_a_kind_taken():
     hello = ends()[1].hello(0.0)
     assert len(hello) == 4 + 1 + 32 + TAG_BYTES and hello[:5] == b"GOD1H"
-    assert pr.split(hello, (HELLO,)) == HELLO
-    assert pr.split(hello, (DRIVER_DATA,)) is None
-    assert pr.split(b"LC02" + hello[4:], (HELLO,)) is None
-    assert pr.split(hello[:-1], (HELLO,)) is None and pr.split(hello + b"x", (HELLO,)) is None
-    assert pr.split(b"", (HELLO,)) is None and pr.split(b"GOD1", (HELLO,)) is None
+    assert transport.split(hello, (HELLO,)) == HELLO
+    assert transport.split(hello, (DRIVER_DATA,)) is None
+    assert transport.split(b"LC02" + hello[4:], (HELLO,)) is None
+    assert transport.split(hello[:-1], (HELLO,)) is None and transport.split(hello + b"x", (HELLO,)) is None
+    assert transport.split(b"", (HELLO,)) is None and transport.split(b"GOD1", (HELLO,)) is None
     data = b"GOD1D" + bytes(MAX_DATAGRAM - 5)
-    assert pr.split(data, (DRIVER_DATA,)) == DRIVER_DATA
-    assert pr.split(data + b"\0", (DRIVER_DATA,)) is None  # one byte over the limit
+    assert transport.split(data, (DRIVER_DATA,)) == DRIVER_DATA
+    assert transport.split(data + b"\0", (DRIVER_DATA,)) is None  # one byte over the limit
 
 
 def test_data_fields_need_a_named_nul_terminated_channel():
     head = b"GOD1D" + b"s" * 16 + b"d" * 16 + struct.pack(">Q", 7)
     tag = b"t" * TAG_BYTES
-    assert pr.data_fields(head + b"CH\0payload" + tag) == ((b"s" * 16, b"d" * 16), 7, ("CH", b"payload"))
-    assert pr.data_fields(head + b"C\0" + tag) == ((b"s" * 16, b"d" * 16), 7, ("C", b""))
-    assert pr.data_fields(head + b"\0payload" + tag) is None  # no channel name
-    assert pr.data_fields(head + b"CH" + tag) is None  # no NUL
-    assert pr.data_fields(head + b"CH" + tag[:-1] + b"\0") is None  # a NUL in the tag is not one
-    assert pr.data_fields(head + b"\xff\0" + tag) is None  # not UTF-8
-    assert pr.data_fields(head[:-3]) is None
+    assert transport.data_fields(head + b"CH\0payload" + tag) == (
+        (b"s" * 16, b"d" * 16),
+        7,
+        ("CH", b"payload"),
+    )
+    assert transport.data_fields(head + b"C\0" + tag) == ((b"s" * 16, b"d" * 16), 7, ("C", b""))
+    assert transport.data_fields(head + b"\0payload" + tag) is None  # no channel name
+    assert transport.data_fields(head + b"CH" + tag) is None  # no NUL
+    assert transport.data_fields(head + b"CH" + tag[:-1] + b"\0") is None  # a NUL in the tag is not one
+    assert transport.data_fields(head + b"\xff\0" + tag) is None  # not UTF-8
+    assert transport.data_fields(head[:-3]) is None
 
 
 def test_decode_refuses_a_truncated_or_foreign_message_without_raising():
-    state = pr.pose_message(5, [0.1, 0.2, 0.3], [1, 0, 0, 0], "*").encode()
-    assert pr.decode(lcmt_robot_state, state).utime == 5
+    state = messages.pose_message(5, [0.1, 0.2, 0.3], [1, 0, 0, 0], "*").encode()
+    assert messages.decode(lcmt_robot_state, state).utime == 5
     for cut in range(len(state)):
-        assert pr.decode(lcmt_robot_state, state[:cut]) is None
-        assert pr.parse_robot_state(state[:cut], pr.POSE_NAMES) is None
-    assert pr.decode(lcmt_force_torque, state) is None  # another type
+        assert messages.decode(lcmt_robot_state, state[:cut]) is None
+        assert messages.parse_robot_state(state[:cut], messages.POSE_NAMES) is None
+    assert messages.decode(lcmt_force_torque, state) is None  # another type
     negative = bytearray(state)
     negative[16:18] = struct.pack(">h", -3)  # num_joints −3
-    assert pr.decode(lcmt_robot_state, bytes(negative)) is None
+    assert messages.decode(lcmt_robot_state, bytes(negative)) is None
 
 
 # -- the ends, datagram by datagram ------------------------------------------------------------------------
@@ -451,18 +456,18 @@ def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pair
 def test_the_driver_says_hello_every_interval_until_paired_then_only_after_a_silence():
     scene, driver = ends()
     first = driver.hello(0.0)
-    assert driver.hello(pr.HELLO_INTERVAL_S * 0.99) is None
-    again = driver.hello(pr.HELLO_INTERVAL_S)
+    assert driver.hello(transport.HELLO_INTERVAL_S * 0.99) is None
+    again = driver.hello(transport.HELLO_INTERVAL_S)
     assert again == first  # the same challenge while the search goes on
     _, welcome = scene.receive(again, DRIVER_AT)
     scene.receive(driver.receive(welcome, SCENE_AT, 0.25)[1], DRIVER_AT)
     assert driver.heard == 0.25
-    assert driver.hello(0.25 + pr.SILENT_S) is None
-    later = driver.hello(0.25 + pr.SILENT_S + 0.01)
+    assert driver.hello(0.25 + transport.SILENT_S) is None
+    later = driver.hello(0.25 + transport.SILENT_S + 0.01)
     assert later is not None and later != first  # a new search, a new challenge
-    assert driver.hello(0.25 + pr.SILENT_S + 0.02) is None
+    assert driver.hello(0.25 + transport.SILENT_S + 0.02) is None
     driver.receive(scene.seal("FEEDBACK", b"f"), SCENE_AT, 11.0)  # heard: no HELLO needed
-    assert driver.hello(11.0 + pr.SILENT_S) is None
+    assert driver.hello(11.0 + transport.SILENT_S) is None
 
 
 def test_a_driver_hears_nothing_from_another_address():
@@ -500,7 +505,7 @@ def test_a_scene_takes_one_driver_and_refuses_a_second_saying_so(caplog):
         assert scene.receive(d2, second_at) == (None, None)
         assert scene.receive(second.seal("POSE", b"10 m"), second_at) == (None, None)
         _, refused = scene.receive(second.hello(1.0), second_at)
-        assert refused[4:5] == pr.REFUSED
+        assert refused[4:5] == transport.REFUSED
         assert second.receive(refused, SCENE_AT, 1.0) == (None, None)
         assert second.receive(refused, SCENE_AT, 1.0) == (None, None)
     assert scene.session == (b"s" * 16, b"d" * 16) and scene.peer == DRIVER_AT
@@ -515,34 +520,39 @@ def test_a_scene_takes_one_driver_and_refuses_a_second_saying_so(caplog):
         "ends; nothing is rendered (stop the other driver and restart the scene)",
     ]
     _, welcome = scene.receive(first.hello(2.0), DRIVER_AT)  # the paired driver is welcomed again
-    assert welcome[4:5] == pr.WELCOME and first.receive(welcome, SCENE_AT, 2.0) == (None, None)
+    assert welcome[4:5] == transport.WELCOME and first.receive(welcome, SCENE_AT, 2.0) == (None, None)
     assert first.counts["udp_pairings"] == 1
 
 
 def test_a_scene_remembers_at_most_MAX_REFUSED_second_drivers(monkeypatch):
-    monkeypatch.setattr(pr, "MAX_REFUSED", 4)  # 64 by default; 4 keeps the test (run per mutant) quick
+    monkeypatch.setattr(transport, "MAX_REFUSED", 4)  # 64 by default; 4 keeps the test (run per mutant) quick
     scene, first = ends()
     handshake(scene, first)
-    for i in range(pr.MAX_REFUSED + 3):
+    for i in range(transport.MAX_REFUSED + 3):
         other = DriverEnd(KEY, SCENE_AT, i.to_bytes(16, "big"))
         scene.receive(other.hello(0.0), ("127.0.0.1", 50000 + i))
         scene.receive(other.hello(1.0), ("127.0.0.1", 50000 + i))
-    assert scene.counts["udp_refused_drivers"] == pr.MAX_REFUSED
-    assert len(scene.refused) == pr.MAX_REFUSED and scene.counts["udp_refused"] == 2 * (pr.MAX_REFUSED + 3)
+    assert scene.counts["udp_refused_drivers"] == transport.MAX_REFUSED
+    assert len(scene.refused) == transport.MAX_REFUSED and scene.counts["udp_refused"] == 2 * (
+        transport.MAX_REFUSED + 3
+    )
 
 
 def test_a_driver_remembers_at_most_MAX_REFUSED_scenes(caplog, monkeypatch):
-    monkeypatch.setattr(pr, "MAX_REFUSED", 4)
+    monkeypatch.setattr(transport, "MAX_REFUSED", 4)
     driver = DriverEnd(KEY, SCENE_AT, b"d" * 16)
     with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
-        for i in range(pr.MAX_REFUSED + 2):
+        for i in range(transport.MAX_REFUSED + 2):
             scene = SceneEnd(KEY, i.to_bytes(16, "big"))
             handshake(scene, DriverEnd(KEY, SCENE_AT, b"o" * 16))
             refused = scene.receive(driver.hello(float(i)), DRIVER_AT)[1]
             driver.receive(refused, SCENE_AT, float(i))
-    assert driver.counts["udp_refused"] == pr.MAX_REFUSED + 2 and len(driver.refused_by) == pr.MAX_REFUSED
+    assert (
+        driver.counts["udp_refused"] == transport.MAX_REFUSED + 2
+        and len(driver.refused_by) == transport.MAX_REFUSED
+    )
     logged = [r for r in caplog.records if r.getMessage().startswith("the scene at 127.0.0.1:7667 refused")]
-    assert len(logged) == pr.MAX_REFUSED
+    assert len(logged) == transport.MAX_REFUSED
 
 
 def test_welcome_and_refused_answer_only_the_current_challenge():
@@ -572,7 +582,7 @@ def test_kinds_an_end_does_not_take_are_malformed():
 def test_a_message_too_long_for_a_datagram_is_refused_when_sealed():
     scene, driver = ends()
     handshake(scene, driver)
-    room = MAX_DATAGRAM - (pr.DATA_HEAD + 2 + TAG_BYTES)  # a one-letter channel and its NUL
+    room = MAX_DATAGRAM - (transport.DATA_HEAD + 2 + TAG_BYTES)  # a one-letter channel and its NUL
     assert len(driver.seal("C", bytes(room))) == MAX_DATAGRAM
     with pytest.raises(ValueError, match=r"of 8114 bytes is over the link's 8192-byte datagram"):
         driver.seal("C", bytes(room + 1))
@@ -605,19 +615,24 @@ def test_the_datagrams_are_as_the_wire_format_says():
 
 
 def test_the_robot_state_of_a_pose_is_parsed_with_its_grasp_taken_out():
-    names = list(pr.POSE_NAMES)
+    names = list(messages.POSE_NAMES)
     q = [1.0, 0.0, 0.0, 0.0]
     for grasp, expected in (("*", "*"), ("", ""), ("brick_0", "brick_0"), (None, None)):
-        raw = pr.pose_message(2**40, [0.5, -0.25, 1.0], q, grasp).encode()
-        assert pr.parse_robot_state(raw, names) == (2**40, names, [0.5, -0.25, 1.0, *q], expected)
+        raw = messages.pose_message(2**40, [0.5, -0.25, 1.0], q, grasp).encode()
+        assert messages.parse_robot_state(raw, names) == (2**40, names, [0.5, -0.25, 1.0, *q], expected)
     two = lcmt_robot_state()
     two.utime, two.num_joints, two.joint_name, two.joint_position = 1, 2, ["x", "y"], [0.0, 1.0]
-    assert pr.parse_robot_state(two.encode(), names) == (1, ["x", "y"], [0.0, 1.0], None)
-    assert pr.parse_robot_state(two.encode()[:-4], names) is None  # one value short
+    assert messages.parse_robot_state(two.encode(), names) == (1, ["x", "y"], [0.0, 1.0], None)
+    assert messages.parse_robot_state(two.encode()[:-4], names) is None  # one value short
     first = lcmt_robot_state()
     first.utime, first.num_joints = 3, 3
     first.joint_name, first.joint_position = ["grasp=*", "x", "grasp=y"], [0.0, 0.5, 0.0]
-    assert pr.parse_robot_state(first.encode(), names) == (3, ["x", "grasp=y"], [0.5, 0.0], "*")  # the first
+    assert messages.parse_robot_state(first.encode(), names) == (
+        3,
+        ["x", "grasp=y"],
+        [0.5, 0.0],
+        "*",
+    )  # the first
 
 
 def test_each_rejection_is_counted_each_time():
@@ -661,7 +676,7 @@ def test_a_search_after_a_silence_asks_a_new_challenge_even_when_answered_at_onc
     hello = driver.hello(1.0)
     scene.receive(driver.receive(scene.receive(hello, DRIVER_AT)[1], SCENE_AT, 1.0)[1], DRIVER_AT)
     assert driver.challenge == hello[21:37] and driver.answered
-    again = driver.hello(1.0 + pr.SILENT_S + 0.001)
+    again = driver.hello(1.0 + transport.SILENT_S + 0.001)
     assert again[21:37] == driver.challenge != hello[21:37] and not driver.answered
     old_welcome = scene.receive(hello, DRIVER_AT)[1]  # an answer to the first challenge, replayed
     assert driver.receive(old_welcome, SCENE_AT, 2.0) == (None, None) and driver.counts["udp_stale"] == 1
@@ -703,7 +718,7 @@ def test_the_driver_sends_its_hello_from_the_poll_at_the_interval():
         driver.HandleSubscriptions(0)
         driver.HandleSubscriptions(0)
         assert driver.counts["udp_sent"] == 1  # one HELLO: the next is due at 0.1 s
-        now[0] = pr.HELLO_INTERVAL_S
+        now[0] = transport.HELLO_INTERVAL_S
         driver.HandleSubscriptions(0)
         assert driver.counts["udp_sent"] == 2
         received(scene, 2)
@@ -716,12 +731,12 @@ def test_a_flood_is_read_at_most_MAX_PER_POLL_datagrams_a_poll():
     scene = scene_link()
     junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        n = pr.MAX_PER_POLL + 40
+        n = transport.MAX_PER_POLL + 40
         for i in range(n):
             junk.sendto(b"junk %d" % i, ("127.0.0.1", scene.port))
         time.sleep(0.05)
         assert scene.HandleSubscriptions(0) == 0
-        assert scene.counts["udp_received"] == pr.MAX_PER_POLL and scene.counts["udp_flooded"] == 1
+        assert scene.counts["udp_received"] == transport.MAX_PER_POLL and scene.counts["udp_flooded"] == 1
         received(scene, n)
         assert scene.counts["udp_malformed"] == n and scene.counts["udp_flooded"] == 1
         assert accounted(scene.counts)
@@ -736,7 +751,7 @@ def test_an_oversized_datagram_is_malformed_and_one_at_the_limit_is_read():
     scene.Subscribe("C", got.append)
     try:
         pair(scene, driver)
-        room = MAX_DATAGRAM - (pr.DATA_HEAD + 2 + TAG_BYTES)
+        room = MAX_DATAGRAM - (transport.DATA_HEAD + 2 + TAG_BYTES)
         driver.Publish("C", bytes(room))
         driver.sock.sendto(b"GOD1D" + bytes(60000), ("127.0.0.1", scene.port))
         pump(scene, until=lambda: scene.counts["udp_malformed"] == 1 and got, what="both")
@@ -767,13 +782,17 @@ def test_a_port_in_use_or_a_host_without_address_is_refused_naming_the_fix():
 def test_a_url_that_is_not_udp_host_port_is_refused_naming_the_form():
     for bad in ("udp://127.0.0.1", "udpm://239.255.76.67:7667", "udp://:80", "udp://127.0.0.1:x", "memq://"):
         with pytest.raises(ValueError) as refused:
-            pr.parse_url(bad)
+            transport.parse_url(bad)
         assert str(refused.value) == (
             f"LCM URL {bad!r}: a driver link is udp://HOST:PORT, e.g. udp://127.0.0.1:7667 (127.0.0.1 "
             "keeps every datagram on this machine)"
         )
-    assert pr.parse_url("udp://127.0.0.1:7667") == ("127.0.0.1", 7667)
-    assert pr.is_udp_url("udp://h:1") and not pr.is_udp_url("udpm://h:1") and not pr.is_udp_url("memq://")
+    assert transport.parse_url("udp://127.0.0.1:7667") == ("127.0.0.1", 7667)
+    assert (
+        transport.is_udp_url("udp://h:1")
+        and not transport.is_udp_url("udpm://h:1")
+        and not transport.is_udp_url("memq://")
+    )
 
 
 def test_a_listening_link_names_its_own_address_key_and_buffer(tmp_path, caplog):
@@ -783,7 +802,7 @@ def test_a_listening_link_names_its_own_address_key_and_buffer(tmp_path, caplog)
         driver = driver_link(scene, key_file=key_file)
         pair(scene, driver)
     try:
-        key = pr.load_key(key_file)[0]
+        key = key_files.load_key(key_file)[0]
         assert scene.get_lcm_url() == f"udp://127.0.0.1:{scene.port}" and scene.key_file == key_file
         assert driver.get_lcm_url() == f"udp://127.0.0.1:{driver.port}" and driver.key_file == key_file
         low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
@@ -794,7 +813,7 @@ def test_a_listening_link_names_its_own_address_key_and_buffer(tmp_path, caplog)
         messages = [r.getMessage() for r in caplog.records if r.name == "godobject_drake.link"]
         assert messages[-3:] == [
             f"udp://127.0.0.1:{scene.port}: waiting for a driver with the key {key_file} (fingerprint "
-            f"{pr.key_fingerprint(key)})",
+            f"{key_files.key_fingerprint(key)})",
             f"paired with the scene at 127.0.0.1:{scene.port}",
             f"paired with the driver at 127.0.0.1:{driver.port}",
         ]
@@ -844,10 +863,10 @@ def test_floods_are_counted_each_time_a_poll_stops_at_its_limit():
     junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         for _ in range(2):
-            for i in range(pr.MAX_PER_POLL + 1):
+            for i in range(transport.MAX_PER_POLL + 1):
                 junk.sendto(b"junk %d" % i, ("127.0.0.1", scene.port))
             time.sleep(0.05)
-            received(scene, scene.counts["udp_received"] + pr.MAX_PER_POLL + 1)
+            received(scene, scene.counts["udp_received"] + transport.MAX_PER_POLL + 1)
         assert scene.counts["udp_flooded"] == 2
     finally:
         scene.close(), junk.close()

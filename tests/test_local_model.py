@@ -28,7 +28,7 @@ from godobject_drake.driver.local_model import (
     LocalRenderer,
     project,
 )
-from godobject_drake.protocol import (
+from godobject_drake.link.messages import (
     ALIVE_CHANNEL,
     LOCAL_MODEL_CHANNEL,
     MAX_PLANES,
@@ -397,7 +397,7 @@ def test_the_scene_puts_a_soft_plane_at_the_undeformed_surface_and_a_rigid_one_t
     """``plane_point`` by hand, normal +z out of the obstacle, G at z = 1 cm: apart by 2 mm, either
     plane is 2 mm below G; G 0.3 mm into a rigid pair (the solver's penetration), the plane
     through G; G sunk 5 mm into a soft pair, the plane 5 mm above G (where the surface was)."""
-    from godobject_drake.devices.lcm import plane_point
+    from godobject_drake.link.scene_model import plane_point
 
     g, n = np.array([0.0, 0.0, 0.01]), np.array([0.0, 0.0, 1.0])
     assert plane_point(g, 0.002, n, INF).tolist() == pytest.approx([0.0, 0.0, 0.008], abs=1e-15)
@@ -808,11 +808,11 @@ def test_a_heartbeat_for_another_model_or_before_any_holds_nothing():
 
 
 def test_the_scene_beats_while_its_loop_is_held_up_and_only_then():
-    """The scene's side (devices/lcm.py SceneHeartbeat, beat 5 ms, limit 0.5 s, decided on the
+    """The scene's side (link/scene_model.py SceneHeartbeat, beat 5 ms, limit 0.5 s, decided on the
     times given): no beat before a model; none while the model is younger than a beat; one at
     each tick from 5 ms to 0.5 s after it, naming its time; none past the limit (a loop that
     hangs is vouched for no longer); none once stopped."""
-    from godobject_drake.devices.lcm import BEAT_S, STALL_LIMIT_S, SceneHeartbeat
+    from godobject_drake.link.scene_model import BEAT_S, STALL_LIMIT_S, SceneHeartbeat
 
     sent = []
     beat = SceneHeartbeat(sent.append, clock=lambda: 0.0)
@@ -839,7 +839,7 @@ def test_the_scenes_heartbeat_thread_speaks_while_the_main_thread_computes():
     stopped, it ends; a model after the stop (the scene run again) starts a new one."""
     import time
 
-    from godobject_drake.devices.lcm import SceneHeartbeat
+    from godobject_drake.link.scene_model import SceneHeartbeat
 
     sent = []
     beat = SceneHeartbeat(sent.append)
@@ -955,7 +955,7 @@ def test_the_free_lag_follows_the_coupling_law_for_a_free_god_object():
     free body) against the exact solution of the same held samples: within ``3 ω h`` of the peak
     at h = 1 ms, half that at h = 0.5 ms (first order). Its force cap: a 1 m jump of the target
     is met at ``ω² max_stretch`` m/s² (0.2 m/s after the first millisecond at 0.125 m), not 40 m/s."""
-    from godobject_drake.devices.lcm import FreeLag
+    from godobject_drake.link.scene_model import FreeLag
 
     omega, V, T = 40.0, np.array([0.0, 0.06, 0.0]), 1e-3
     samples = [(V * T * max(n - 1, 0), V if n > 1 else np.zeros(3)) for n in range(400)]  # a start at rest
@@ -1006,7 +1006,7 @@ def test_the_free_lag_is_the_brick_scenes_own_stretch_while_it_touches_nothing()
     from pydrake.systems.analysis import Simulator
 
     from godobject_drake.config import scenario as sc
-    from godobject_drake.devices.lcm import FreeLag
+    from godobject_drake.link.scene_model import FreeLag
     from godobject_drake.station.build import build_station
     from godobject_drake.systems.coupling import TERMS_LAYOUT
 
@@ -1041,7 +1041,7 @@ def test_the_implicit_free_lag_is_the_haptic_recipes_own_stretch_to_a_fiftieth()
     from pydrake.systems.framework import EventStatus
 
     from godobject_drake.config import scenario as sc
-    from godobject_drake.devices.lcm import FreeLag
+    from godobject_drake.link.scene_model import FreeLag
     from godobject_drake.station.build import build_station
     from godobject_drake.systems.coupling import TERMS_LAYOUT
     from godobject_drake.systems.implicit import STATE_LAYOUT, implicit_terms
@@ -1081,7 +1081,7 @@ def test_the_implicit_free_lag_is_the_haptic_recipes_own_stretch_to_a_fiftieth()
 def test_the_free_lag_restarts_on_the_god_object_when_the_grasp_changes():
     """A new held body: the free god-object starts where the scene's is (lag = its stretch, no
     force from it), moving with it; nothing held: the coupling's G is the target (lag 0)."""
-    from godobject_drake.devices.lcm import FreeLag
+    from godobject_drake.link.scene_model import FreeLag
 
     free = FreeLag(1600.0, 80.0, math.inf, 1e-3)
     assert free.advance(0.0, np.ones(3), np.zeros(3)) == (0.0, 0.0, 0.0)  # nothing held yet

@@ -30,15 +30,14 @@ from pydrake.systems.analysis import Simulator
 from godobject_drake.devices.lcm import LcmDevice
 from godobject_drake.driver.families import RATED, EmulatedDevice, HandPath
 from godobject_drake.driver.process import Driver
-from godobject_drake.protocol import (
+from godobject_drake.link.messages import (
     DRIVER_STATUS_CHANNEL,
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
-    driver_lcm,
-    make_lcm,
     pose_message,
     status_message,
 )
+from godobject_drake.link.transport import driver_lcm, make_lcm
 
 T = 0.001  # the scene's device period (s)
 Q = (1.0, 0.0, 0.0, 0.0)

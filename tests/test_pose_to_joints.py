@@ -18,7 +18,7 @@ from godobject_drake.config.device_files import Waypoint
 from godobject_drake.config.scenario import ScenarioError
 from godobject_drake.devices.lcm import LcmDevice
 from godobject_drake.devices.trocar import PoseJointDevice, TrocarKinematics
-from godobject_drake.protocol import FEEDBACK_CHANNEL, POSE_CHANNEL, pose_message
+from godobject_drake.link.messages import FEEDBACK_CHANNEL, POSE_CHANNEL, pose_message
 from godobject_drake.simulation import simulate
 from godobject_drake.spatial import quat_to_rotation
 from godobject_drake.station.build import build_station

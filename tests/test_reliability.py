@@ -21,9 +21,9 @@ from pydrake.systems.analysis import Simulator
 from godobject_drake import cli
 from godobject_drake.config.scenario import ScenarioError, load_scenario
 from godobject_drake.devices.sources import ScriptedDevice
+from godobject_drake.link.messages import FEEDBACK_CHANNEL
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
-from godobject_drake.protocol import FEEDBACK_CHANNEL
 from godobject_drake.simulation import FallWatch, UnsupportedBodyWarning, _AllTools, simulate
 from godobject_drake.station.build import build_station
 

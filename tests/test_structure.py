@@ -21,7 +21,9 @@ LAYERS = (
     ("godobject_drake.spatial", 0),
     ("godobject_drake.limits", 0),
     ("godobject_drake.config", 1),
-    ("godobject_drake.protocol", 1),
+    # the link: what a scene and a driver share; its scene half (a Drake system) is the scene's
+    ("godobject_drake.link.scene_model", 2),
+    ("godobject_drake.link", 1),
     ("godobject_drake.systems", 2),
     ("godobject_drake.devices", 2),
     ("godobject_drake.metrics", 2),
@@ -36,7 +38,15 @@ LAYERS = (
 )
 # The driver's process stands beside the layers: it may use the link and the plain config only.
 DRIVER = "godobject_drake.driver"
-DRIVER_MAY_IMPORT = ("godobject_drake.driver", "godobject_drake.protocol", "godobject_drake.config")
+# (the link but its scene half: godobject_drake.link.scene_model loads pydrake.systems)
+DRIVER_MAY_IMPORT = (
+    "godobject_drake.driver",
+    "godobject_drake.link.messages",
+    "godobject_drake.link.keys",
+    "godobject_drake.link.transport",
+    "godobject_drake.link.logs",
+    "godobject_drake.config",
+)
 MAX_INNER_IMPORTS = 5
 MAX_FUNCTION_LINES = 100
 
@@ -133,7 +143,7 @@ def test_imports_point_down():
                 continue
             if m.startswith(DRIVER):
                 if not target.startswith(DRIVER_MAY_IMPORT):
-                    wrong.append(f"{m}:{line} imports {target}: the driver shares only protocol and config")
+                    wrong.append(f"{m}:{line} imports {target}: the driver shares only the link and config")
             elif target.startswith(DRIVER):
                 wrong.append(f"{m}:{line} imports the driver {target}")
             elif layer(target) > layer(m):
@@ -266,3 +276,16 @@ def test_every_analysis_script_is_in_the_index():
     index = (ANALYSIS / "README.md").read_text()
     missing = [p.name for p in sorted(ANALYSIS.glob("*.py")) if f"`{p.name}`" not in index]
     assert not missing, f"analysis/README.md does not list {missing}: add each with its question and command"
+
+
+def test_no_module_reads_a_test_only_environment_variable():
+    """A test or a benchmark injects what it needs (analysis/throttled_scene.py: the scene's
+    publication rate); the package reads no ``GODOBJECT_TEST_*`` setting, so nothing a user's
+    environment holds can switch on a test's behaviour."""
+    found = [
+        f"{m}:{n}"
+        for m, path in MODULES.items()
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if "GODOBJECT_TEST_" in line
+    ]
+    assert not found, f"the package names a GODOBJECT_TEST_ variable: {found}"

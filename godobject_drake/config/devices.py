@@ -50,7 +50,7 @@ from godobject_drake.config.device_files import (
     read_device_log,
     read_joint_log,
 )
-from godobject_drake.protocol import parse_url
+from godobject_drake.link.transport import parse_url
 
 SPACES = ("pose", "joint")
 MAX_RATE_HZ = 1e5  # a device sample every 10 µs at most

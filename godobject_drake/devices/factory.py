@@ -25,7 +25,7 @@ from godobject_drake.devices.sources import (
     ScriptedDevice,
     ScriptedJointDevice,
 )
-from godobject_drake.protocol import make_lcm
+from godobject_drake.link.transport import make_lcm
 
 FACTORIES: dict[type, Callable] = {}
 

@@ -1,5 +1,5 @@
 """The driver's side of the local model (issue 44; docs/local_model.md): each device period the
-force is computed from the scene's newest :class:`~godobject_drake.protocol.LocalModel` with the
+force is computed from the scene's newest :class:`~godobject_drake.link.messages.LocalModel` with the
 handle's *current* position, a proxy kept out of the model's planes, and an energy budget that
 pays for every change of model: what it cannot pay for is not rendered.
 
@@ -55,7 +55,7 @@ models when longer, at most :data:`MAX_GAP_S`), then fades linearly to zero at `
 ms``: a scene killed between two messages leaves no force after that. The scene's last word is
 the model's arrival, or a later heartbeat naming that model's time (:meth:`alive`: the scene's
 loop is held up, by a fold of its logs or a long step, and the model stands; the scene stops
-vouching for a model :data:`~godobject_drake.devices.lcm.STALL_LIMIT_S` after sending it). Each
+vouching for a model :data:`~godobject_drake.link.scene_model.STALL_LIMIT_S` after sending it). Each
 fade to zero is a watchdog trip.
 """
 
@@ -66,7 +66,7 @@ from collections import deque
 
 import numpy as np
 
-from godobject_drake.protocol import LocalModel
+from godobject_drake.link.messages import LocalModel
 
 MAX_GAP_S = 0.1  # a scene slower than 10 Hz is held no longer than a 10 Hz one
 HOLD_GAPS, HOLD_EXTRA_S = 2.0, 0.025

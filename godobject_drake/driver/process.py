@@ -9,12 +9,12 @@ the scene, the scene's feedback wrench to the device, and every safety on the de
 
 FAMILY is ``emulated``, ``haply``, ``forcedimension`` or ``openhaptics``
 (:mod:`godobject_drake.driver.families`; docs/haptic_devices.md). The scene runs with
-``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.protocol`).
+``device: !Lcm {url: udp://127.0.0.1:7667, ...}`` (:mod:`godobject_drake.link.transport`).
 
 **Pairing**: the driver and the scene pair with a key both read from the user's own key file
 (``--key-file``, the scene's ``device.key_file``; by default ``~/.config/godobject/link.key``,
 created on first use): every datagram is authenticated, replays are dropped, and nothing but
-the paired scene's feedback reaches the device (:mod:`godobject_drake.protocol`). Until a scene
+the paired scene's feedback reaches the device (:mod:`godobject_drake.link.transport`). Until a scene
 answers, the driver sends only its HELLO and renders nothing. A ``--scene`` that is not
 ``udp://`` (Drake's multicast) is refused unless ``--allow-unauthenticated``.
 
@@ -80,28 +80,24 @@ import numpy as np
 from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
 from godobject_drake.driver.local_model import LocalRenderer
 from godobject_drake.driver.safety import FeedbackGate, ForceSafety
-from godobject_drake.protocol import (
+from godobject_drake.link.keys import KEY_ENV, KeyFileError, key_fingerprint
+from godobject_drake.link.logs import StderrHandler
+from godobject_drake.link.messages import (
     ALIVE_CHANNEL,
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
-    KEY_ENV,
-    LINK_REJECTED,
     LOCAL_MODEL_CHANNEL,
     POSE_CHANNEL,
     STOP_SUFFIX,
-    KeyFileError,
     LocalModelError,
-    StderrHandler,
     decode,
-    driver_lcm,
-    is_udp_url,
-    key_fingerprint,
     parse_alive,
     parse_local_model,
     pose_message,
     status_message,
 )
+from godobject_drake.link.transport import LINK_REJECTED, driver_lcm, is_udp_url
 
 __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "ForceSafety", "HandPath",
            "Quantiles", "main"]  # fmt: skip
@@ -142,7 +138,7 @@ class Quantiles:
 
 class Driver:
     """The loop (module docstring), on an opened device and a transport (``Publish``, ``Subscribe``,
-    ``HandleSubscriptions``: :class:`~godobject_drake.protocol.UdpLcm` or a ``DrakeLcm``).
+    ``HandleSubscriptions``: :class:`~godobject_drake.link.transport.UdpLcm` or a ``DrakeLcm``).
 
     Its memory stays bounded however long it runs: without a log file it keeps the last
     :attr:`ROWS_KEPT` periods (:attr:`rows`), and the timing figures are histograms
@@ -259,7 +255,7 @@ class Driver:
         return grasp, pressed(self.clutch_button)
 
     def link_counts(self) -> dict:
-        """The link's own counts (a :class:`~godobject_drake.protocol.UdpLcm`'s), or none."""
+        """The link's own counts (a :class:`~godobject_drake.link.transport.UdpLcm`'s), or none."""
         return dict(getattr(self.lcm, "counts", {}))
 
     def publish_status(self, now: float) -> None:
@@ -272,6 +268,9 @@ class Driver:
         self.lcm.Publish(DRIVER_STATUS_CHANNEL, status_message(round(now * 1e6), counts).encode())
 
     def run(self, duration_s: float = math.inf) -> None:
+        """Run a period every :attr:`period` until ``duration_s`` or a stop: count it, poll the
+        link, read the handle, compute the force, render it, send the pose, log it; then sleep
+        to the next period. Zero force and the device closed at the end (:meth:`shutdown`)."""
         start = time.monotonic()
         next_tick = start
         previous_poll = start
@@ -280,63 +279,100 @@ class Driver:
                 now = time.monotonic()
                 if now - start >= duration_s:
                     break
-                late = now - next_tick
-                self.late.add(max(late, 0.0))
-                if late > self.period:
-                    self.counts["overruns"] += 1
-                    next_tick = now  # start again from now: no burst of catch-up periods
-                self.counts["loops"] += 1
-                # What this poll hands over arrived after the previous poll, at the earliest: its
-                # age is counted from there (fail-safe: a message that sat out a stall is stale).
-                # Its age is taken when the force is rendered, after the poll (the process may be
-                # held up anywhere in the loop). The poll comes first, so the handle's pose is
-                # read just before the force it gives is computed and commanded (issue 44).
-                self._arrived_after, poll = previous_poll, time.monotonic()
-                self.lcm.HandleSubscriptions(0)
-                previous_poll = poll
-                p, q, buttons = self.device.read()
-                read_at = time.monotonic()
-                grasp, clutch = self._buttons(buttons)
-                sent = p + self.offset
-                if clutch:
-                    if self.held is None:
-                        self.held = sent.copy()
-                    sent = self.held
-                elif self.held is not None:  # let go: carry on from where the pose stayed
-                    self.offset += self.held - (p + self.offset)
-                    sent, self.held = self.held, None
-                state = self.gate.state(time.monotonic(), clutch)
-                if self.local.heard:  # the local model decides what is fresh (module docstring)
-                    live = state not in ("stopped", "clutch")
-                    requested = self.local.request(sent, time.monotonic(), self.period, live)
-                    if live:
-                        state = "ok" if self.local.weight > 0.0 else "watchdog"
-                    self.counts["watchdog_trips"] = self.local.trips
-                else:
-                    self.counts["watchdog_trips"] = self.gate.trips
-                    requested = self.gate.force
-                f = self.safety.step(requested, state == "ok")
-                self.device.render(f)
-                self.pose_age.add(time.monotonic() - read_at)
-                self.local.rendered(f)
-                utime = round((now - start) * 1e6) + 1
-                self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
-                slot = self.counts["loops"] % self.POSES_KEPT
-                self._sent_utimes[slot], self._sent_poses[slot] = utime, sent
-                local = self.local
-                scene_time = local.model.scene_utime * 1e-6 if local.heard else self.gate.scene_time
-                self._row((now, *sent, *requested, *f, scene_time, state, int(self.safety.buzzing),
-                           local.weight, local.beta, local.damping, local.energy_in))  # fmt: skip
-                if self.counts["loops"] % 100 == 0:
-                    self.publish_status(now)
-                    if self.log_file is not None:
-                        self.log_file.flush()
+                next_tick = self._count_period(now, next_tick)
+                previous_poll = self._poll(previous_poll)
+                sent, q, grasp, clutch, read_at = self._read_handle()
+                state, requested, f = self._force(sent, clutch)
+                self._render(f, read_at)
+                self._send_pose(round((now - start) * 1e6) + 1, sent, q, grasp)
+                self._record(now, sent, requested, f, state)
                 next_tick += self.period
                 wait = next_tick - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
         finally:
             self.shutdown()
+
+    def _count_period(self, now: float, next_tick: float) -> float:
+        """Count the period and how late it started; the tick it runs from (``now`` after an
+        overrun: start again from now, no burst of catch-up periods)."""
+        late = now - next_tick
+        self.late.add(max(late, 0.0))
+        if late > self.period:
+            self.counts["overruns"] += 1
+            next_tick = now
+        self.counts["loops"] += 1
+        return next_tick
+
+    def _poll(self, previous_poll: float) -> float:
+        """Hand what the link holds to the handlers; when this poll started (the next one's
+        ``previous_poll``).
+
+        What this poll hands over arrived after the previous poll, at the earliest: its age is
+        counted from there (fail-safe: a message that sat out a stall is stale). Its age is
+        taken when the force is rendered, after the poll (the process may be held up anywhere
+        in the loop). The poll comes first, so the handle's pose is read just before the force
+        it gives is computed and commanded (issue 44)."""
+        self._arrived_after, poll = previous_poll, time.monotonic()
+        self.lcm.HandleSubscriptions(0)
+        return poll
+
+    def _read_handle(self) -> tuple:
+        """``(sent, q, grasp, clutch, read_at)``: the handle's position as sent to the scene (the
+        clutch's offset added; held while the clutch is), its orientation, the buttons, and when
+        it was read."""
+        p, q, buttons = self.device.read()
+        read_at = time.monotonic()
+        grasp, clutch = self._buttons(buttons)
+        sent = p + self.offset
+        if clutch:
+            if self.held is None:
+                self.held = sent.copy()
+            sent = self.held
+        elif self.held is not None:  # let go: carry on from where the pose stayed
+            self.offset += self.held - (p + self.offset)
+            sent, self.held = self.held, None
+        return sent, q, grasp, clutch, read_at
+
+    def _force(self, sent, clutch: bool) -> tuple:
+        """``(state, requested, f)``: the feedback's state, the force the scene's word asks for
+        (the local model's once one is heard, else the newest wrench) and the force the safety
+        lets through."""
+        state = self.gate.state(time.monotonic(), clutch)
+        if self.local.heard:  # the local model decides what is fresh (module docstring)
+            live = state not in ("stopped", "clutch")
+            requested = self.local.request(sent, time.monotonic(), self.period, live)
+            if live:
+                state = "ok" if self.local.weight > 0.0 else "watchdog"
+            self.counts["watchdog_trips"] = self.local.trips
+        else:
+            self.counts["watchdog_trips"] = self.gate.trips
+            requested = self.gate.force
+        f = self.safety.step(requested, state == "ok")
+        return state, requested, f
+
+    def _render(self, f, read_at: float) -> None:
+        """Command the force; the age of the pose it was computed from."""
+        self.device.render(f)
+        self.pose_age.add(time.monotonic() - read_at)
+        self.local.rendered(f)
+
+    def _send_pose(self, utime: int, sent, q, grasp: bool) -> None:
+        """Publish the pose to the scene, and keep it (a local model names the pose it used)."""
+        self.lcm.Publish(self.channel, pose_message(utime, sent, q, "*" if grasp else "").encode())
+        slot = self.counts["loops"] % self.POSES_KEPT
+        self._sent_utimes[slot], self._sent_poses[slot] = utime, sent
+
+    def _record(self, now: float, sent, requested, f, state: str) -> None:
+        """The period's row; every 100 periods the counts to the scene and the log flushed."""
+        local = self.local
+        scene_time = local.model.scene_utime * 1e-6 if local.heard else self.gate.scene_time
+        self._row((now, *sent, *requested, *f, scene_time, state, int(self.safety.buzzing),
+                   local.weight, local.beta, local.damping, local.energy_in))  # fmt: skip
+        if self.counts["loops"] % 100 == 0:
+            self.publish_status(now)
+            if self.log_file is not None:
+                self.log_file.flush()
 
     def shutdown(self) -> None:
         """Zero force, close the device, tell the scene the last counts. Safe to call twice."""

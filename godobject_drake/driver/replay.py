@@ -7,7 +7,7 @@ seconds after the start as an ``lcmt_robot_state`` pose sample (``utime`` = t in
 column ``*`` becomes ``grasp=*``, an empty one ``grasp=``). A real driver does the same from
 its servo loop with the device's pose, and listens on the feedback channel for the wrench to
 render (README "Real devices over LCM"). On a ``udp://`` link it is a driver: it pairs with
-the scene first (the key of ``--key-file``, :mod:`godobject_drake.protocol`), then replays.
+the scene first (the key of ``--key-file``, :mod:`godobject_drake.link.keys`), then replays.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import time
 from collections.abc import Callable
 
 from godobject_drake.config.device_files import DeviceLog, read_device_log
-from godobject_drake.protocol import POSE_CHANNEL, driver_lcm, pose_message
+from godobject_drake.link.messages import POSE_CHANNEL, pose_message
+from godobject_drake.link.transport import driver_lcm
 
 
 def replay(

@@ -219,7 +219,7 @@ class ImplicitCoupling(GraspingCoupling, LeafSystem):
     """
 
     # SAP integrates its springs by backward Euler: what a twin of the coupling (the scene's free
-    # lag, godobject_drake.devices.lcm.FreeLag) integrates it with
+    # lag, godobject_drake.link.scene_model.FreeLag) integrates it with
     integrates_implicitly = True
 
     def __init__(

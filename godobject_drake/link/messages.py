@@ -1,0 +1,248 @@
+"""What a scene and a device's driver say to each other on the link: the channel names, the
+packing of a pose sample and of a driver's counts, the parsing of a pose message (Drake's
+``lcmt_*`` types, which the drake wheel ships without ``pydrake.systems``), and the payloads of
+the local model and of the scene's heartbeat (issue 44, docs/local_model.md). The message formats
+are in :mod:`godobject_drake.devices.lcm`'s docstring and docs/haptic_devices.md; the transport
+that carries them is :mod:`godobject_drake.link.transport`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+
+from drake import lcmt_robot_state
+
+POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
+
+
+JOINT_CHANNEL = "GODOBJECT_DEVICE_JOINTS"
+
+
+FEEDBACK_CHANNEL = "GODOBJECT_FEEDBACK"
+
+
+DRIVER_STATUS_CHANNEL = "GODOBJECT_DRIVER_STATUS"
+
+
+STOP_SUFFIX = "_STOP"
+
+
+POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+
+
+# What a driver counts (godobject_drake.driver.process), in the metrics as driver_<key>.
+DRIVER_STATUS_KEYS = (
+    "loops",  # device periods run
+    "overruns",  # periods that started more than one period late
+    "watchdog_trips",  # feedback went silent for the watchdog time: force zeroed
+    "scene_stops",  # the scene said it stopped: force zeroed
+    "force_clamps",  # device periods with the force cut to the device's rated maximum
+    "rate_clamps",  # device periods with the force's change cut to the rated rate
+    "buzz_events",  # feedback oscillating near the device's Nyquist rate: damped
+    "bad_feedback",  # feedback messages that did not decode or were not finite
+    "link_rejected",  # datagrams the driver's end of the link dropped (LINK_REJECTED)
+)
+
+
+GRASP_PREFIX = "grasp="
+
+
+LCM_STATUS_KEYS = (
+    "lcm_messages",
+    "lcm_bad_messages",
+    "lcm_stale_messages",
+    "lcm_bursts",
+    "lcm_silent_samples",
+)
+
+
+def decode(message_type, raw: bytes):
+    """``message_type.decode(raw)``, or None when ``raw`` is not one: another type (a fingerprint
+    that differs: ``ValueError``), a truncated message or lengths past its end (``struct.error``)."""
+    try:
+        return message_type.decode(raw)
+    except (ValueError, struct.error):
+        return None
+
+
+def parse_robot_state(raw: bytes, names) -> tuple[int, list[str], list[float], str | None] | None:
+    """An ``lcmt_robot_state`` pose or joint sample: ``(utime, names, values, grasp)`` with the
+    ``grasp=`` entry taken out (``grasp`` None when the message has none), or None when ``raw`` is
+    not one (another type, a truncated message: LCM's decoding reads ``num_joints`` names and
+    values, or fails)."""
+    msg = decode(lcmt_robot_state, raw)
+    if msg is None:
+        return None
+    names, values = list(msg.joint_name), list(msg.joint_position)
+    grasp = None
+    for i, name in enumerate(names):
+        if name.startswith(GRASP_PREFIX):
+            grasp = name[len(GRASP_PREFIX) :]
+            del names[i], values[i]
+            break
+    return int(msg.utime), names, values, grasp
+
+
+def status_message(utime: int, counts: dict) -> lcmt_robot_state:
+    """A driver's counts as an ``lcmt_robot_state`` (names :data:`DRIVER_STATUS_KEYS`)."""
+    msg = lcmt_robot_state()
+    msg.utime = int(utime)
+    msg.num_joints = len(DRIVER_STATUS_KEYS)
+    msg.joint_name = list(DRIVER_STATUS_KEYS)
+    msg.joint_position = [float(counts.get(k, 0)) for k in DRIVER_STATUS_KEYS]
+    return msg
+
+
+def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state:
+    """An ``lcmt_robot_state`` pose sample, as a driver publishes it."""
+    msg = lcmt_robot_state()
+    msg.utime = int(utime)
+    names, values = list(POSE_NAMES), [*map(float, p), *map(float, q)]
+    if grasp is not None:
+        names.append(GRASP_PREFIX + grasp)
+        values.append(0.0)
+    msg.num_joints, msg.joint_name, msg.joint_position = len(names), names, values
+    return msg
+
+
+# -- the local model (issue 44) ----------------------------------------------------------------------------
+
+LOCAL_MODEL_CHANNEL = "GODOBJECT_LOCAL_MODEL"
+LOCAL_MODEL_MAGIC = b"GLM2"  # GLM2: with the coupling's free lag (GLM1 had none)
+MAX_PLANES = 8  # contacts per local model: a god-object held in a corner needs 3
+_LM_HEAD = struct.Struct(">4sqqd4d3d3d4d3d3d3dB")  # see LocalModel
+_LM_PLANE = struct.Struct(">3d3dd")
+UNIT_TOLERANCE = 1e-6  # a normal or quaternion further from unit length is refused, not renormalised
+
+
+class LocalModelError(ValueError):
+    """A local model payload that cannot be rendered: the message names the field, its value and
+    the limit."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalModel:
+    """What the scene publishes after each step on :data:`LOCAL_MODEL_CHANNEL` (issue 44), so the
+    driver computes the force with the handle's *current* pose (docs/local_model.md). Everything
+    is in the device's frame Dev (m, m/s; a W-first unit quaternion), and the gains are the
+    feedback coupling's seen from the device (``scale² kd``: N per metre of the handle).
+
+    ``scene_utime``: the scene's simulated time (µs); ``pose_utime``: the ``utime`` of the newest
+    pose sample the scene had taken (the driver's clock, µs; 0 before the first);
+    ``period_s``: the scene's nominal publication period (s); ``p_G``, ``v_G``, ``q_G``, ``w_G``:
+    the god-object's pose and velocity; ``p_T``: the coupling's target; ``lag``: the stretch
+    ``p_G − p_T`` a god-object free of every contact would have now, driven by the same targets
+    (the coupling's own lag as the hand moves: the scene's slow motion makes it large, and the
+    driver leaves it out of the force in free space, docs/local_model.md); ``planes``: each
+    ``(point, normal, stiffness)``: the god-object's reference point may not cross the plane
+    through ``point`` against the unit ``normal`` (pointing out of the obstacle), ``stiffness``
+    N/m (``inf``: rigid)."""
+
+    scene_utime: int
+    pose_utime: int
+    period_s: float
+    kd: float
+    gamma_d: float
+    kd_rot: float
+    gamma_d_rot: float
+    p_G: tuple
+    v_G: tuple
+    q_G: tuple
+    w_G: tuple
+    p_T: tuple
+    lag: tuple = (0.0, 0.0, 0.0)
+    planes: tuple = ()
+
+    def encode(self) -> bytes:
+        if len(self.planes) > MAX_PLANES:
+            raise LocalModelError(
+                f"a local model of {len(self.planes)} planes: at most {MAX_PLANES} (keep the nearest)"
+            )
+        head = _LM_HEAD.pack(
+            LOCAL_MODEL_MAGIC, int(self.scene_utime), int(self.pose_utime), float(self.period_s),
+            self.kd, self.gamma_d, self.kd_rot, self.gamma_d_rot,
+            *self.p_G, *self.v_G, *self.q_G, *self.w_G, *self.p_T, *self.lag, len(self.planes),
+        )  # fmt: skip
+        planes = (_LM_PLANE.pack(*point, *normal, stiffness) for point, normal, stiffness in self.planes)
+        return head + b"".join(planes)
+
+
+def _finite(name: str, values) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise LocalModelError(f"local model: {name} {list(values)} is not finite")
+
+
+def parse_local_model(raw: bytes) -> LocalModel:
+    """A :class:`LocalModel` from its payload, or :class:`LocalModelError` naming what is wrong:
+    another magic, a length that does not match the plane count, more than :data:`MAX_PLANES`
+    planes, a value that is not finite (a stiffness may be ``inf``: rigid), a negative gain, a
+    stiffness ≤ 0, a normal or quaternion not of unit length (within :data:`UNIT_TOLERANCE`), a
+    negative time or a period not > 0. Nothing is renormalised or clamped."""
+    raw = bytes(raw)
+    if len(raw) < _LM_HEAD.size:
+        raise LocalModelError(f"local model: {len(raw)} bytes, shorter than its {_LM_HEAD.size}-byte head")
+    fields = _LM_HEAD.unpack_from(raw)
+    if fields[0] != LOCAL_MODEL_MAGIC:
+        raise LocalModelError(f"local model: magic {fields[0]!r}, not {LOCAL_MODEL_MAGIC!r}")
+    n = fields[-1]
+    if n > MAX_PLANES:
+        raise LocalModelError(f"local model: {n} planes, at most {MAX_PLANES}")
+    if len(raw) != _LM_HEAD.size + n * _LM_PLANE.size:
+        raise LocalModelError(
+            f"local model: {len(raw)} bytes for {n} planes; expected {_LM_HEAD.size + n * _LM_PLANE.size}"
+        )
+    scene_utime, pose_utime, period = fields[1:4]
+    gains, rest = fields[4:8], fields[8:-1]
+    p_G, v_G, q_G, w_G, p_T, lag = rest[0:3], rest[3:6], rest[6:10], rest[10:13], rest[13:16], rest[16:19]
+    if scene_utime < 0 or pose_utime < 0:
+        raise LocalModelError(f"local model: times {scene_utime}, {pose_utime} µs must be ≥ 0")
+    _finite("period_s", [period])
+    if not period > 0:
+        raise LocalModelError(f"local model: period_s {period!r} must be > 0")
+    _finite("gains", gains)
+    if min(gains) < 0:
+        raise LocalModelError(f"local model: gains {list(gains)} must be ≥ 0")
+    for name, values in (("p_G", p_G), ("v_G", v_G), ("q_G", q_G), ("w_G", w_G), ("p_T", p_T), ("lag", lag)):
+        _finite(name, values)
+    if abs(math.hypot(*q_G) - 1.0) > UNIT_TOLERANCE:
+        raise LocalModelError(f"local model: q_G {list(q_G)} is not a unit quaternion")
+    planes = []
+    for i in range(n):
+        values = _LM_PLANE.unpack_from(raw, _LM_HEAD.size + i * _LM_PLANE.size)
+        point, normal, stiffness = values[0:3], values[3:6], values[6]
+        _finite(f"plane {i} point/normal", [*point, *normal])
+        if abs(math.hypot(*normal) - 1.0) > UNIT_TOLERANCE:
+            raise LocalModelError(f"local model: plane {i} normal {list(normal)} is not of unit length")
+        if math.isnan(stiffness) or not stiffness > 0:
+            raise LocalModelError(f"local model: plane {i} stiffness {stiffness!r} must be > 0 (inf: rigid)")
+        planes.append((point, normal, stiffness))
+    return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, lag, tuple(planes))
+
+
+# -- the scene's word that it is alive (issue 44) -----------------------------------------------------------
+
+ALIVE_CHANNEL = "GODOBJECT_LOCAL_MODEL_ALIVE"
+ALIVE_MAGIC = b"GLA1"
+_ALIVE = struct.Struct(">4sq")  # the magic, then the scene time (µs) of the newest model sent
+
+
+def alive_message(scene_utime: int) -> bytes:
+    """The scene's heartbeat: it is alive and its newest model (``scene_utime``) still stands
+    (link/scene_model.py ``SceneHeartbeat``, docs/local_model.md "Validity")."""
+    return _ALIVE.pack(ALIVE_MAGIC, int(scene_utime))
+
+
+def parse_alive(raw: bytes) -> int:
+    """The model time a heartbeat vouches for (µs), or :class:`LocalModelError` naming the
+    length, the magic or the time that is wrong."""
+    raw = bytes(raw)
+    if len(raw) != _ALIVE.size:
+        raise LocalModelError(f"scene heartbeat: {len(raw)} bytes; expected {_ALIVE.size}")
+    magic, scene_utime = _ALIVE.unpack(raw)
+    if magic != ALIVE_MAGIC:
+        raise LocalModelError(f"scene heartbeat: magic {magic!r}, not {ALIVE_MAGIC!r}")
+    if scene_utime < 0:
+        raise LocalModelError(f"scene heartbeat: time {scene_utime} µs must be ≥ 0")
+    return scene_utime
