@@ -31,7 +31,7 @@ from godobject_drake.metrics import format_table, write_metrics
 from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import DeviceNotHeardError, RunInterrupted, simulate
-from godobject_drake.station.build import build_station, make_meshcat
+from godobject_drake.station.build import build_station
 from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 
 logger = logging.getLogger("godobject_drake")
@@ -433,14 +433,13 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True):
 
     for field, output in outputs(scenario):
         check_output(output, field)  # a folder, a missing folder: refused now, not after the run
-    meshcat = make_meshcat(scenario)
-    station = build_station(scenario, meshcat)
     path = scenario.metrics.file
     if path and is_stream(path):  # a pipe or a device gets the final metrics once, no checkpoints
         logger.info(
             "metrics.file %s is not a regular file: no checkpoints, the metrics once at the end", path
         )
         path = None
+    station = build_station(scenario)  # with the Meshcat it asks for
     failed = []
 
     def checkpoint(metrics):

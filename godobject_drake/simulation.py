@@ -404,14 +404,14 @@ class _Run:
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
         metrics.update(self.tool_metrics(with_devices=True))
-        metrics.update(penetration_verdict(metrics, self.scenario, self.station.records))
+        metrics.update(_verdict(metrics, self.scenario, self.station.records))
         result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
         return result
 
 
-def penetration_verdict(metrics: dict, scenario: Scenario, records: dict | None = None) -> dict:
+def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
     """The run's deepest penetration against its budget (``metrics.penetration_budget_m``): the keys
     ``penetration_budget_m`` and ``over_penetration_budget``, and a
     :class:`~godobject_drake.station.rigid_tool.PenetrationBudgetWarning` past it naming what is near
@@ -419,16 +419,19 @@ def penetration_verdict(metrics: dict, scenario: Scenario, records: dict | None 
     depth: a coupling ringing near its explicit limit goes deeper with no warning at build). A run
     that measures no penetration (None) gives nothing. The position baseline (``simulation.mode:
     position``, the device's pose imposed) goes into obstacles by design: the keys, no warning.
-    ``records``: the scenario's tools (:func:`~godobject_drake.config.scenario.tool_records`), made
-    here if None.
     """
+    return _verdict(metrics, scenario, tool_records(scenario))
+
+
+def _verdict(metrics: dict, scenario: Scenario, records: dict) -> dict:
+    """:func:`penetration_verdict`, given the scenario's tools' records."""
     depth, budget = metrics.get("max_penetration_m"), scenario.metrics.penetration_budget_m
     if depth is None or not math.isfinite(depth):
         return {}
     out = {"penetration_budget_m": budget, "over_penetration_budget": bool(depth > budget)}
     if depth > budget and scenario.simulation.mode != "position":  # the baseline goes in: its point
         predicted = metrics.get("predicted_static_penetration_m")
-        near = _what_is_near_its_limit(scenario.time_step, records or tool_records(scenario))
+        near = _what_is_near_its_limit(scenario.time_step, records)
         said = (
             f" (the capped pull's static depth predicted at build: {predicted * 1e3:.3g} mm)"
             if predicted

@@ -34,11 +34,11 @@ class Caught(BaseException):
 
 @pytest.fixture
 def catch(monkeypatch):
-    def finish(builder, scenario, scene, tools, meshcat=None, records=None):
+    def finish(builder, scenario, scene, tools, meshcat, records):
         (god,) = tools.values()  # a scene of one tool: its tool, by the name ""
         raise Caught(scenario, god)
 
-    monkeypatch.setattr(build, "finish", finish)
+    monkeypatch.setattr(build, "_finish", finish)
 
 
 def caught(call):

@@ -43,17 +43,15 @@ def build_station(
     meshcat: Meshcat | None = None,
     *,
     check_gains: bool = True,
-    records: "dict[str, sc.ToolRecord] | None" = None,
 ) -> "Station":
     """Build any scenario into a diagram (module docstring); ``meshcat`` None makes the one
     the scenario asks for (:func:`make_meshcat`). ``check_gains=False`` builds gains past
     the explicit limit instead of refusing them: for stability analysis only
     (:mod:`godobject_drake.studies.analyze` simulates them to find the limit). A scene of several
-    tools builds each tool's loop alike on the one plant, its systems named ``NAME/...``.
-    ``records``: what :func:`~godobject_drake.config.scenario.check_scenario` returned for this
-    very scenario, which is then not checked again; None checks it here."""
-    records = sc.check_scenario(scenario) if records is None else records
-    meshcat = meshcat or make_meshcat(scenario, records)
+    tools builds each tool's loop alike on the one plant, its systems named ``NAME/...``; each
+    tool is resolved once, by the check (:class:`~godobject_drake.config.scenario.ToolRecord`)."""
+    records = sc.check_scenario(scenario)
+    meshcat = meshcat or _meshcat(scenario, records)
     builder = DiagramBuilder()
     kinds = {name: kind_for(r.view.god_object) for name, r in records.items()}
     devices = {name: add_device(builder, r, meshcat) for name, r in records.items()}
@@ -78,7 +76,7 @@ def build_station(
             system.set_name(r.named(system.get_name()))
     check_grasps(tools)
     share_grasps(builder, [tool.coupling for tool in tools.values() if tool.holds_free_bodies])
-    return finish(builder, scenario, scene, tools, meshcat, records)
+    return _finish(builder, scenario, scene, tools, meshcat, records)
 
 
 def check_grasps(tools: dict[str, GodObject]) -> None:
@@ -108,18 +106,27 @@ def finish(
     scene: SceneParts,
     tools: "dict[str, GodObject] | GodObject",
     meshcat: Meshcat | None = None,
-    records: "dict[str, sc.ToolRecord] | None" = None,
 ) -> "Station":
     """The loggers and the drawing added, the diagram built, its wiring and penetration budget
     checked, resting bodies put to sleep where the tools allow: the :class:`Station`. ``tools``:
-    the tools by name, or one tool (a diagram of one's own); ``records`` the scenario's tools'
-    (:func:`~godobject_drake.config.scenario.tool_records`), made here if None."""
+    the tools by name, or one tool (a diagram of one's own)."""
     if isinstance(tools, GodObject):
         tools = {"": tools}
-    if records is None:
-        records = sc.tool_records(scenario)
-        if set(records) != set(tools):  # tools of one's own: each sees the whole scenario
-            records = sc.tool_records(scenario, names=list(tools))
+    records = sc.tool_records(scenario)
+    if set(records) != set(tools):  # tools of one's own: each sees the whole scenario
+        records = sc.tool_records(scenario, names=list(tools))
+    return _finish(builder, scenario, scene, tools, meshcat, records)
+
+
+def _finish(
+    builder: DiagramBuilder,
+    scenario: sc.Scenario,
+    scene: SceneParts,
+    tools: dict[str, GodObject],
+    meshcat: Meshcat | None,
+    records: dict[str, sc.ToolRecord],
+) -> "Station":
+    """:func:`finish`, given each tool's record."""
     if scene.forces is not None:
         scene.forces.connect(builder)  # every tool's forces into the plant
     loggers, tool_loggers = add_loggers(builder, scene.plant, tools, records)
@@ -251,14 +258,17 @@ def check_page_with_haptics(scenario: sc.Scenario, records: dict[str, sc.ToolRec
         )
 
 
-def make_meshcat(scenario: sc.Scenario, records: "dict[str, sc.ToolRecord] | None" = None) -> Meshcat | None:
+def make_meshcat(scenario: sc.Scenario) -> Meshcat | None:
     """The scenario's Meshcat, on ``visualization.host`` (this machine only, by default): at
     ``visualization.port`` when it is live (``visualization.serve`` or a browser device), on
     any free port for a recording only, None otherwise
-    (:func:`~godobject_drake.systems.drawing.start_meshcat`). ``records``: the scenario's tools
-    (:func:`~godobject_drake.config.scenario.tool_records`), made here if None."""
+    (:func:`~godobject_drake.systems.drawing.start_meshcat`)."""
+    return _meshcat(scenario, sc.tool_records(scenario))
+
+
+def _meshcat(scenario: sc.Scenario, records: dict[str, sc.ToolRecord]) -> Meshcat | None:
+    """:func:`make_meshcat`, given the scenario's tools' records."""
     vis = scenario.visualization
-    records = sc.tool_records(scenario) if records is None else records
     if vis.serve or any(r.device.live for r in records.values()):
         check_page_with_haptics(scenario, records)
         logger.warning(LOCAL_PAGES_WARNING)  # before Drake's "Meshcat listening": the run's first line
