@@ -13,7 +13,7 @@ Messages (the ``lcmt_*`` types the drake wheel ships; README "Real devices over 
 - **Feedback** on ``GODOBJECT_FEEDBACK``: ``lcmt_force_torque`` at the device's rate,
   ``timestamp`` the simulation time in µs, ``fx, fy, fz`` (N) and ``tx, ty, tz`` (N·m) the wrench
   the device should render, in W (the feedback port's ``F_Do_W``).
-- **Local model** on ``GODOBJECT_LOCAL_MODEL`` (``udp://`` driver links only, issue 44):
+- **Local model** on ``GODOBJECT_LOCAL_MODEL`` (``udp://`` driver links only):
   :class:`~godobject_drake.link.messages.LocalModel`, the god-object, the feedback gains and the
   contact planes near the held body, in the device's frame, every device period and at most
   every :data:`~godobject_drake.link.scene_model.LOCAL_MODEL_MIN_PERIOD_S` of simulated time
@@ -302,7 +302,7 @@ class LcmDevice(DeviceSource):
             counts["driver_bad_status"] = self.driver_bad_status
             counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})
             publisher = getattr(self, "local_publisher", None)
-            if publisher is not None:  # the local model's cost on the scene's side (issue 44)
+            if publisher is not None:  # the local model's cost on the scene's side
                 counts["lcm_local_models"] = publisher.published
                 counts["lcm_local_model_ms"] = 1e3 * publisher.seconds / max(publisher.published, 1)
                 counts["lcm_heartbeats"] = publisher.heartbeat.beats  # the loop was held up: the scene spoke
@@ -331,8 +331,8 @@ class LcmDevice(DeviceSource):
         return add_feedback_publisher(builder, F_Do_W_port, self)
 
     def connect_local_model(self, builder, coupling, gains) -> LeafSystem | None:
-        """A driver link (``udp://``) also gets the local model after each step (issue 44,
-        docs/local_model.md): :class:`~godobject_drake.link.scene_model.LocalModelPublisher`,
+        """A driver link (``udp://``) also gets the local model after each step
+        (docs/local_model.md): :class:`~godobject_drake.link.scene_model.LocalModelPublisher`,
         reading the coupling and the scene's geometry. Other transports (``memq://``, Drake's
         multicast): nothing."""
         if not self.driver_link or not builder.HasSubsystemNamed("scene_graph"):

@@ -1,4 +1,4 @@
-"""The driver's side of the local model (issue 44; docs/local_model.md): each device period the
+"""The driver's side of the local model (docs/local_model.md): each device period the
 force is computed from the scene's newest :class:`~godobject_drake.link.messages.LocalModel` with the
 handle's *current* position, a proxy kept out of the model's planes, and an energy budget that
 pays for every change of model: what it cannot pay for is not rendered.

@@ -184,7 +184,7 @@ class Driver:
         self.late = Quantiles()  # how late each period started
         self.gaps = Quantiles()  # between two feedback messages
         self.stop_requested = False
-        self.local = LocalRenderer()  # the scene's local model, once it sends one (issue 44)
+        self.local = LocalRenderer()  # the scene's local model, once it sends one
         # the last POSES_KEPT poses sent and their utimes, a ring allocated once (bounded memory)
         self._sent_utimes = np.full(self.POSES_KEPT, -1, np.int64)
         self._sent_poses = np.zeros((self.POSES_KEPT, 3))
@@ -312,7 +312,7 @@ class Driver:
         counted from there (fail-safe: a message that sat out a stall is stale). Its age is
         taken when the force is rendered, after the poll (the process may be held up anywhere
         in the loop). The poll comes first, so the handle's pose is read just before the force
-        it gives is computed and commanded (issue 44)."""
+        it gives is computed and commanded."""
         self._arrived_after, poll = previous_poll, time.monotonic()
         self.lcm.HandleSubscriptions(0)
         return poll
@@ -698,7 +698,7 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--no-local-model",
         action="store_true",
-        help="render the scene's newest wrench, held, as before issue 44 (for comparison): the "
+        help="render the scene's newest wrench, held, without the local model (for comparison): the "
         "scene's local model is ignored",
     )
     run.add_argument("--log", default="", help="write every period to FILE.csv at exit")

@@ -1,4 +1,4 @@
-"""The link's key (issue 45; the pairing: :mod:`godobject_drake.link.transport`): 32 random bytes,
+"""The link's key (the pairing: :mod:`godobject_drake.link.transport`): 32 random bytes,
 as 64 hex digits in a file only its owner may read (mode 0600, in a folder only its owner may
 write), created on first use by whichever end starts first: ``key_file`` (scene) /
 ``--key-file`` (driver), else ``$GODOBJECT_LINK_KEY``, else ``~/.config/godobject/link.key``

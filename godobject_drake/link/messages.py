@@ -1,7 +1,7 @@
 """What a scene and a device's driver say to each other on the link: the channel names, the
 packing of a pose sample and of a driver's counts, the parsing of a pose message (Drake's
 ``lcmt_*`` types, which the drake wheel ships without ``pydrake.systems``), and the payloads of
-the local model and of the scene's heartbeat (issue 44, docs/local_model.md). The message formats
+the local model and of the scene's heartbeat (docs/local_model.md). The message formats
 are in :mod:`godobject_drake.devices.lcm`'s docstring and docs/haptic_devices.md; the transport
 that carries them is :mod:`godobject_drake.link.transport`.
 """
@@ -107,7 +107,7 @@ def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state
     return msg
 
 
-# -- the local model (issue 44) ----------------------------------------------------------------------------
+# -- the local model ----------------------------------------------------------------------------
 
 LOCAL_MODEL_CHANNEL = "GODOBJECT_LOCAL_MODEL"
 LOCAL_MODEL_MAGIC = b"GLM2"  # GLM2: with the coupling's free lag (GLM1 had none)
@@ -124,7 +124,7 @@ class LocalModelError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class LocalModel:
-    """What the scene publishes after each step on :data:`LOCAL_MODEL_CHANNEL` (issue 44), so the
+    """What the scene publishes after each step on :data:`LOCAL_MODEL_CHANNEL`, so the
     driver computes the force with the handle's *current* pose (docs/local_model.md). Everything
     is in the device's frame Dev (m, m/s; a W-first unit quaternion), and the gains are the
     feedback coupling's seen from the device (``scale² kd``: N per metre of the handle).
@@ -221,7 +221,7 @@ def parse_local_model(raw: bytes) -> LocalModel:
     return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, lag, tuple(planes))
 
 
-# -- the scene's word that it is alive (issue 44) -----------------------------------------------------------
+# -- the scene's word that it is alive -----------------------------------------------------------
 
 ALIVE_CHANNEL = "GODOBJECT_LOCAL_MODEL_ALIVE"
 ALIVE_MAGIC = b"GLA1"

@@ -1,4 +1,4 @@
-"""The scene's half of the local model (issue 44, docs/local_model.md): what a scene on a driver
+"""The scene's half of the local model (docs/local_model.md): what a scene on a driver
 link (``udp://``) publishes beside the wrench. :class:`LocalModelPublisher`, a Drake system the
 LCM device (:mod:`godobject_drake.devices.lcm`) adds after each step, builds the
 :class:`~godobject_drake.link.messages.LocalModel` (the god-object, the gains, the contact planes
@@ -45,7 +45,7 @@ LOCAL_MODEL_MIN_PERIOD_S = 0.004
 
 class FreeLag:
     """The stretch ``p_G − p_T`` of a god-object free of every contact, driven by the same
-    device samples as the scene's (issue 44; docs/local_model.md): the coupling's own lag as the
+    device samples as the scene's (docs/local_model.md): the coupling's own lag as the
     hand moves, which the driver leaves out of the force.
 
     The coupling pulls the held body by ``a = ωn² (p_T − p) + 2 ζ ωn (v_T − v)`` (per unit mass,
@@ -138,7 +138,7 @@ STALL_LIMIT_S = 0.5  # s: a scene whose loop has sent no model for this long vou
 
 
 class SceneHeartbeat:
-    """The scene's word that it is alive while its loop is held up (issue 44, docs/local_model.md
+    """The scene's word that it is alive while its loop is held up (docs/local_model.md
     "Validity"): a thread of its own, every :data:`BEAT_S` of wall time, publishes
     :func:`~godobject_drake.link.messages.alive_message` with the newest model's time, when that
     model is at least ``beat_s`` old and at most ``stall_limit_s``. The driver holds the model
@@ -212,7 +212,7 @@ class SceneHeartbeat:
 
 class LocalModelPublisher(LeafSystem):
     """The local model every device period, at most every :data:`LOCAL_MODEL_MIN_PERIOD_S` of
-    simulated time (issue 44; docs/local_model.md):
+    simulated time (docs/local_model.md):
     :class:`~godobject_drake.link.messages.LocalModel` on
     :data:`~godobject_drake.link.messages.LOCAL_MODEL_CHANNEL`, in the device's frame
     (``p_Dev = R_WDevᵀ (p_W − p_WDev) / scale``; gains ``scale² kd``).

@@ -18,7 +18,7 @@ feedback, which its watchdog turns into zero force). UDP rather than a Unix data
 the same code reaches another machine when the device hangs off a separate real-time computer,
 and no socket file is left behind.
 
-**Pairing: only the owner's scene and driver talk** (issue 45). Any process on the machine can
+**Pairing: only the owner's scene and driver talk**. Any process on the machine can
 send a datagram to any UDP port (and read the ports from ``/proc/net/udp``), so every datagram
 is authenticated with a key only the user's own files hold:
 

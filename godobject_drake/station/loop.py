@@ -271,6 +271,6 @@ def render_feedback(builder: DiagramBuilder, device, chain: HapticChain, feedbac
     force = feedback.GetOutputPort("F_Do_W")
     chain.connect_feedback(builder, force)
     publisher = device.connect_feedback(builder, force, coupling.bodies)
-    if hasattr(device, "connect_local_model"):  # a driver process: the local model too (issue 44)
+    if hasattr(device, "connect_local_model"):  # a driver process: the local model too
         device.connect_local_model(builder, coupling, feedback.gains)
     return publisher
