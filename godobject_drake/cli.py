@@ -27,12 +27,11 @@ from godobject_drake.config.flags import Flag, on_off
 from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
 from godobject_drake.link.logs import StderrHandler
-from godobject_drake.metrics import format_table, write_metrics
+from godobject_drake.metrics import PenetrationBudgetWarning, format_table, write_metrics
 from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import DeviceNotHeardError, RunInterrupted, simulate
 from godobject_drake.station.build import build_station
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 
 logger = logging.getLogger("godobject_drake")
 

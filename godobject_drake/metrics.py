@@ -25,6 +25,12 @@ from godobject_drake.spatial import quats_to_rotations
 from godobject_drake.systems.coupling import GraspableBody, graspable_bodies
 
 
+class PenetrationBudgetWarning(UserWarning):
+    """A god-object can go, or went, deeper into an obstacle than the scene's budget
+    (``metrics.penetration_budget_m``): said at build for the capped pull's static depth, and at
+    the end of a run past it."""
+
+
 def _rotations(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(N, 3, 3)`` of logged quaternions ``(N, 4)``, normalised first (they drift)."""
     return quats_to_rotations(q / np.linalg.norm(q, axis=1, keepdims=True))

@@ -27,10 +27,9 @@ from pydrake.systems.analysis import Simulator
 
 from godobject_drake.config.scenario import Scenario, tool_records
 from godobject_drake.limits import explicit_limit_omega_h
-from godobject_drake.metrics import SceneMetrics
+from godobject_drake.metrics import PenetrationBudgetWarning, SceneMetrics
 from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
 from godobject_drake.station.build import Station
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import save_recording
 from godobject_drake.systems.page import page_of
@@ -414,7 +413,7 @@ class _Run:
 def penetration_verdict(metrics: dict, scenario: Scenario) -> dict:
     """The run's deepest penetration against its budget (``metrics.penetration_budget_m``): the keys
     ``penetration_budget_m`` and ``over_penetration_budget``, and a
-    :class:`~godobject_drake.station.rigid_tool.PenetrationBudgetWarning` past it naming what is near
+    :class:`~godobject_drake.metrics.PenetrationBudgetWarning` past it naming what is near
     its limit, whatever got it there (the build's warning only covers the capped pull's static
     depth: a coupling ringing near its explicit limit goes deeper with no warning at build). A run
     that measures no penetration (None) gives nothing. The position baseline (``simulation.mode:

@@ -16,8 +16,8 @@ from conftest import REPO, own_scene_files
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import DEFAULT_MAX_STRETCH_M
 from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.metrics import PenetrationBudgetWarning
 from godobject_drake.station.build import build_station
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.studies.analyze import WARN_FRACTION, analysis_scenario, analyze, write_report
 
 STABILITY_GUIDE = (REPO / "docs" / "guide" / "stability.md").read_text()

@@ -12,8 +12,8 @@ import pytest
 from conftest import EXAMPLES, REPO, own_scene_files
 
 from godobject_drake.config.scenario import load_scenario
+from godobject_drake.metrics import PenetrationBudgetWarning
 from godobject_drake.station.build import build_station
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 
 GODOBJECT = Path(sys.executable).parent / "godobject"  # the console script of this environment
 

@@ -14,8 +14,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 from godobject_drake import cli
 from godobject_drake.config.scenario import shipped_scenario
 from godobject_drake.limits import explicit_limit_omega_h
+from godobject_drake.metrics import PenetrationBudgetWarning
 from godobject_drake.simulation import penetration_verdict
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning
 from godobject_drake.studies import analyze as A
 
 LIMIT_H = explicit_limit_omega_h(1.0)  # 0.8284 for ζ = 1

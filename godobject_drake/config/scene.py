@@ -307,7 +307,7 @@ class Metrics:
     penetration_budget_m : float
         How deep a god-object may go into an obstacle (m). At build, a god-object whose capped
         pull could push it deeper (capped force / contact stiffness) gets a
-        :class:`~godobject_drake.station.rigid_tool.PenetrationBudgetWarning`; a run that went
+        :class:`~godobject_drake.metrics.PenetrationBudgetWarning`; a run that went
         deeper says so at its end (``over_penetration_budget``).
     checkpoint_period_s : float
         While a run goes, the command line rewrites ``file`` with the metrics so far (marked

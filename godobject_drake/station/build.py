@@ -23,12 +23,13 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from godobject_drake.config import scenario as sc
+from godobject_drake.metrics import PenetrationBudgetWarning
 from godobject_drake.safeguards import check_wiring
 from godobject_drake.sleeping import SleepManager
 from godobject_drake.station.kinds import GodObject, kind_for
 from godobject_drake.station.loop import add_device, share_grasps
 from godobject_drake.station.plant import SceneParts, add_plant, check_start_overlaps
-from godobject_drake.station.rigid_tool import PenetrationBudgetWarning, penetration_fix
+from godobject_drake.station.rigid_tool import penetration_fix
 from godobject_drake.systems.drawing import (
     Drawing,
     TissueVisualizer,

@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, ClassVar
 
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder, System
-from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from godobject_drake.config.tools import register_tool_config
 from godobject_drake.station.haptic_chain import HapticChain
@@ -133,14 +132,6 @@ class GodObject:
     def logged_ports(self, plant: MultibodyPlant) -> dict:
         """The output ports the metrics fold, by logger name (the plant's state always)."""
         return {"state": plant.get_state_output_port()}
-
-    def add_loggers(self, builder: DiagramBuilder, plant: MultibodyPlant) -> dict[str, VectorLogSink]:
-        """Per-step logs of :meth:`logged_ports` (each logged port costs a call per step)."""
-        loggers = {}
-        for name, port in self.logged_ports(plant).items():
-            loggers[name] = LogVectorOutput(port, builder, plant.time_step())
-            loggers[name].set_name(f"{name}_log")  # named, so GetGraphvizString reads well
-        return loggers
 
     def complete_logs(self, rows: dict) -> dict:
         """A drained chunk of the logs (one row per plant step), with what the kind computes from

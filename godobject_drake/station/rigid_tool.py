@@ -34,10 +34,6 @@ from godobject_drake.systems.drawing import ONE_TOOL, Drawing, GodObjectVisualiz
 from godobject_drake.systems.implicit import ImplicitCouplingError, SpringHook, add_springs, implicit_terms
 
 
-class PenetrationBudgetWarning(UserWarning):
-    """A god-object's capped pull can push it deeper into an obstacle than the scene's budget."""
-
-
 @tool_kind(sc.Rigid)
 @dataclasses.dataclass
 class RigidGodObject(GodObject):

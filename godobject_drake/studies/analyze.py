@@ -37,12 +37,11 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.config.device_files import JointWaypoint, Waypoint
 from godobject_drake.config.gains import CouplingGains, CouplingGainWarning
 from godobject_drake.limits import explicit_limit_omega_h, semi_implicit_matrix
-from godobject_drake.metrics import TrueShapeMetrics
+from godobject_drake.metrics import PenetrationBudgetWarning, TrueShapeMetrics
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.station.haptic_chain import hand_on_handle
 from godobject_drake.station.rigid_tool import (
-    PenetrationBudgetWarning,
     grasped_bodies,
     penetration_fix,
     penetration_pairs,
