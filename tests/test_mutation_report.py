@@ -2,6 +2,7 @@
 what counts as a change is checked here on a copy of the package, one edit at a time."""
 
 import importlib.util
+import json
 import shutil
 
 import pytest
@@ -95,3 +96,11 @@ def test_another_configuration_or_no_record_runs_every_unit(root):
     changed = report.changed_units(baseline, root)
     assert set(changed) == set(report.UNITS) and "configuration" in changed["spatial math"]
     assert set(report.changed_units(None, root)) == set(report.UNITS)
+
+
+def test_the_shipped_record_covers_every_unit_at_the_goal():
+    record = json.loads(report.BASELINE.read_text())
+    assert set(record["units"]) == set(report.UNITS)
+    for unit, r in record["units"].items():
+        assert r["killed"] >= 0.85 * r["mutants"] > 0, unit
+        assert "tests/conftest.py" in r["tests"], unit
