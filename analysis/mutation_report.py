@@ -162,8 +162,12 @@ def configuration(root: Path = ROOT) -> str:
     """A hash of what decides the goal's mutants and tests: ``[tool.mutmut]``, the units, mutmut's
     version and the Python's. Another hash: the record says nothing of this configuration."""
     mutmut = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["mutmut"]
+    try:
+        version = importlib.metadata.version("mutmut")
+    except importlib.metadata.PackageNotFoundError:  # the hash is still asked for: no run can match it
+        version = "not installed"
     what = [mutmut, sorted((u, repr(m), repr(c), sorted(f or [])) for u, (m, c, f) in UNITS.items()),
-            importlib.metadata.version("mutmut"), sys.version_info[:2]]  # fmt: skip
+            version, sys.version_info[:2]]  # fmt: skip
     return _sha(json.dumps(what, sort_keys=True, default=str).encode())
 
 
