@@ -331,7 +331,8 @@ def main(argv=None) -> int:
     for name, _, status in rows:
         modules[NAME.fullmatch(name).group(1)][status in KILLED] += 1
     shares = (f"{m} {c[True]}/{c[True] + c[False]}" for m, c in sorted(modules.items()))
-    print("killed by module: " + ", ".join(shares))
+    if modules:
+        print("killed by module: " + ", ".join(shares))
     if outside:
         print(f"{outside} mutants outside the goal units were not run (--run tests the goal's: goal_globs())")
     if args.survivors:
