@@ -12,7 +12,7 @@ from conftest import REPO
 from godobject_drake import cli
 from godobject_drake.config.devices import DEVICE_KINDS, _PoseDevice, device_kind, kind_of, kinds_in
 from godobject_drake.config.scenario import ScenarioError, load_scenario, scenario_from_yaml
-from godobject_drake.devices.factory import device_factory
+from godobject_drake.devices.factory import factory_of
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
@@ -36,7 +36,12 @@ class CircleDevice(DeviceSource):
         return self.point(t), np.array([1.0, 0.0, 0.0, 0.0]), "brick_0"
 
 
-@device_kind("circle", space="pose")
+def make_circle(config: "Circle", **scene) -> CircleDevice:
+    """The toy kind's factory: its config to its system."""
+    return CircleDevice(config.center_m, config.radius_m, config.turn_s, config.period_s)
+
+
+@device_kind("circle", space="pose", factory=make_circle)
 @dataclasses.dataclass
 class Circle(_PoseDevice):
     """The toy kind's config: ``device: !Circle {radius_m: ..., turn_s: ...}``."""
@@ -54,12 +59,6 @@ class Circle(_PoseDevice):
         from pydrake.math import RigidTransform
 
         return RigidTransform(CircleDevice(self.center_m, self.radius_m, self.turn_s, 0.02).point(0.0))
-
-
-@device_factory(Circle)
-def make_circle(config: Circle, **scene) -> CircleDevice:
-    """The toy kind's factory: its config to its system."""
-    return CircleDevice(config.center_m, config.radius_m, config.turn_s, config.period_s)
 
 
 def test_a_kind_defined_here_runs_through_build_station():
@@ -107,9 +106,29 @@ def test_an_unknown_kind_is_refused_naming_the_known_ones():
                        r"!Scripted, !Replay, !Relative, !MeshcatSliders, !Lcm, !ScriptedJoints"):  # fmt: skip
         make_device(Unregistered())
     with pytest.raises(ValueError, match=r"device kind 'circle' \(pose\) is registered already, as !Circle"):
-        device_kind("circle", space="pose")(dataclasses.make_dataclass("Other", [], bases=(_PoseDevice,)))
+        device_kind("circle", space="pose", factory=make_circle)(
+            dataclasses.make_dataclass("Other", [], bases=(_PoseDevice,))
+        )
     with pytest.raises(ValueError, match=r"space='hand'; choose one of \('pose', 'joint'\)"):
-        device_kind("glove", space="hand")
+        device_kind("glove", space="hand", factory=make_circle)
+    said = r"factory='make_glove'; give the function that makes its system, or its path as 'module:function'"
+    with pytest.raises(ValueError, match=said):
+        device_kind("glove", space="pose", factory="make_glove")
+
+
+def test_every_kind_registered_once_with_its_factory():
+    """Each kind is one registration, its config's: the factory it names is a function (the shipped
+    ones in godobject_drake.devices.factory, imported by name), and one that cannot be imported is
+    refused when a device of the kind is made, naming the path."""
+    for config, kind in DEVICE_KINDS.items():
+        assert callable(factory_of(kind)), config
+        if config is not Circle:
+            assert kind.factory.startswith("godobject_drake.devices.factory:"), kind.factory
+    broken = dataclasses.replace(DEVICE_KINDS[Circle], factory="godobject_drake.devices.factory:nothing")
+    with pytest.raises(
+        ValueError, match=r"the factory 'godobject_drake.devices.factory:nothing' cannot be imported"
+    ):
+        factory_of(broken)
 
 
 def test_registry_contract():

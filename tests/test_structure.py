@@ -289,3 +289,37 @@ def test_no_module_reads_a_test_only_environment_variable():
         if "GODOBJECT_TEST_" in line
     ]
     assert not found, f"the package names a GODOBJECT_TEST_ variable: {found}"
+
+
+REGISTRIES = {
+    "DEVICE_KINDS": "godobject_drake.config.devices",
+    "TOOL_CONFIGS": "godobject_drake.config.tools",
+    "TOOL_BUILDERS": "godobject_drake.config.tools",
+}
+
+
+REGISTERING = ("device_kind", "tool_kind", "device_factory")
+
+
+def test_each_kind_is_registered_in_one_place():
+    """A device kind is its config's ``@device_kind(..., factory=...)`` and a tool kind its config's
+    ``@tool_kind(builder)``: each registry is written by its decorator alone, in its own module, and
+    no other module registers a kind's second half (a factory or a builder) anywhere."""
+    found = []
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            target = None
+            if isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Store):
+                target = node.value
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+                if node.func.attr in ("append", "update", "setdefault", "__setitem__"):
+                    target = node.func.value
+            name = getattr(target, "id", getattr(target, "attr", None))
+            if name in REGISTRIES and module != REGISTRIES[name]:
+                found.append(f"{path.relative_to(REPO)}:{node.lineno} writes {name}")
+            if isinstance(node, ast.FunctionDef | ast.ClassDef) and module not in REGISTRIES.values():
+                for d in node.decorator_list:
+                    called = d.func if isinstance(d, ast.Call) else d
+                    if getattr(called, "id", getattr(called, "attr", None)) in REGISTERING:
+                        found.append(f"{path.relative_to(REPO)}:{node.lineno} registers {node.name}")
+    assert found == [], found

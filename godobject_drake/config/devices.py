@@ -2,10 +2,13 @@
 
 A device kind is two things: its config here, a dataclass whose fields are the YAML keys under
 ``device: !Tag``, and its runtime system (:mod:`godobject_drake.devices`), made from the config
-by the factory registered for it there (:func:`godobject_drake.devices.factory.device_factory`).
-The :func:`device_kind` decorator registers the config in :data:`DEVICE_KINDS` with what the rest
-of the library asks of a kind:
+by its factory. The :func:`device_kind` decorator registers both at once, in
+:data:`DEVICE_KINDS`, with what the rest of the library asks of a kind:
 
+- its factory: the function that makes its system from the config and the scene's context
+  (:func:`godobject_drake.devices.factory.make_device` calls it), named ``"module:function"``
+  so this layer imports no system (the shipped kinds' are in :mod:`godobject_drake.devices.factory`),
+  or the function itself for a kind of one's own;
 - its name on the command line (``--device NAME``) and in the metrics (``device``);
 - its space: ``pose`` (rigid and deformable tools) or ``joint`` (articulated tools);
 - whether it is driven from the browser (``live``: Meshcat is served, the run goes at real
@@ -19,10 +22,10 @@ the field, the value and the fix, ``start_pose`` (pose kinds) says where the tar
 :meth:`~DeviceConfig.stand_in` what ``analyze`` runs instead of a kind that needs a browser or a
 driver (a kind that needs one and has none says so).
 
-Adding a device kind is therefore one dataclass with ``@device_kind(...)`` and one factory with
-``@device_factory(ThatConfig)``; the scenario's ``device`` field, the command line's ``--device``
-choices, the metrics and ``analyze`` pick it up from the registry (docs/design.md "Adding a
-device kind").
+Adding a device kind is therefore one factory and one dataclass with
+``@device_kind(..., factory=that_factory)``; the scenario's ``device`` field, the command line's
+``--device`` choices, the metrics and ``analyze`` pick it up from the registry (docs/design.md
+"Adding a device kind").
 
 This module must not use ``from __future__ import annotations``: ``yaml_load_typed`` reads the
 field types at run time.
@@ -32,6 +35,8 @@ import dataclasses
 import functools
 import math
 import operator
+import re
+from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
@@ -63,6 +68,7 @@ class DeviceKind:
     config: type
     name: str
     space: str
+    factory: "str | Callable"  # "module:function", or the function itself
     live: bool = False
     real_time: bool = False
     increments: bool = False
@@ -77,12 +83,15 @@ class DeviceKind:
 
 
 DEVICE_KINDS: dict[type, DeviceKind] = {}
+SHIPPED = "godobject_drake.devices.factory:"  # where the shipped kinds' factories are
+FACTORY_PATH = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*")  # module:function
 
 
 def device_kind(
     name: str,
     *,
     space: str,
+    factory: "str | Callable",
     live: bool = False,
     real_time: bool = False,
     increments: bool = False,
@@ -92,10 +101,16 @@ def device_kind(
 ):
     """Register a device config dataclass as a kind (module docstring); returns the class.
 
-    ``name`` is unique within its ``space``; registering a kind makes the scenario's ``device``
-    field accept its YAML tag."""
+    ``name`` is unique within its ``space``; ``factory`` makes its system (``"module:function"``,
+    imported when a device of the kind is first made, or the function); registering a kind makes
+    the scenario's ``device`` field accept its YAML tag."""
     if space not in SPACES:
         raise ValueError(f"device kind {name!r}: space={space!r}; choose one of {SPACES}")
+    if not (callable(factory) or (isinstance(factory, str) and FACTORY_PATH.fullmatch(factory))):
+        raise ValueError(
+            f"device kind {name!r}: factory={factory!r}; give the function that makes its system, or its "
+            "path as 'module:function' (e.g. 'godobject_drake.devices.factory:scripted')"
+        )
 
     def register(cls):
         if not dataclasses.is_dataclass(cls):
@@ -108,7 +123,7 @@ def device_kind(
                     f"device kind {name!r} ({space}) is registered already, as !{other.config.__name__}"
                 )
         DEVICE_KINDS[cls] = DeviceKind(
-            cls, name, space, live, real_time, increments, needs_log, renders_feedback,
+            cls, name, space, factory, live, real_time, increments, needs_log, renders_feedback,
             summary or cls.__doc__.strip().splitlines()[0],
         )  # fmt: skip
         for callback in _ON_REGISTER:
@@ -270,7 +285,7 @@ class _PoseDevice(DeviceConfig):
         )  # fmt: skip
 
 
-@device_kind("scripted", space="pose", summary="the scenario's path")
+@device_kind("scripted", space="pose", factory=SHIPPED + "scripted", summary="the scenario's path")
 @dataclasses.dataclass
 class Scripted(_PoseDevice):
     """A scripted path: waypoints, linear in position, slerp in orientation.
@@ -304,7 +319,7 @@ class Scripted(_PoseDevice):
         return RigidTransform(RollPitchYaw(np.radians(first.rpy_deg)), np.asarray(first.xyz, dtype=float))
 
 
-@device_kind("replay", space="pose", needs_log=True, summary="a CSV log")
+@device_kind("replay", space="pose", factory=SHIPPED + "replay", needs_log=True, summary="a CSV log")
 @dataclasses.dataclass
 class Replay(_PoseDevice):
     """A device log replayed (CSV ``t,x,y,z,qw,qx,qy,qz,grasp``).
@@ -331,6 +346,7 @@ class Replay(_PoseDevice):
 @device_kind(
     "relative",
     space="pose",
+    factory=SHIPPED + "relative",
     increments=True,
     needs_log=True,
     summary="a CSV of increments with a clutch (the paper's mouse)",
@@ -360,7 +376,13 @@ class Relative(_PoseDevice):
 
 
 @device_kind(
-    "meshcat", space="pose", live=True, real_time=True, increments=True, summary="live from the browser"
+    "meshcat",
+    space="pose",
+    factory=SHIPPED + "meshcat_sliders",
+    live=True,
+    real_time=True,
+    increments=True,
+    summary="live from the browser",
 )
 @dataclasses.dataclass
 class MeshcatSliders(_PoseDevice):
@@ -428,7 +450,12 @@ class DeviceToWorld:
 
 
 @device_kind(
-    "lcm", space="pose", real_time=True, renders_feedback=True, summary="a real device's driver over LCM"
+    "lcm",
+    space="pose",
+    factory=SHIPPED + "lcm",
+    real_time=True,
+    renders_feedback=True,
+    summary="a real device's driver over LCM",
 )
 @dataclasses.dataclass
 class Lcm(_PoseDevice):
@@ -579,7 +606,7 @@ class _JointDevice(DeviceConfig):
         )  # fmt: skip
 
 
-@device_kind("scripted", space="joint", summary="the scenario's path")
+@device_kind("scripted", space="joint", factory=SHIPPED + "scripted_joints", summary="the scenario's path")
 @dataclasses.dataclass
 class ScriptedJoints(_JointDevice):
     """A scripted joint-space path.
@@ -612,7 +639,7 @@ class ScriptedJoints(_JointDevice):
         return path
 
 
-@device_kind("replay", space="joint", needs_log=True, summary="a CSV log")
+@device_kind("replay", space="joint", factory=SHIPPED + "replay_joints", needs_log=True, summary="a CSV log")
 @dataclasses.dataclass
 class ReplayJoints(_JointDevice):
     """A joint-space device log replayed (CSV ``t,<channels>``).
@@ -635,7 +662,14 @@ class ReplayJoints(_JointDevice):
         return [float(v) for v in values[0]]
 
 
-@device_kind("meshcat", space="joint", live=True, real_time=True, summary="live from the browser")
+@device_kind(
+    "meshcat",
+    space="joint",
+    factory=SHIPPED + "meshcat_joint_sliders",
+    live=True,
+    real_time=True,
+    summary="live from the browser",
+)
 @dataclasses.dataclass
 class MeshcatJointSliders(_JointDevice):
     """Joint channels driven live from the browser, one slider and key pair each.
@@ -654,7 +688,13 @@ class MeshcatJointSliders(_JointDevice):
             raise ValueError(f"limits: {self.limits}: give one [lower, upper] per channel {self.channels}")
 
 
-@device_kind("lcm", space="joint", real_time=True, summary="a real device's driver over LCM")
+@device_kind(
+    "lcm",
+    space="joint",
+    factory=SHIPPED + "lcm_joints",
+    real_time=True,
+    summary="a real device's driver over LCM",
+)
 @dataclasses.dataclass
 class LcmJoints(_JointDevice):
     """A real joint-space device whose driver publishes its channels over LCM (``lcmt_robot_state``,

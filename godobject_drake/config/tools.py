@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import math
 import operator
+import re
 from typing import ClassVar
 
 from godobject_drake.config.flags import Flag
@@ -121,6 +122,45 @@ class ShellSpec:
             )
 
 
+# -- the registry of tool kinds ----------------------------------------------------------------------------
+
+TOOL_CONFIGS: list[type] = []  # in registration order: the first is an untagged mapping's kind
+TOOL_BUILDERS: dict[type, "str | type"] = {}  # each config's builder, or its "module:Class"
+SHIPPED = "godobject_drake.station."  # where the shipped kinds' builders are
+BUILDER_PATH = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*")
+_ON_REGISTER: list = []
+
+
+def tool_kind(builder: "str | type"):
+    """Register the decorated config dataclass as a tool kind, once: the scenario's ``god_object``
+    field takes its YAML tag (``!Name``), and ``builder`` builds it: the
+    :class:`~godobject_drake.station.kinds.GodObject` subclass, or its path as ``"module:Class"``
+    (imported when a tool of the kind is first built, so this layer loads no Drake system)."""
+    if not (isinstance(builder, type) or (isinstance(builder, str) and BUILDER_PATH.fullmatch(builder))):
+        raise ValueError(
+            f"tool kind: builder={builder!r}; give the GodObject subclass that builds it, or its path as "
+            "'module:Class' (e.g. 'godobject_drake.station.rigid_tool:RigidGodObject')"
+        )
+
+    def register(config_type: type) -> type:
+        if not dataclasses.is_dataclass(config_type):
+            raise TypeError(f"tool kind {config_type.__name__} must be a dataclass")
+        if config_type in TOOL_BUILDERS and TOOL_BUILDERS[config_type] != builder:
+            raise ValueError(f"tool kind !{config_type.__name__} is registered already, built by "
+                             f"{TOOL_BUILDERS[config_type]!r}")  # fmt: skip
+        if any(c.__name__ == config_type.__name__ and c is not config_type for c in TOOL_CONFIGS):
+            raise ValueError(f"tool kind: the YAML tag !{config_type.__name__} is taken")
+        TOOL_BUILDERS[config_type] = builder
+        if config_type not in TOOL_CONFIGS:
+            TOOL_CONFIGS.append(config_type)
+            for callback in _ON_REGISTER:
+                callback()
+        return config_type
+
+    return register
+
+
+@tool_kind(SHIPPED + "rigid_tool:RigidGodObject")
 @dataclasses.dataclass
 class Rigid:
     """Free rigid bodies a device grasps by name (paper Eq. 2).
@@ -276,6 +316,7 @@ class PoseToJoints:
             )
 
 
+@tool_kind(SHIPPED + "articulated_tool:ArticulatedGodObject")
 @dataclasses.dataclass
 class Articulated:
     """A tree model whose joints a joint-space device drives (paper Eq. 4–9).
@@ -352,6 +393,7 @@ class Articulated:
             raise ValueError(f"god_object.check_every: {self.check_every!r} must be an integer ≥ 1")
 
 
+@tool_kind(SHIPPED + "deformable_tool:DeformableGodObject")
 @dataclasses.dataclass
 class Deformable:
     """A rigid core (a god-object) carrying a deformable shell (paper Fig. 4).
@@ -390,26 +432,6 @@ class Deformable:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
         if self.shell not in SHELL_MODELS:
             raise ValueError(f"god_object.shell: {self.shell!r}; choose one of {SHELL_MODELS}")
-
-
-# -- the registry of tool configs ----------------------------------------------------------------------------
-
-TOOL_CONFIGS: list[type] = [Rigid, Articulated, Deformable]  # the first is an untagged mapping's kind
-_ON_REGISTER: list = []
-
-
-def register_tool_config(config_type: type) -> None:
-    """Make ``config_type`` a kind the scenario's ``god_object`` field takes (its YAML tag ``!Name``);
-    :func:`godobject_drake.station.kinds.tool_kind` calls it with the kind's builder."""
-    if config_type in TOOL_CONFIGS:
-        return
-    if not dataclasses.is_dataclass(config_type):
-        raise TypeError(f"tool kind {config_type.__name__} must be a dataclass")
-    if any(c.__name__ == config_type.__name__ for c in TOOL_CONFIGS):
-        raise ValueError(f"tool kind: the YAML tag !{config_type.__name__} is taken")
-    TOOL_CONFIGS.append(config_type)
-    for callback in _ON_REGISTER:
-        callback()
 
 
 def on_register(callback) -> None:

@@ -1,15 +1,17 @@
 """Each device kind's factory: its config (:mod:`godobject_drake.config.devices`) to its system.
 
-One function per kind, registered for its config type with :func:`device_factory`, as Drake's
-``hardware_sim`` has one ``Apply…Config`` per driver config; :func:`make_device` is the one
-dispatch. A kind of one's own registers its config with ``@device_kind`` and its factory here with
-``@device_factory(ItsConfig)`` (docs/design.md "Adding a device kind").
+One function per kind, as Drake's ``hardware_sim`` has one ``Apply…Config`` per driver config,
+named by its kind's registration (``@device_kind(..., factory="godobject_drake.devices.factory:
+scripted")``); :func:`make_device` is the one dispatch. A kind of one's own gives its factory to
+``@device_kind`` itself (docs/design.md "Adding a device kind").
 
 Every factory takes the config and the scene's context as keywords: ``seed`` (the noise of pose
 devices), ``meshcat`` and ``workspace`` (a live device's page and slider range; an LCM device's
 expected box), ``duration_s`` (the run's length: a log is read only as far as the run reaches).
 """
 
+import functools
+import importlib
 import math
 from collections.abc import Callable
 
@@ -27,22 +29,26 @@ from godobject_drake.devices.sources import (
 )
 from godobject_drake.link.transport import make_lcm
 
-FACTORIES: dict[type, Callable] = {}
+
+def factory_of(kind: dk.DeviceKind) -> Callable:
+    """A device kind's factory: the function it was registered with, or the one its
+    ``"module:function"`` names (imported once)."""
+    if callable(kind.factory):
+        return kind.factory
+    return _imported(kind.factory)
 
 
-def device_factory(config_type: type):
-    """Register the decorated function as the factory of the device kind ``config_type``."""
-    if config_type not in dk.DEVICE_KINDS:
-        raise ValueError(
-            f"device_factory({config_type.__name__}): register the config first with "
-            "@godobject_drake.config.devices.device_kind(...)"
-        )
-
-    def register(function):
-        FACTORIES[config_type] = function
-        return function
-
-    return register
+@functools.cache
+def _imported(path: str) -> Callable:
+    module, _, name = path.partition(":")
+    try:
+        function = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as e:
+        why = f"device: the factory {path!r} cannot be imported ({e}): fix its kind's factory="
+        raise ValueError(why) from None
+    if not callable(function):
+        raise ValueError(f"device: the factory {path!r} is not a function: fix the kind's factory=")
+    return function
 
 
 def make_device(
@@ -51,12 +57,7 @@ def make_device(
     """The system of a device config (not yet added to a builder), checked first. ``tool``: the
     tool it drives in a scene of several (a live device names its sliders and buttons by it)."""
     kind = dk.kind_of(config)
-    factory = FACTORIES.get(type(config))
-    if factory is None:
-        raise ValueError(
-            f"device: !{type(config).__name__} has no factory; register one with "
-            "godobject_drake.devices.factory.device_factory"
-        )
+    factory = factory_of(kind)
     try:
         config.check()
     except ValueError as e:
@@ -71,25 +72,21 @@ def _box(workspace):
     return None if workspace is None else (workspace.lower_m, workspace.upper_m)
 
 
-@device_factory(dk.Scripted)
 def scripted(config: dk.Scripted, *, seed, meshcat, workspace, duration_s) -> ScriptedDevice:
     return ScriptedDevice(config.path_waypoints(), noise_m=config.noise_m, seed=seed, **config.sampling())
 
 
-@device_factory(dk.Replay)
 def replay(config: dk.Replay, *, seed, meshcat, workspace, duration_s) -> ReplayDevice:
     return ReplayDevice(
         config.log, noise_m=config.noise_m, seed=seed, **config.sampling(), until_s=duration_s
     )
 
 
-@device_factory(dk.Relative)
 def relative(config: dk.Relative, *, seed, meshcat, workspace, duration_s) -> RelativeDevice:
     return RelativeDevice(config.log, config.start_pose(), noise_m=config.noise_m, seed=seed,
                           **config.sampling(), aids=config.aids(), until_s=duration_s)  # fmt: skip
 
 
-@device_factory(dk.MeshcatSliders)
 def meshcat_sliders(
     config: dk.MeshcatSliders, *, seed, meshcat, workspace, duration_s, tool=""
 ) -> MeshcatDevice:
@@ -99,7 +96,6 @@ def meshcat_sliders(
                          **config.sampling(), aids=config.aids(), tool=tool)  # fmt: skip
 
 
-@device_factory(dk.Lcm)
 def lcm(config: dk.Lcm, *, seed, meshcat, workspace, duration_s) -> LcmDevice:
     frame = {}
     if not config.device_to_world.is_identity():
@@ -112,25 +108,21 @@ def lcm(config: dk.Lcm, *, seed, meshcat, workspace, duration_s) -> LcmDevice:
     )  # fmt: skip
 
 
-@device_factory(dk.ScriptedJoints)
 def scripted_joints(
     config: dk.ScriptedJoints, *, seed, meshcat, workspace, duration_s
 ) -> ScriptedJointDevice:
     return ScriptedJointDevice(config.joint_path(), **config.sampling())
 
 
-@device_factory(dk.ReplayJoints)
 def replay_joints(config: dk.ReplayJoints, *, seed, meshcat, workspace, duration_s) -> ReplayJointDevice:
     return ReplayJointDevice(config.log, config.channels, **config.sampling(), until_s=duration_s)
 
 
-@device_factory(dk.MeshcatJointSliders)
 def meshcat_joint_sliders(config, *, seed, meshcat, workspace, duration_s, tool="") -> MeshcatJointDevice:
     limits = [tuple(lim) for lim in config.limits]
     return MeshcatJointDevice(meshcat, config.channels, limits, config.start, **config.sampling(), tool=tool)
 
 
-@device_factory(dk.LcmJoints)
 def lcm_joints(config: dk.LcmJoints, *, seed, meshcat, workspace, duration_s) -> LcmJointDevice:
     return LcmJointDevice(
         make_lcm(config.url, config.key_file), config.channels, config.start, config.channel,

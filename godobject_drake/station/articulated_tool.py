@@ -20,13 +20,12 @@ from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.devices.trocar import PoseJointDevice, TrocarKinematics
 from godobject_drake.metrics import TissueMetrics, ToolMetrics
 from godobject_drake.station import loop
-from godobject_drake.station.kinds import GodObject, tool_kind
+from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
 from godobject_drake.systems.tissue import free_body, tool_capsules
 
 
-@tool_kind(sc.Articulated)
 @dataclasses.dataclass
 class ArticulatedGodObject(GodObject):
     """An articulated god-object (:func:`add_articulated`).

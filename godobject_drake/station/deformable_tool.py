@@ -16,7 +16,7 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import DeviceSource, first_pose
 from godobject_drake.metrics import ShellMetrics
-from godobject_drake.station.kinds import GodObject, tool_kind
+from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ShellVisualizer
 from godobject_drake.systems.shell import add_deformable_god_object, obstacle_geometries
@@ -25,7 +25,6 @@ if TYPE_CHECKING:
     from godobject_drake.systems.shell import Shell, ShellObserver
 
 
-@tool_kind(sc.Deformable)
 @dataclasses.dataclass
 class DeformableGodObject(RigidGodObject):
     """A deformable god-object (:func:`add_deformable`): the rigid coupling on the core, and

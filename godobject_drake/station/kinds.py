@@ -1,8 +1,9 @@
 """What every tool (god-object) kind has: the parts it added, and the questions the library asks of it.
 
-A kind is one subclass of :class:`GodObject` (rigid, articulated, deformable), registered once for
-its scenario config type with :func:`tool_kind`; :func:`kind_for` is the one dispatch on a
-scenario's ``god_object``. Everything kind-specific is a method or class attribute of the subclass:
+A kind is one subclass of :class:`GodObject` (rigid, articulated, deformable), named once by its
+scenario config's registration (:func:`godobject_drake.config.tools.tool_kind`); :func:`kind_for` is
+the one dispatch on a scenario's ``god_object``. Everything kind-specific is a method or class
+attribute of the subclass:
 what it adds to the plant before ``Finalize`` and how it builds its loop, its loggers, metrics and
 drawing, the penetration it can cause, what runs before each plant step, and what the studies ask
 of it. The builder, the simulation, the metrics, the CLI and the studies call these and never ask
@@ -11,12 +12,14 @@ which kind they have (docs/design.md "Adding a tool kind"). The haptic chain is 
 """
 
 import dataclasses
+import functools
+import importlib
 from typing import TYPE_CHECKING, ClassVar
 
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder, System
 
-from godobject_drake.config.tools import register_tool_config
+from godobject_drake.config.tools import TOOL_BUILDERS
 from godobject_drake.station.haptic_chain import HapticChain
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing
 
@@ -26,33 +29,37 @@ if TYPE_CHECKING:
     from godobject_drake.systems.coupling import GodObjectCoupling
     from godobject_drake.systems.feedback import FeedbackPort
 
-TOOL_KINDS: dict[type, type["GodObject"]] = {}
+
+def builder_of(config_type: type) -> type["GodObject"]:
+    """The :class:`GodObject` subclass that builds the tool kind ``config_type`` (its registration,
+    :func:`~godobject_drake.config.tools.tool_kind`; a ``"module:Class"`` is imported once)."""
+    builder = TOOL_BUILDERS.get(config_type)
+    if builder is None:
+        known = ", ".join(f"!{c.__name__}" for c in TOOL_BUILDERS)
+        raise ValueError(
+            f"god_object: {config_type.__name__} is not a god-object kind; the kinds are {known} (register "
+            "one with godobject_drake.config.tools.tool_kind)"
+        )
+    return builder if isinstance(builder, type) else _imported(builder)
 
 
-def tool_kind(config_type: type):
-    """Register the decorated :class:`GodObject` subclass as the kind of ``config_type`` (a
-    scenario ``god_object`` config: :mod:`godobject_drake.config.tools`)."""
-
-    def register(cls):
-        register_tool_config(config_type)  # the scenario's god_object field takes its tag
-        other = TOOL_KINDS.get(config_type)
-        if other is not None and other is not cls:
-            raise ValueError(f"tool kind !{config_type.__name__} is registered already, as {other.__name__}")
-        TOOL_KINDS[config_type] = cls
-        return cls
-
-    return register
+@functools.cache
+def _imported(path: str) -> type["GodObject"]:
+    module, _, name = path.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as e:
+        raise ValueError(
+            f"god_object: the builder {path!r} cannot be imported ({e}): fix its tool_kind"
+        ) from None
+    if not (isinstance(cls, type) and issubclass(cls, GodObject)):
+        raise ValueError(f"god_object: the builder {path!r} is not a GodObject subclass: fix its tool_kind")
+    return cls
 
 
 def kind_for(config) -> type["GodObject"]:
     """The kind class of a scenario's ``god_object`` config; an unknown one is refused, naming the known."""
-    try:
-        return TOOL_KINDS[type(config)]
-    except KeyError:
-        known = ", ".join(f"!{c.__name__}" for c in TOOL_KINDS)
-        raise ValueError(
-            f"god_object: {type(config).__name__} is not a god-object kind; the kinds are {known}"
-        ) from None
+    return builder_of(type(config))
 
 
 @dataclasses.dataclass

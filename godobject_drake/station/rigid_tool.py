@@ -27,14 +27,13 @@ from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.metrics import RigidMetrics, TrueShapeMetrics
 from godobject_drake.station import loop
 from godobject_drake.station.haptic_chain import WARN_FRACTION, add_haptic_chain, check_haptic_gains
-from godobject_drake.station.kinds import GodObject, tool_kind
+from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import point_stiffness
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, GodObjectVisualizer
 from godobject_drake.systems.implicit import ImplicitCouplingError, SpringHook, add_springs, implicit_terms
 
 
-@tool_kind(sc.Rigid)
 @dataclasses.dataclass
 class RigidGodObject(GodObject):
     """A rigid god-object (:func:`add_god_object`): the coupling holds one free body at a time."""
