@@ -127,7 +127,13 @@ def test_the_tether_bounds_distance_and_angle_exactly(dp, drot, p_GT, rpy_GT, p_
     free_angle = np.linalg.norm(
         rotation_error(free.rotation().ToQuaternion().wxyz(), X_WG.rotation().ToQuaternion().wxyz())
     )
-    assert moved == (free_distance > 0.01 or free_angle > 0.2)
+    # At the bound itself the two computations of the free pose may round apart (hypothesis found
+    # dp = -0.01 m from G, where the aids' own distance came out a last bit past 0.01): either answer
+    # is right there, and the bound above holds in both.
+    at_bound = math.isclose(free_distance, 0.01, rel_tol=1e-12) or math.isclose(
+        free_angle, 0.2, rel_tol=1e-12
+    )
+    assert moved == (free_distance > 0.01 or free_angle > 0.2) or at_bound
     if not moved:  # within the tether: the increment, unchanged
         assert X.IsNearlyEqualTo(free @ X_DT.inverse(), 1e-12)
     else:  # on it: exactly at the bound it broke, the rest as far as the increment took it

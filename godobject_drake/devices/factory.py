@@ -56,7 +56,16 @@ def make_device(
 ) -> DeviceSource | JointDevice:
     """The system of a device config (not yet added to a builder), checked first. ``tool``: the
     tool it drives in a scene of several (a live device names its sliders and buttons by it)."""
-    kind = dk.kind_of(config)
+    return make_device_of(
+        dk.kind_of(config), config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s,
+        tool=tool,
+    )  # fmt: skip
+
+
+def make_device_of(
+    kind: dk.DeviceKind, config, *, seed: int, meshcat, workspace, duration_s: float, tool: str
+) -> DeviceSource | JointDevice:
+    """:func:`make_device` for a config whose kind is known already (a tool's record)."""
     factory = factory_of(kind)
     try:
         config.check()

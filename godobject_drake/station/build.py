@@ -353,9 +353,10 @@ class Station:
             return self  # the one-tool form: the scenario is the tool's
         loggers = {key: self.loggers[full] for key, full in self.tool_loggers[name].items()}
         record = self.records[name]
-        return dataclasses.replace(
-            self, scenario=record.view, tools={name: self.tools[name]}, loggers=loggers,
-            tool_loggers={name: {k: k for k in loggers}}, records={name: record},
+        return Station(
+            record.view, self.diagram, self.plant, self.scene_graph, {name: self.tools[name]}, loggers,
+            self.meshcat, self.predicted_penetration_m, self.sleeper, {name: {k: k for k in loggers}},
+            {name: record},
         )  # fmt: skip
 
     @property

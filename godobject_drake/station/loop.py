@@ -49,13 +49,18 @@ def make_device(
     as the run reaches (a log of any length costs what the run uses). ``tool``: the tool it drives
     in a scene of several (a live device's sliders and buttons are named by it).
     """
+    return _scenario_errors(
+        factory.make_device, config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s,
+        tool=tool,
+    )  # fmt: skip
+
+
+def _scenario_errors(make, *args, **kwargs):
+    """``make(*args, **kwargs)``, its errors about the device (an unregistered kind, a field its check
+    refuses, what the kind needs from the scene: a Meshcat, a workspace) as ``ScenarioError``."""
     try:
-        return factory.make_device(
-            config, seed=seed, meshcat=meshcat, workspace=workspace, duration_s=duration_s, tool=tool
-        )
+        return make(*args, **kwargs)
     except ValueError as e:
-        # an unregistered kind, a field its check refuses (``device.FIELD ...``), what the kind needs
-        # from the scene (a Meshcat, a workspace): each names the device
         if str(e).startswith("device"):
             raise sc.ScenarioError(str(e)) from None
         raise
@@ -65,9 +70,9 @@ def add_device(builder: DiagramBuilder, record: sc.ToolRecord, meshcat=None):
     """A tool's device (:func:`make_device` of ``record.view.device``), added to ``builder`` as
     ``device`` (``NAME/device`` in a scene of several, its live controls carrying the name)."""
     view = record.view
-    device = make_device(
-        view.device, seed=view.random_seed, meshcat=meshcat, workspace=view.workspace,
-        duration_s=view.simulation.duration_s, tool=record.name,
+    device = _scenario_errors(
+        factory.make_device_of, record.device, view.device, seed=view.random_seed, meshcat=meshcat,
+        workspace=view.workspace, duration_s=view.simulation.duration_s, tool=record.name,
     )  # fmt: skip
     return builder.AddNamedSystem(record.named("device"), device)
 
