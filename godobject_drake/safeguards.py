@@ -39,6 +39,7 @@ Python call at every step.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -430,3 +431,86 @@ def _reaches(wires: dict, source) -> list:
         else:
             ends.append((dst, port))
     return ends
+
+
+# -- free bodies left unsupported ---------------------------------------------------------------------------
+
+FALL_WATCH_S = 1.0  # a free body that drops this early on its own was left unsupported
+FALL_DROP_M = 0.1  # how far below its start it must be: a second of free fall is 4.9 m
+TOOL_NEAR_M = 0.005  # a body this close to a tool's may have been pushed there, not thrown
+
+
+class UnsupportedBodyWarning(UserWarning):
+    """A free body nobody held fell in the run's first second: a fixed model left unwelded?"""
+
+
+class FallWatch:
+    """Free bodies that fall or are thrown on their own at the start of a run (a model someone
+    forgot to weld, one that starts inside another: the run used to exit 0 while it went away). At
+    ``at_s`` every free body not held then that is more than :data:`FALL_DROP_M` below its start,
+    or that has moved more than that in any direction while no tool is within
+    :data:`TOOL_NEAR_M` of it (so not a body a tool pushed there), is named in a warning, and in
+    the metrics (``unsupported_bodies``)."""
+
+    def __init__(self, plant, plant_context, god, at_s: float):
+        self.plant, self.god, self.at_s = plant, god, at_s
+        self.start = {b: plant.EvalBodyPoseInWorld(plant_context, plant.get_body(b)).translation().copy()
+                      for b in plant.GetFloatingBaseBodies()}  # fmt: skip
+        self.pending, self.fallen, self.thrown = bool(self.start), [], []
+
+    def check(self, plant_context, root_context) -> None:
+        self.pending = False
+        plant = self.plant
+        held = self.god.held_bodies(root_context)
+        free = {int(b) for b in self.start}
+        welded = {int(b.index()) for b in plant.GetBodiesWeldedTo(plant.world_body())}
+        # what pushes: the held bodies, and the bodies neither free nor welded (a tool's links)
+        tools = held | (set(range(plant.num_bodies())) - free - welded)
+        near = self._near(plant_context, tools) if tools else set()
+        for b, p0 in self.start.items():
+            if int(b) in held:
+                continue
+            body = plant.get_body(b)
+            p = plant.EvalBodyPoseInWorld(plant_context, body).translation()
+            name = body.scoped_name().get_full()
+            if p0[2] - p[2] > FALL_DROP_M:
+                self.fallen.append(name)
+            elif np.linalg.norm(p - p0) > FALL_DROP_M and int(b) not in near:
+                self.thrown.append(name)
+        if self.fallen:
+            warnings.warn(
+                f"{', '.join(self.fallen)} fell more than {FALL_DROP_M:g} m in the first {self.at_s:g} s "
+                "without being held: a model that should stay put needs a weld (add_weld, or a fixed joint "
+                "to world in its file), or a support under it",
+                UnsupportedBodyWarning,
+                stacklevel=3,
+            )
+        if self.thrown:
+            warnings.warn(
+                f"{', '.join(self.thrown)} moved more than {FALL_DROP_M:g} m in the first {self.at_s:g} s "
+                "with no tool near it: thrown by contact (a model that starts inside another, or one that "
+                "should be welded: add_weld it, or move its starting pose out)",
+                UnsupportedBodyWarning,
+                stacklevel=3,
+            )
+        self.fallen += self.thrown
+
+    def _near(self, plant_context, tools: set[int]) -> set[int]:
+        """The bodies within :data:`TOOL_NEAR_M` of one of ``tools``."""
+        plant = self.plant
+        query = plant.get_geometry_query_input_port().Eval(plant_context)
+        inspector = query.inspector()
+        out = set()
+        try:
+            pairs = query.ComputeSignedDistancePairwiseClosestPoints(TOOL_NEAR_M)
+        except RuntimeError:  # a shape pair Drake's signed distance does not support: say nothing
+            return {int(b) for b in self.start}
+        for pair in pairs:
+            a, b = (
+                int(plant.GetBodyFromFrameId(inspector.GetFrameId(g)).index()) for g in (pair.id_A, pair.id_B)
+            )
+            if a in tools:
+                out.add(b)
+            if b in tools:
+                out.add(a)
+        return out

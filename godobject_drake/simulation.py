@@ -28,7 +28,14 @@ from pydrake.systems.analysis import Simulator
 from godobject_drake.config.scenario import Scenario, tool_records
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.metrics import PenetrationBudgetWarning, SceneMetrics
-from godobject_drake.safeguards import DivergenceError, Safeguards, install_safeguards
+from godobject_drake.realtime import RealtimeLag
+from godobject_drake.safeguards import (
+    FALL_WATCH_S,
+    DivergenceError,
+    FallWatch,
+    Safeguards,
+    install_safeguards,
+)
 from godobject_drake.station.build import Station
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import save_recording
@@ -470,87 +477,6 @@ def _what_is_near_its_limit(h: float, records: dict) -> str:
     )
 
 
-FALL_WATCH_S = 1.0  # a free body that drops this early on its own was left unsupported
-FALL_DROP_M = 0.1  # how far below its start it must be: a second of free fall is 4.9 m
-TOOL_NEAR_M = 0.005  # a body this close to a tool's may have been pushed there, not thrown
-
-
-class UnsupportedBodyWarning(UserWarning):
-    """A free body nobody held fell in the run's first second: a fixed model left unwelded?"""
-
-
-class FallWatch:
-    """Free bodies that fall or are thrown on their own at the start of a run (a model someone
-    forgot to weld, one that starts inside another: the run used to exit 0 while it went away). At
-    ``at_s`` every free body not held then that is more than :data:`FALL_DROP_M` below its start,
-    or that has moved more than that in any direction while no tool is within
-    :data:`TOOL_NEAR_M` of it (so not a body a tool pushed there), is named in a warning, and in
-    the metrics (``unsupported_bodies``)."""
-
-    def __init__(self, plant, plant_context, god, at_s: float):
-        self.plant, self.god, self.at_s = plant, god, at_s
-        self.start = {b: plant.EvalBodyPoseInWorld(plant_context, plant.get_body(b)).translation().copy()
-                      for b in plant.GetFloatingBaseBodies()}  # fmt: skip
-        self.pending, self.fallen, self.thrown = bool(self.start), [], []
-
-    def check(self, plant_context, root_context) -> None:
-        self.pending = False
-        plant = self.plant
-        held = self.god.held_bodies(root_context)
-        free = {int(b) for b in self.start}
-        welded = {int(b.index()) for b in plant.GetBodiesWeldedTo(plant.world_body())}
-        # what pushes: the held bodies, and the bodies neither free nor welded (a tool's links)
-        tools = held | (set(range(plant.num_bodies())) - free - welded)
-        near = self._near(plant_context, tools) if tools else set()
-        for b, p0 in self.start.items():
-            if int(b) in held:
-                continue
-            body = plant.get_body(b)
-            p = plant.EvalBodyPoseInWorld(plant_context, body).translation()
-            name = body.scoped_name().get_full()
-            if p0[2] - p[2] > FALL_DROP_M:
-                self.fallen.append(name)
-            elif np.linalg.norm(p - p0) > FALL_DROP_M and int(b) not in near:
-                self.thrown.append(name)
-        if self.fallen:
-            warnings.warn(
-                f"{', '.join(self.fallen)} fell more than {FALL_DROP_M:g} m in the first {self.at_s:g} s "
-                "without being held: a model that should stay put needs a weld (add_weld, or a fixed joint "
-                "to world in its file), or a support under it",
-                UnsupportedBodyWarning,
-                stacklevel=3,
-            )
-        if self.thrown:
-            warnings.warn(
-                f"{', '.join(self.thrown)} moved more than {FALL_DROP_M:g} m in the first {self.at_s:g} s "
-                "with no tool near it: thrown by contact (a model that starts inside another, or one that "
-                "should be welded: add_weld it, or move its starting pose out)",
-                UnsupportedBodyWarning,
-                stacklevel=3,
-            )
-        self.fallen += self.thrown
-
-    def _near(self, plant_context, tools: set[int]) -> set[int]:
-        """The bodies within :data:`TOOL_NEAR_M` of one of ``tools``."""
-        plant = self.plant
-        query = plant.get_geometry_query_input_port().Eval(plant_context)
-        inspector = query.inspector()
-        out = set()
-        try:
-            pairs = query.ComputeSignedDistancePairwiseClosestPoints(TOOL_NEAR_M)
-        except RuntimeError:  # a shape pair Drake's signed distance does not support: say nothing
-            return {int(b) for b in self.start}
-        for pair in pairs:
-            a, b = (
-                int(plant.GetBodyFromFrameId(inspector.GetFrameId(g)).index()) for g in (pair.id_A, pair.id_B)
-            )
-            if a in tools:
-                out.add(b)
-            if b in tools:
-                out.add(a)
-        return out
-
-
 class DeviceNotHeardError(RuntimeError):
     """A device's driver sent nothing within ``device.wait_s`` before the run."""
 
@@ -583,152 +509,6 @@ def wait_for_devices(station: Station, clock=time.monotonic) -> None:
                 "(0: start without it, the device at its start pose)"
             )
         log.info("%sdevice heard after %.2f s: the run starts", who, clock() - t0)
-
-
-class RealtimeLag:
-    """How far each plant step lags behind the wall clock in a run at real-time rate, and a warning
-    when the run cannot hold it.
-
-    Step k at simulated time t is due at ``t / rate`` of wall time after t = 0; its lag is how
-    much later the simulator reaches it (ahead counts as 0). The lags are kept in bins of
-    ``BIN_S`` up to ``FINE_S``, and above it in bins of a relative width ``REL`` without an
-    upper end (a run 23 s behind is counted as 23 s, not in a last bin): the quantiles are exact
-    to a bin (10 µs, or 0.1 % of the lag above 10 ms), the maximum and the final lag exactly, and
-    memory stays bounded (at most ~20 000 bins for lags up to 10⁶ s, only those used are kept).
-
-    **The warning** (``warn``): every ``WINDOW_S`` of wall time the real-time factor of the last
-    two windows is measured (simulated time advanced / (rate × wall time), over 0.8 s); below
-    ``SLOW_RTF``, or a lag past ``BEHIND_S``, one warning is logged (logger
-    ``godobject_drake.realtime``) with what was measured and ``fixes``: a run slower than 0.9 of
-    real time from its start is told at 0.8 s of wall time, a slowdown later within 1.2 s of it.
-    A pause that the run then catches up (a fold of the logs, a collection) does not warn. The
-    run does not drop simulated time to catch up: it goes on in slow motion and says so
-    (:meth:`summary` at the end).
-    """
-
-    BIN_S = 1e-5
-    FINE_S = 1e-2
-    REL = 1e-3
-    WINDOW_S = 0.4
-    SLOW_RTF = 0.9
-    BEHIND_S = 1.0
-
-    def __init__(self, rate: float, late_s: float, step_s: float | None = None, warn: bool = False,
-                 fixes: str = ""):  # fmt: skip
-        self.rate, self.late_s = float(rate), float(late_s)
-        self.step_s, self.warn, self.fixes = step_s, warn, fixes
-        self._n_fine = round(self.FINE_S / self.BIN_S)
-        self._log_rel = math.log1p(self.REL)
-        self._bins: dict[int, int] = {}
-        self._wall0: float | None = None
-        self.max_s, self.last_s, self.late_steps, self.steps = 0.0, 0.0, 0, 0
-        self._window: tuple[float, float] | None = None  # (wall, t) where this window began
-        self._previous: tuple[float, float] | None = None  # ... and where the one before it began
-        self.slowest_window_rtf: float | None = None
-        self.warned: str | None = None  # the warning's text, once logged
-
-    def _bin(self, lag: float) -> int:
-        if lag < self.FINE_S:
-            return int(lag / self.BIN_S)
-        return self._n_fine + int(math.log(lag / self.FINE_S) / self._log_rel)
-
-    def _upper(self, i: int) -> float:
-        if i < self._n_fine:
-            return (i + 1) * self.BIN_S
-        return self.FINE_S * math.exp((i - self._n_fine + 1) * self._log_rel)
-
-    def record(self, t: float, now: float | None = None) -> None:
-        now = time.perf_counter() if now is None else now
-        if self._wall0 is None:
-            self._wall0 = now - t / self.rate
-            self._window = (now, t)
-        lag = max(now - self._wall0 - t / self.rate, 0.0)
-        i = self._bin(lag)
-        self._bins[i] = self._bins.get(i, 0) + 1
-        self.max_s, self.last_s = max(self.max_s, lag), lag
-        self.late_steps += lag > self.late_s
-        self.steps += 1
-        wall_start, t_start = self._window
-        if now - wall_start >= self.WINDOW_S:
-            rtf = (t - t_start) / (self.rate * (now - wall_start))
-            self.slowest_window_rtf = (
-                rtf if self.slowest_window_rtf is None else min(self.slowest_window_rtf, rtf)
-            )
-            self._window = (now, t)
-            # the last two windows together (0.8 s): a steady slowdown shows there, a pause of
-            # a fold or a collection (tens of ms) does not
-            previous, self._previous = self._previous, (wall_start, t_start)
-            if previous is not None:
-                wall_two, t_two = previous
-                two = (t - t_two) / (self.rate * (now - wall_two))
-                if self.warned is None and self.warn and two < self.SLOW_RTF:
-                    self._warn(two, lag, now - self._wall0)
-            if self.warned is None and self.warn and lag > self.BEHIND_S:
-                self._warn(rtf, lag, now - self._wall0)
-        elif self.warned is None and self.warn and lag > self.BEHIND_S:
-            self._warn((t / self.rate) / (now - self._wall0), lag, now - self._wall0)
-
-    def _warn(self, rtf: float, lag: float, wall: float) -> None:
-        cost = ""
-        if self.step_s is not None and rtf > 0:
-            wall_ms = 1e3 * self.step_s / (rtf * self.rate)
-            cost = f" (each {1e3 * self.step_s:g} ms step took {wall_ms:.2f} ms of wall time)"
-        self.warned = (
-            f"the scene cannot hold real time: {wall:.2f} s into the run it ran at {rtf:.2f} of real time"
-            f"{cost} and is {lag:.3f} s behind the wall clock, so the tool moves in slow motion and "
-            "the device's feedback comes late; the run does not drop simulated time to catch up. "
-            f"{self.fixes}"
-        ).strip()
-        logging.getLogger("godobject_drake.realtime").warning("%s", self.warned)
-
-    def summary(self, sim_time_s: float, wall_time_s: float) -> str | None:
-        """The end of a run that warned, or ended more than ``late_s`` behind: what it ran at, how
-        far behind it ended, the worst window; None for a run that kept up."""
-        if self.steps == 0 or (self.warned is None and self.last_s <= max(self.late_s, 0.1)):
-            return None
-        rtf = sim_time_s / (self.rate * wall_time_s) if wall_time_s > 0 else float("nan")
-        worst = (
-            ""
-            if self.slowest_window_rtf is None
-            else f", {self.slowest_window_rtf:.2f} at worst over {self.WINDOW_S:g} s"
-        )
-        return (
-            f"real time not held: the run ran at {rtf:.2f} of real time{worst}, ended "
-            f"{self.last_s:.3f} s behind the wall clock (lag p50 {self.quantile(0.5):.4f} s, p99 "
-            f"{self.quantile(0.99):.4f} s, max {self.max_s:.4f} s)"
-        )
-
-    def wrap(self, before_step):
-        """``before_step`` (or nothing) with the lag recorded first, at every plant step."""
-
-        def step(plant_context, root_context):
-            self.record(root_context.get_time())
-            if before_step is not None:
-                before_step(plant_context, root_context)
-
-        return step
-
-    def quantile(self, q: float) -> float:
-        """The ``q`` quantile of the lags (s), to its bin's upper edge (never past the maximum)."""
-        if self.steps == 0:
-            return float("nan")
-        need, seen = math.ceil(q * self.steps), 0
-        for i in sorted(self._bins):
-            seen += self._bins[i]
-            if seen >= need:
-                return min(self._upper(i), self.max_s)
-        return self.max_s
-
-    def result(self) -> dict:
-        return {
-            "realtime_lag_p50_s": self.quantile(0.5),
-            "realtime_lag_p99_s": self.quantile(0.99),
-            "realtime_lag_max_s": self.max_s,
-            "realtime_lag_end_s": self.last_s,
-            "realtime_late_steps": int(self.late_steps),
-            "realtime_late_threshold_s": self.late_s,
-            "realtime_warning": self.warned,
-        }
 
 
 def _then(first, second):

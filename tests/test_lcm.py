@@ -18,7 +18,8 @@ from godobject_drake.devices.lcm import LcmDevice, LcmJointDevice
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.driver.replay import replay
 from godobject_drake.link.messages import FEEDBACK_CHANNEL, JOINT_CHANNEL, POSE_CHANNEL, pose_message
-from godobject_drake.simulation import DeviceNotHeardError, RealtimeLag, simulate
+from godobject_drake.realtime import RealtimeLag
+from godobject_drake.simulation import DeviceNotHeardError, simulate
 
 T = 0.01  # the device's expected period (s)
 Q = (1.0, 0.0, 0.0, 0.0)

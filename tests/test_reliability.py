@@ -24,7 +24,8 @@ from godobject_drake.devices.sources import ScriptedDevice
 from godobject_drake.link.messages import FEEDBACK_CHANNEL
 from godobject_drake.metrics import write_metrics
 from godobject_drake.outputs import OutputError, dumps_metrics, write_atomically
-from godobject_drake.simulation import FallWatch, UnsupportedBodyWarning, _AllTools, simulate
+from godobject_drake.safeguards import FallWatch, UnsupportedBodyWarning
+from godobject_drake.simulation import _AllTools, simulate
 from godobject_drake.station.build import build_station
 
 

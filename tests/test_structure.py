@@ -28,6 +28,7 @@ LAYERS = (
     ("godobject_drake.devices", 2),
     ("godobject_drake.metrics", 2),
     ("godobject_drake.safeguards", 2),
+    ("godobject_drake.realtime", 2),
     ("godobject_drake.sleeping", 2),
     ("godobject_drake.outputs", 2),
     ("godobject_drake.station", 3),
