@@ -175,3 +175,19 @@ def test_every_kind_answers_with_the_bases_signature(config):
         want = list(inspect.signature(base).parameters)
         have = list(inspect.signature(own).parameters)
         assert have[: len(want)] == want, (kind.__name__, name, have, want)
+
+
+def test_a_tool_kind_is_refused_with_what_to_give(monkeypatch):
+    """A builder that is neither a class nor a ``module:Class`` path, a config registered again with
+    another builder, and a path that cannot be imported: each refused, naming the value and the fix."""
+    with pytest.raises(
+        ValueError, match=r"builder='OneBrickTool'; give the GodObject subclass that builds it"
+    ):
+        tool_kind("OneBrickTool")
+    with pytest.raises(ValueError, match=r"tool kind !OneBrick is registered already, built by"):
+        tool_kind(RigidGodObject)(OneBrick)
+    monkeypatch.setitem(TOOL_BUILDERS, OneBrick, "godobject_drake.station.rigid_tool:NoSuchTool")
+    with pytest.raises(
+        ValueError, match=r"the builder 'godobject_drake.station.rigid_tool:NoSuchTool' cannot be"
+    ):
+        builder_of(OneBrick)
