@@ -446,7 +446,7 @@ class UnsupportedBodyWarning(UserWarning):
 
 class FallWatch:
     """Free bodies that fall or are thrown on their own at the start of a run (a model someone
-    forgot to weld, one that starts inside another: the run used to exit 0 while it went away). At
+    forgot to weld, one that starts inside another: nothing else would say so). At
     ``at_s`` every free body not held then that is more than :data:`FALL_DROP_M` below its start,
     or that has moved more than that in any direction while no tool is within
     :data:`TOOL_NEAR_M` of it (so not a body a tool pushed there), is named in a warning, and in

@@ -113,9 +113,8 @@ def finish(
     the tools by name, or one tool (a diagram of one's own)."""
     if isinstance(tools, GodObject):
         tools = {"": tools}
-    records = sc.tool_records(scenario)
-    if set(records) != set(tools):  # tools of one's own: each sees the whole scenario
-        records = sc.tool_records(scenario, names=list(tools))
+    own = set(tools) != set(scenario.tools or {""})  # tools of one's own: each sees the whole scenario
+    records = sc.tool_records(scenario, names=list(tools) if own else None)
     return _finish(builder, scenario, scene, tools, meshcat, records)
 
 
