@@ -38,8 +38,7 @@ from godobject_drake.safeguards import (
 )
 from godobject_drake.station.build import Station
 from godobject_drake.systems.coupling import TERMS_LAYOUT
-from godobject_drake.systems.drawing import save_recording
-from godobject_drake.systems.page import page_of
+from godobject_drake.systems.page import page_of, save_recording
 
 
 @dataclasses.dataclass
@@ -227,6 +226,8 @@ class _Run:
             sleeper=station.sleeper, wiring_checked=True,  # when the station was built (station.build.finish)
             watch=self.god.diverged_part, polled=True,  # no Python call every step where none is needed
         )  # fmt: skip
+        self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,
+                               min(FALL_WATCH_S, duration))  # fmt: skip
         self.recording_steps = None
         if self.record:
             # Before Initialize: what the drawing sets at t = 0 (which ghost shows, its cue's colour)
@@ -244,11 +245,9 @@ class _Run:
                 station.sleeper.draw_marks(0.0)  # every body awake in the first frame
         wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
-        self.falls = FallWatch(self.plant, self.plant.GetMyContextFromRoot(root), self.god,
-                               min(FALL_WATCH_S, duration))  # fmt: skip
         self.logs = _Logs(station, root, keep_logs)
         try:  # each tool's metrics, on its own view of the station
-            self.measured = {name: SceneMetrics(station.for_tool(name)) for name in station.tools}
+            self.measured = {name: SceneMetrics(view) for name, view in station.views.items()}
             self.metrics_error = None
         except Exception as e:  # a scene the metrics cannot measure still runs, and says why
             self.measured, self.metrics_error = None, f"{type(e).__name__}: {e}"
@@ -301,7 +300,7 @@ class _Run:
             "diagnosis": self.diagnosis,
             "partial": partial,
             "predicted_static_penetration_m": station.predicted_penetration_m,
-            **(_one_tool_keys(station) if len(station.tools) == 1 else scene_keys(station)),
+            **scene_configuration(station),
             **(station.sleeper.result() if station.sleeper is not None else {}),
         }
 
@@ -371,10 +370,9 @@ class _Run:
                     errors.append(f"{self.station.records[name].who}{type(e).__name__}: {e}")
             out[name] = own
         if len(out) == 1:
-            flat = dict(out[""] if "" in out else next(iter(out.values())))
+            flat = dict(next(iter(out.values())))
         else:
-            for name in out:
-                view = self.station.for_tool(name)
+            for name, view in self.station.views.items():
                 out[name] = {**configuration(view.scenario, view), **out[name]}
             flat = {**worst_of(out), "tools": out}
         if errors:
@@ -609,8 +607,13 @@ def worst_of(tools: dict[str, dict]) -> dict:
     return out
 
 
-def scene_keys(station: Station) -> dict:
-    """The configuration keys of a scene of several tools (each tool's own are under its name)."""
+def scene_configuration(station: Station) -> dict:
+    """The metrics' configuration keys of a run: a scene of one tool's, flat (:func:`configuration`
+    of its own view); a scene of several, what its tools share, each tool's own under its name
+    (``tools: {NAME: ...}``, :meth:`_Run.tool_metrics`)."""
+    if len(station.tools) == 1:
+        view = next(iter(station.views.values()))
+        return configuration(view.scenario, view)
     scenario = station.scenario
     return {
         "contact": scenario.contact.geometry,
@@ -639,12 +642,6 @@ def configuration(scenario: Scenario, station: Station) -> dict:
     }
     out.update(next(iter(station.tools.values())).configuration(scenario, station))  # the kind's own keys
     return out
-
-
-def _one_tool_keys(station) -> dict:
-    """The configuration keys of a scene of one tool (its own view: ``tools: {NAME: ...}`` too)."""
-    view = station.for_tool(next(iter(station.tools)))
-    return configuration(view.scenario, view)
 
 
 class _NoBar:

@@ -114,6 +114,7 @@ class SleepManager:
     plant, scene_graph :
         The finalized discrete plant and its SceneGraph.
     config : Sleep
+        Checked (``check_scenario`` checks a scenario's; ``config.check()`` one made by hand).
     coupling : GodObjectCoupling | sequence of them | None
         Each tool's rigid coupling: its ``held_body`` and ``pose_WT`` say what it holds and where
         its device is; its force cap bounds how fast a held body can be pulled. None: no device.
@@ -122,7 +123,6 @@ class SleepManager:
     """
 
     def __init__(self, plant: MultibodyPlant, scene_graph, config: Sleep, coupling=None, meshcat=None):
-        config.check()
         h = plant.time_step()
         if not h > 0.0:
             raise ValueError(f"sleeping bodies need a discrete plant (time_step={h!r} s)")

@@ -318,6 +318,8 @@ class Station:
     records : dict[str, ToolRecord]
         Each tool resolved once (:class:`~godobject_drake.config.scenario.ToolRecord`): its
         scenario view, its device's kind, its names.
+    views : dict[str, Station]
+        Each tool's station (:meth:`for_tool`), made once with this one.
     """
 
     scenario: sc.Scenario
@@ -331,6 +333,11 @@ class Station:
     sleeper: SleepManager | None = None
     tool_loggers: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
     records: dict[str, sc.ToolRecord] = dataclasses.field(default_factory=dict)
+    views: dict[str, "Station"] = dataclasses.field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        if not self.views:
+            self.views = {name: self._view(name) for name in self.tools}
 
     @property
     def god_object(self) -> GodObject:
@@ -345,18 +352,24 @@ class Station:
     def for_tool(self, name: str) -> "Station":
         """The station as the tool ``name`` sees it: its scenario view (its own device, tool, gains),
         itself as the one tool, its loggers under their own names (``state``, ``terms``): what the
-        metrics and the studies of one tool read."""
+        metrics and the studies of one tool read (:attr:`views`)."""
         if name not in self.tools:
             raise KeyError(f"no tool {name!r}; the tools are {', '.join(map(repr, self.tools))}")
+        return self.views[name]
+
+    def _view(self, name: str) -> "Station":
+        """The tool ``name``'s station (:meth:`for_tool`), made when this one is."""
         if list(self.tools) == [name] and not self.scenario.tools:
             return self  # the one-tool form: the scenario is the tool's
         loggers = {key: self.loggers[full] for key, full in self.tool_loggers[name].items()}
         record = self.records[name]
-        return Station(
+        view = Station(
             record.view, self.diagram, self.plant, self.scene_graph, {name: self.tools[name]}, loggers,
             self.meshcat, self.predicted_penetration_m, self.sleeper, {name: {k: k for k in loggers}},
-            {name: record},
+            {name: record}, views={name: None},
         )  # fmt: skip
+        view.views[name] = view  # its one tool's station is itself
+        return view
 
     @property
     def device(self):

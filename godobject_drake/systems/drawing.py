@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from pathlib import Path
 
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
@@ -46,10 +45,9 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from godobject_drake.outputs import write_atomically
 from godobject_drake.spatial import pose_from_array
 from godobject_drake.systems.coupling import graspable_bodies
-from godobject_drake.systems.page import DeformingSurface, decorate, page_of, swatch
+from godobject_drake.systems.page import DeformingSurface, page_of, swatch
 
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
@@ -424,7 +422,7 @@ class TissueVisualizer(LeafSystem):
     The organ's surface is one triangle mesh at ``/{organ name}_tissue/surface``, drawn at rest
     and then moved each frame as a
     :class:`~godobject_drake.systems.page.DeformingSurface`: re-sent live, and replayed in a
-    recording by the script :func:`~godobject_drake.systems.drawing.save_recording` adds (Meshcat
+    recording by the script :func:`~godobject_drake.systems.page.save_recording` adds (Meshcat
     recordings replay transforms and properties, not moving vertices: Drake issue #23206).
     """
 
@@ -489,14 +487,3 @@ def add_meshcat_visualization(
     """Drake's MeshcatVisualizer on the illustration role."""
     params = MeshcatVisualizerParams(role=Role.kIllustration, publish_period=publish_period_s)
     return MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
-
-
-def save_recording(meshcat: Meshcat, path: str | Path) -> int:
-    """Stop and publish the recording, write Meshcat's self-contained HTML with the page's legend
-    and its deforming surfaces (:func:`~godobject_drake.systems.page.decorate`); return its size
-    (bytes)."""
-    meshcat.StopRecording()
-    meshcat.PublishRecording()
-    page = page_of(meshcat)
-    page.recording = False
-    return write_atomically(path, decorate(meshcat.StaticHtml(), page))  # all at once: never half a page

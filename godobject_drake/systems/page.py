@@ -4,7 +4,7 @@ recording, and the view (the scenario's camera, no grid, no axes).
 Meshcat recordings replay transforms and properties, not a triangle mesh whose vertices move
 (Drake issue #23206). A :class:`DeformingSurface` draws a surface once as a triangle mesh
 (``Meshcat.SetTriangleMesh``) and keeps its vertex positions frame by frame; :func:`decorate`
-(called by :func:`~godobject_drake.systems.drawing.save_recording`) embeds them in the recording's
+(called by :func:`save_recording`) embeds them in the recording's
 HTML, compactly (each frame's displacement from the rest shape as 16-bit integers, base64), with
 a small script that, on each of the page's animation frames, reads the animator's time and writes
 the interpolated positions into the mesh's ``geometry.attributes.position`` (normals recomputed).
@@ -25,6 +25,8 @@ import weakref
 
 import numpy as np
 from pydrake.geometry import Meshcat, Rgba
+
+from godobject_drake.outputs import write_atomically
 
 # Each frame's displacement from the rest shape is stored as int16 steps of at least this (m):
 # 10 µm, so a displacement up to 0.33 m keeps 5 µm (half a step); larger ones get coarser steps.
@@ -279,3 +281,14 @@ def decorate(page_html: str, page: Page) -> str:
     if at < 0:
         raise ValueError("Meshcat's static HTML has no </body>: cannot add the legend and the surfaces")
     return page_html[:at] + extra + page_html[at:]
+
+
+def save_recording(meshcat: Meshcat, path) -> int:
+    """Stop and publish the recording, write Meshcat's self-contained HTML with the page's legend
+    and its deforming surfaces (:func:`decorate`); return its size (bytes)."""
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    page = page_of(meshcat)
+    page.recording = False
+    text = decorate(meshcat.StaticHtml(), page)
+    return write_atomically(path, text)  # all at once: never half a page

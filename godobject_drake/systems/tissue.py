@@ -136,7 +136,9 @@ def surface_triangles(T: np.ndarray) -> np.ndarray:
 
 
 class FemOrgan:
-    """An organ made a FEM deformable body (built by :func:`add_fem_organ` before ``Finalize()``).
+    """An organ made a FEM deformable body, added to ``plant`` before ``Finalize()``
+    (:func:`~godobject_drake.station.plant.add_plant` does it for ``organs.model: fem``) from a
+    checked ``spec`` (``check_scenario`` checks a scenario's; ``spec.check()`` one made by hand).
 
     Attributes
     ----------
@@ -153,7 +155,6 @@ class FemOrgan:
     """
 
     def __init__(self, plant: MultibodyPlant, scene_graph, spec: Organs, vtk_dir: str | Path | None = None):
-        spec.check()
         if plant.time_step() <= 0:
             raise ValueError("organs.model: fem needs a discrete SAP plant (plant.time_step > 0)")
         self.spec = spec
