@@ -3,8 +3,9 @@ warning when the run cannot hold its rate (:func:`~godobject_drake.simulation.si
 plant steps with it)."""
 
 import logging
-import math
 import time
+
+from godobject_drake.quantiles import Quantiles
 
 
 class RealtimeLag:
@@ -12,11 +13,11 @@ class RealtimeLag:
     when the run cannot hold it.
 
     Step k at simulated time t is due at ``t / rate`` of wall time after t = 0; its lag is how
-    much later the simulator reaches it (ahead counts as 0). The lags are kept in bins of
-    ``BIN_S`` up to ``FINE_S``, and above it in bins of a relative width ``REL`` without an
-    upper end (a run 23 s behind is counted as 23 s, not in a last bin): the quantiles are exact
-    to a bin (10 µs, or 0.1 % of the lag above 10 ms), the maximum and the final lag exactly, and
-    memory stays bounded (at most ~20 000 bins for lags up to 10⁶ s, only those used are kept).
+    much later the simulator reaches it (ahead counts as 0). The lags are counted in a
+    :class:`~godobject_drake.quantiles.Quantiles` of bins ``BIN_S`` wide up to 10 ms and of a
+    relative width ``REL`` above: the quantiles are exact to a bin (10 µs, or 0.1 % of the lag
+    above 10 ms), the maximum and the final lag exactly, and memory stays bounded (at most
+    ~20 000 bins for lags up to 10⁶ s).
 
     **The warning** (``warn``): every ``WINDOW_S`` of wall time the real-time factor of the last
     two windows is measured (simulated time advanced / (rate × wall time), over 0.8 s); below
@@ -29,7 +30,6 @@ class RealtimeLag:
     """
 
     BIN_S = 1e-5
-    FINE_S = 1e-2
     REL = 1e-3
     WINDOW_S = 0.4
     SLOW_RTF = 0.9
@@ -39,9 +39,7 @@ class RealtimeLag:
                  fixes: str = ""):  # fmt: skip
         self.rate, self.late_s = float(rate), float(late_s)
         self.step_s, self.warn, self.fixes = step_s, warn, fixes
-        self._n_fine = round(self.FINE_S / self.BIN_S)
-        self._log_rel = math.log1p(self.REL)
-        self._bins: dict[int, int] = {}
+        self.lags = Quantiles(self.BIN_S, self.REL)
         self._wall0: float | None = None
         self.max_s, self.last_s, self.late_steps, self.steps = 0.0, 0.0, 0, 0
         self._window: tuple[float, float] | None = None  # (wall, t) where this window began
@@ -49,24 +47,13 @@ class RealtimeLag:
         self.slowest_window_rtf: float | None = None
         self.warned: str | None = None  # the warning's text, once logged
 
-    def _bin(self, lag: float) -> int:
-        if lag < self.FINE_S:
-            return int(lag / self.BIN_S)
-        return self._n_fine + int(math.log(lag / self.FINE_S) / self._log_rel)
-
-    def _upper(self, i: int) -> float:
-        if i < self._n_fine:
-            return (i + 1) * self.BIN_S
-        return self.FINE_S * math.exp((i - self._n_fine + 1) * self._log_rel)
-
     def record(self, t: float, now: float | None = None) -> None:
         now = time.perf_counter() if now is None else now
         if self._wall0 is None:
             self._wall0 = now - t / self.rate
             self._window = (now, t)
         lag = max(now - self._wall0 - t / self.rate, 0.0)
-        i = self._bin(lag)
-        self._bins[i] = self._bins.get(i, 0) + 1
+        self.lags.add(lag)
         self.max_s, self.last_s = max(self.max_s, lag), lag
         self.late_steps += lag > self.late_s
         self.steps += 1
@@ -132,14 +119,7 @@ class RealtimeLag:
 
     def quantile(self, q: float) -> float:
         """The ``q`` quantile of the lags (s), to its bin's upper edge (never past the maximum)."""
-        if self.steps == 0:
-            return float("nan")
-        need, seen = math.ceil(q * self.steps), 0
-        for i in sorted(self._bins):
-            seen += self._bins[i]
-            if seen >= need:
-                return min(self._upper(i), self.max_s)
-        return self.max_s
+        return self.lags.quantile(q)
 
     def result(self) -> dict:
         return {

@@ -241,7 +241,7 @@ def test_replay_publishes_each_row_at_its_time(tmp_path):
 
 def _bin_width(lag: float) -> float:
     """RealtimeLag's resolution at ``lag``: 10 µs below 10 ms, 0.1 % above."""
-    return RealtimeLag.BIN_S if lag < RealtimeLag.FINE_S else RealtimeLag.REL * lag * 1.001
+    return RealtimeLag.BIN_S if lag < RealtimeLag.BIN_S / RealtimeLag.REL else RealtimeLag.REL * lag * 1.001
 
 
 def test_lag_quantiles_equal_numpy_to_a_bin():

@@ -20,6 +20,7 @@ PACKAGE = REPO / "godobject_drake"
 LAYERS = (
     ("godobject_drake.spatial", 0),
     ("godobject_drake.limits", 0),
+    ("godobject_drake.quantiles", 0),
     ("godobject_drake.config", 1),
     # the link: what a scene and a driver share; its scene half (a Drake system) is the scene's
     ("godobject_drake.link.scene_model", 2),
@@ -47,6 +48,7 @@ DRIVER_MAY_IMPORT = (
     "godobject_drake.link.transport",
     "godobject_drake.link.logs",
     "godobject_drake.config",
+    "godobject_drake.quantiles",
 )
 MAX_INNER_IMPORTS = 5
 MAX_FUNCTION_LINES = 100

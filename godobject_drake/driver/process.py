@@ -98,42 +98,14 @@ from godobject_drake.link.messages import (
     status_message,
 )
 from godobject_drake.link.transport import LINK_REJECTED, driver_lcm, is_udp_url
+from godobject_drake.quantiles import Quantiles
 
 __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "ForceSafety", "HandPath",
-           "Quantiles", "main"]  # fmt: skip
+           "main"]  # fmt: skip
 
 DEFAULT_URL = "udp://127.0.0.1:7667"
+TIMING_BINS = (1e-6, 0.01)  # the timing figures' bins: 1 µs wide up to 100 µs, 1 % wide above
 DEFAULT_WATCHDOG_PERIODS = 10
-
-
-class Quantiles:
-    """The median, 99th percentile and maximum of a stream of durations (s) in constant memory
-    (a driver runs for hours): counts in bins 1 % wide (each edge 1.01 times the last) from 1 µs
-    to 1000 s, the maximum exact. A quantile is the upper edge of the bin that holds it (capped
-    at the maximum): at most 1 % above the exact one (numpy's ``inverted_cdf``), or 1 µs below it."""
-
-    LOW_S, HIGH_S, WIDTH = 1e-6, 1e3, 0.01
-
-    def __init__(self):
-        self._log_width = math.log1p(self.WIDTH)
-        size = math.ceil(math.log(self.HIGH_S / self.LOW_S) / self._log_width) + 1
-        self.bins = np.zeros(size, np.int64)
-        self.n, self.max = 0, -math.inf
-
-    def add(self, x: float) -> None:
-        i = 0 if x <= self.LOW_S else math.ceil(math.log(x / self.LOW_S) / self._log_width)
-        self.bins[min(i, len(self.bins) - 1)] += 1
-        self.n += 1
-        self.max = max(self.max, x)
-
-    def quantile(self, q: float) -> float:
-        i = int(np.searchsorted(np.cumsum(self.bins), max(math.ceil(q * self.n), 1)))
-        return min(self.LOW_S * (1.0 + self.WIDTH) ** i, self.max)
-
-    def summary(self) -> dict:
-        if not self.n:
-            return {"p50_s": None, "p99_s": None, "max_s": None, "n": 0}
-        return {"p50_s": self.quantile(0.5), "p99_s": self.quantile(0.99), "max_s": self.max, "n": self.n}
 
 
 class Driver:
@@ -142,7 +114,7 @@ class Driver:
 
     Its memory stays bounded however long it runs: without a log file it keeps the last
     :attr:`ROWS_KEPT` periods (:attr:`rows`), and the timing figures are histograms
-    (:class:`Quantiles`)."""
+    (:class:`~godobject_drake.quantiles.Quantiles`, to 1 µs or 1 %)."""
 
     ROWS_KEPT = 2000  # the last 2 s at 1 kHz (~1 MB): every period goes to --log
 
@@ -181,14 +153,14 @@ class Driver:
         self.held = None  # the pose sent while the clutch is held
         self.rows: deque = deque(maxlen=self.ROWS_KEPT)  # kept when there is no log file
         self.log_file = None
-        self.late = Quantiles()  # how late each period started
-        self.gaps = Quantiles()  # between two feedback messages
+        self.late = Quantiles(*TIMING_BINS)  # how late each period started
+        self.gaps = Quantiles(*TIMING_BINS)  # between two feedback messages
         self.stop_requested = False
         self.local = LocalRenderer()  # the scene's local model, once it sends one
         # the last POSES_KEPT poses sent and their utimes, a ring allocated once (bounded memory)
         self._sent_utimes = np.full(self.POSES_KEPT, -1, np.int64)
         self._sent_poses = np.zeros((self.POSES_KEPT, 3))
-        self.pose_age = Quantiles()  # from reading the handle to commanding the force it gave
+        self.pose_age = Quantiles(*TIMING_BINS)  # from reading the handle to commanding the force it gave
         self.bad_local_models = 0
         lcm.Subscribe(feedback_channel, self._on_feedback)
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
