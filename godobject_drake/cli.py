@@ -255,21 +255,21 @@ def _sets_from_here(items: list[str]) -> list[str]:
     return out
 
 
-def load_with_sets(path: str | Path, items: list[str]) -> sc.Scenario:
+def load_with_sets(path: str | Path, items: list[str], *, check: bool = True) -> sc.Scenario:
     """The scenario file with the ``--set`` items applied (before its checks); an error names the
     item that caused it. A relative file path set on the device is taken from the working folder;
     a field of the device or the god-object set alone keeps the kind the file gives
-    (:func:`~godobject_drake.config.scenario.load_scenario`)."""
+    (:func:`~godobject_drake.config.scenario.load_scenario`; ``check=False``: not checked yet)."""
     items = _sets_from_here(items)
     text = set_overrides(items)
     try:
-        return sc.load_scenario(path, text)
+        return sc.load_scenario(path, text, check=check)
     except sc.ScenarioError as e:
         if not text:
             raise
         for item in items:  # which item: the first that fails alone
             try:
-                sc.load_scenario(path, set_overrides([item]))
+                sc.load_scenario(path, set_overrides([item]), check=check)
             except sc.ScenarioError as alone:
                 raise sc.ScenarioError(f"--set {item}: {alone}") from None
         raise sc.ScenarioError(f"--set {' '.join(items)}: {e}") from None
@@ -316,6 +316,44 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
     ``--device`` first (it changes the device's kind, keeping its sampling). A flag whose field the
     scenario's kinds do not have is refused naming the kinds that have it; a value the scenario's
     checks refuse names the flag (raises ``ScenarioError``)."""
+    s, fields = _applied(scenario, args)
+    try:
+        sc.check_scenario(s, where="flags")
+    except sc.ScenarioError as e:
+        raise _blamed(e, "flags", fields, []) from None
+    return s
+
+
+def scenario_of(path: str | Path, args: argparse.Namespace) -> tuple[sc.Scenario, dict]:
+    """The command line's scenario: the file, its ``--set`` items (:func:`load_with_sets`) and the
+    flags (:func:`apply_arguments`), checked once (:func:`~godobject_drake.config.scenario.check_scenario`),
+    an error naming the flag or the ``--set`` item that set the field it is about. Returns the
+    scenario and its tools' records, for :func:`~godobject_drake.station.build.build_station`."""
+    s, fields = _applied(load_with_sets(path, args.set_fields, check=False), args)
+    try:
+        return s, sc.check_scenario(s, where=str(path))
+    except sc.ScenarioError as e:
+        raise _blamed(e, str(path), fields, _sets_from_here(args.set_fields)) from None
+
+
+def _blamed(e: sc.ScenarioError, where: str, fields: dict, items: list[str]) -> sc.ScenarioError:
+    """The check's error ``where: FIELD...`` named by the flag that set FIELD (``--flag: FIELD...``),
+    else by the ``--set`` item that did (``--set ITEM: where: FIELD...``), else as it is."""
+    said = str(e).removeprefix(f"{where}: ")
+
+    def about(field: str) -> bool:
+        return said.startswith(field) and said[len(field) : len(field) + 1] in ("", ".", ":", " ", "=")
+
+    flag = next((name for field, (name, _) in fields.items() if about(field)), None)
+    if flag is not None:
+        return sc.ScenarioError(f"{flag}: {said}")
+    item = next((i for i in items if about(i.split("=", 1)[0].strip())), None)
+    return sc.ScenarioError(f"--set {item}: {e}" if item is not None else str(e))
+
+
+def _applied(scenario: sc.Scenario, args: argparse.Namespace) -> tuple[sc.Scenario, dict]:
+    """:func:`apply_arguments` before the check: the scenario, and each field set with its flag's
+    name and value."""
     given = flags_given(args)
     names = {f.name for f in given}
     s = copy.deepcopy(scenario)
@@ -332,14 +370,7 @@ def apply_arguments(scenario: sc.Scenario, args: argparse.Namespace) -> sc.Scena
         fields[flag.field] = (flag.name, flag.value(raw, s) if flag.value else raw)
         for field, value in (flag.also(raw, s, names) if flag.also else {}).items():
             fields[field] = (flag.name, value)
-    s = sc.replace(s, **{field: value for field, (_, value) in fields.items()})
-    try:
-        sc.check_scenario(s, where="flags")
-    except sc.ScenarioError as e:
-        said = str(e).removeprefix("flags: ")
-        flag = next((name for field, (name, _) in fields.items() if said.startswith(field)), None)
-        raise sc.ScenarioError(f"{flag}: {said}" if flag else str(e)) from None
-    return s
+    return sc.replace(s, **{field: value for field, (_, value) in fields.items()}), fields
 
 
 def _check_field(s: sc.Scenario, flag: Flag) -> None:
@@ -424,11 +455,11 @@ def _rpy(X):
     return RollPitchYaw(X.rotation()).vector()
 
 
-def run_scenario(scenario: sc.Scenario, progress: bool = True):
-    """Build (:func:`~godobject_drake.station.build.build_station`) and simulate in bounded
-    memory (no logs kept); with a metrics file, the metrics so far are written to it every
-    ``metrics.checkpoint_period_s`` of wall time, marked ``partial``, so a killed run leaves its
-    last ones."""
+def run_scenario(scenario: sc.Scenario, progress: bool = True, records: dict | None = None):
+    """Build (:func:`~godobject_drake.station.build.build_station`; ``records``: the scenario's,
+    checked by :func:`scenario_of`) and simulate in bounded memory (no logs kept); with a metrics
+    file, the metrics so far are written to it every ``metrics.checkpoint_period_s`` of wall time,
+    marked ``partial``, so a killed run leaves its last ones."""
 
     for field, output in outputs(scenario):
         check_output(output, field)  # a folder, a missing folder: refused now, not after the run
@@ -438,7 +469,7 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True):
             "metrics.file %s is not a regular file: no checkpoints, the metrics once at the end", path
         )
         path = None
-    station = build_station(scenario)  # with the Meshcat it asks for
+    station = build_station(scenario, records=records)  # with the Meshcat it asks for
     failed = []
 
     def checkpoint(metrics):
@@ -597,9 +628,9 @@ def _run_locked(args: argparse.Namespace, parser: argparse.ArgumentParser, locks
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
-            s = apply_arguments(load_with_sets(path, args.set_fields), args)
+            s, records = scenario_of(path, args)
             claim_outputs(s, locks)
-            result = run_scenario(s, progress=not args.no_progress)
+            result = run_scenario(s, progress=not args.no_progress, records=records)
     except USER_ERRORS as e:
         refuse_input(parser, e)
     except RunInterrupted as e:  # Ctrl-C or SIGTERM: what the run produced is written, marked partial
@@ -635,7 +666,7 @@ def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     from godobject_drake.studies.analyze import analyze, verdict_table, write_report
 
     try:
-        s = apply_arguments(load_with_sets(args.scenario, args.set_fields), args)
+        s, _ = scenario_of(args.scenario, args)
         summary = analyze(s, quick=args.quick, verify=args.verify)
     except USER_ERRORS as e:
         refuse_input(parser, e)

@@ -311,11 +311,12 @@ def shipped_scenario(name: str, overrides: str | None = None) -> Scenario:
     return load_scenario(shipped_scenario_file(name), overrides)
 
 
-def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenario:
+def load_scenario(filename: str | Path, overrides: str | None = None, *, check: bool = True) -> Scenario:
     """Load a scenario YAML file; relative input paths are taken relative to it.
 
     ``overrides`` is YAML text merged on top (e.g. ``"simulation: {duration_s: 1.0}"``).
-    Raises :class:`ScenarioError` naming the file (and the key) on any problem.
+    Raises :class:`ScenarioError` naming the file (and the key) on any problem. ``check=False``
+    leaves :func:`check_scenario` to the caller, once more is added to it (the command line's flags).
     """
     path = Path(filename)
     try:
@@ -335,7 +336,8 @@ def load_scenario(filename: str | Path, overrides: str | None = None) -> Scenari
         text = path.read_text(errors="replace") if where == str(path) else overrides
         raise ScenarioError(f"{path}: {_explain(e, text, where)}") from None
     resolve_paths(scenario, path.resolve().parent)
-    check_scenario(scenario, where=str(path))
+    if check:
+        check_scenario(scenario, where=str(path))
     return scenario
 
 

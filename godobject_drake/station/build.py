@@ -44,14 +44,18 @@ def build_station(
     meshcat: Meshcat | None = None,
     *,
     check_gains: bool = True,
+    records: dict | None = None,
 ) -> "Station":
     """Build any scenario into a diagram (module docstring); ``meshcat`` None makes the one
     the scenario asks for (:func:`make_meshcat`). ``check_gains=False`` builds gains past
     the explicit limit instead of refusing them: for stability analysis only
     (:mod:`godobject_drake.studies.analyze` simulates them to find the limit). A scene of several
     tools builds each tool's loop alike on the one plant, its systems named ``NAME/...``; each
-    tool is resolved once, by the check (:class:`~godobject_drake.config.scenario.ToolRecord`)."""
-    records = sc.check_scenario(scenario)
+    tool is resolved once, by the check (:class:`~godobject_drake.config.scenario.ToolRecord`):
+    ``records`` are what :func:`~godobject_drake.config.scenario.check_scenario` returned for this
+    scenario, unchanged since (the command line checks once, naming its flags); None checks it."""
+    if records is None:
+        records = sc.check_scenario(scenario)
     meshcat = meshcat or _meshcat(scenario, records)
     builder = DiagramBuilder()
     kinds = {name: kind_for(r.view.god_object) for name, r in records.items()}
