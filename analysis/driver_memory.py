@@ -1,5 +1,5 @@
-"""Does a driver's memory stay bounded however long it runs? (issue 45: "a driver left alone an hour
-keeps its memory within 5 MB"; before, Driver.rows kept every period: +0.32 MB/s.)
+"""Does a driver's memory stay bounded however long it runs? (The goal: a driver
+left alone an hour keeps its memory within 5 MB.)
 
 Runs ``godobject-driver run emulated`` (no ``--log``) for ``--minutes`` and samples its resident
 memory (VmRSS, /proc/PID/status) every ``--every`` seconds; then fits a straight line to the

@@ -1,4 +1,4 @@
-"""What does pairing cost per message? (issue 45: every datagram of a udp:// link is tagged and
+"""What does pairing cost per message? (every datagram of a udp:// link is tagged and
 checked, godobject_drake.link.transport.)
 
 Times, per message, on this machine's CPU (no socket): sealing a driver's pose (~170 bytes with

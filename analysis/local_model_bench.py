@@ -1,4 +1,4 @@
-"""The local model's benchmark (issue 44; docs/local_model.md): the emulated device and its
+"""The local model's benchmark (docs/local_model.md): the emulated device and its
 simulated hand (0.1 kg handle, hand 400 N/m, 8 N·s/m) in a ``godobject-driver`` process of its
 own, on loopback, pressing into a wall 2.5 cm past contact, holding, releasing; a table over
 the scene's publication rate (Hz of wall time) and the feedback gain ``kd``.

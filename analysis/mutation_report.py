@@ -68,7 +68,7 @@ UNITS = {
     "device source (guard, timing)": ("devices.sources", "DeviceSource", None),
     "device aids (tether, ratio)": ("config.device_files", "RelativeAids", None),
     "device timing check": ("devices.sources", None, {"_check_timing"}),
-    # what a haptic device renders (issue 45): the driver's watchdog and stop, its rated limits
+    # what a haptic device renders: the driver's watchdog and stop, its rated limits
     # and buzz damping; what the link lets through: the key file, each datagram, each end's rules
     "driver: watchdog and stop": ("driver.safety", "FeedbackGate", None),
     "driver: rated limits and buzz": ("driver.safety", "ForceSafety", None),
@@ -79,7 +79,7 @@ UNITS = {
         "split", "data_fields", "decode", "parse_robot_state", "parse_url", "is_udp_url", "_derive"}),
     "link: each end's rules": ("link.transport", ("_End", "SceneEnd", "DriverEnd"), None),
     "link: transport": ("link.transport", "UdpLcm", None),
-    # the local model (issue 44): its payload on the link, and the driver's renderer
+    # the local model: its payload on the link, and the driver's renderer
     # (driver/local_model.py): the proxy on the planes, the energy budget (the two accounts, the
     # controller, taking a model: everything of LocalRenderer but the validity), the validity (the
     # scene's period, the fade, the trips). heard and reserve are properties, which mutmut 3.8

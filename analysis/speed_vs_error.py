@@ -54,8 +54,8 @@ BUDGETS_M = {
     "deformable_probe": (0.1e-3, 0.5e-3, 1e-3, 5e-3),
 }
 PENETRATION_BUDGET_M = {"lego": 1e-3, "laparoscopy": 5e-3, "deformable_probe": 5e-3}
-# Performance goals (real-time factor at the stated configuration): issue 6's, raised by issue 16
-# for the bricks (4x) and the grasper (2.5x); 64 bricks at h = 1 ms in real time.
+# Performance goals (real-time factor at the stated configuration): the bricks 4x, the grasper
+# 2.5x, the probe 1x; 64 bricks at h = 1 ms in real time.
 GOALS = {"lego": 4.0, "laparoscopy": 2.5, "deformable_probe": 1.0}
 GOAL_64_BRICKS = 1.0
 COUPLING_GOAL_US = 30.0
@@ -100,7 +100,7 @@ def sweep_cases(scene: str, quick: bool, repeats: int) -> tuple[bm.Case, list[bm
         ]
         if not quick:  # the device's rate changes the error little and costs the most at 1 kHz
             grid += [case(T, 1e-3, r, **contact("proxies", "sap")) for r in (250.0, 1000.0)]
-        # The implicit coupling (SAP's springs, issue 31) beside the explicit one at each h (quick:
+        # The implicit coupling (SAP's springs) beside the explicit one at each h (quick:
         # from 1 ms), and at 10 ms, where the explicit coupling is refused.
         grid += [
             case(T, h, **contact("proxies", "sap"), **{"god_object.coupling": "implicit"})
@@ -419,7 +419,7 @@ def equal_budget(drake: list[dict], mujoco: list[dict]) -> tuple[list[str], list
 def coupling_section(rows: list[dict], pen: float) -> tuple[list[str], dict]:
     """The brick scene's two rigid couplings side by side at each h (proxies, SAP, 60 Hz): cost
     ratio of the medians measured in this run, penetration and pose error; and the fastest of
-    each within the penetration budget ``pen`` (issue 31's goal: the implicit one ≥ 2× faster)."""
+    each within the penetration budget ``pen`` (the goal: the implicit one ≥ 2× faster)."""
 
     def pick(coupling: str) -> dict[float, dict]:
         return {
@@ -481,7 +481,7 @@ def coupling_section(rows: list[dict], pen: float) -> tuple[list[str], dict]:
         "",
         f"Within {pen * 1e3:g} mm of penetration, the fastest explicit configuration is "
         f"`{e['label'] if e else 'none'}` and the fastest implicit one `{i['label'] if i else 'none'}`: "
-        f"the implicit coupling is **{fmt(speedup, '×', digits=2)}** as fast (issue 31's goal: ≥ 2×).",
+        f"the implicit coupling is **{fmt(speedup, '×', digits=2)}** as fast (the goal: ≥ 2×).",
         "",
     ]
     summary = {"rows": table, "fastest_explicit": e and e["label"], "fastest_implicit": i and i["label"],
@@ -514,7 +514,7 @@ def scale_cases(quick: bool, repeats: int) -> list[bm.Case]:
     return cases
 
 
-GOAL_64_OVER_8 = 1.6  # issue 47, Drake 1.58: 64 bricks against 8 per simulated second, interleaved
+GOAL_64_OVER_8 = 1.6  # Drake 1.58: 64 bricks against 8 per simulated second, interleaved
 
 
 def scale_interleaved(rounds: int) -> dict:
@@ -598,7 +598,7 @@ def scale_section(rows: list[dict], out: Path, interleaved: dict | None = None) 
     md += [
         "",
         f"The cost of 64 bricks against 8 in this run's medians above (Drake {bm.drake_version()}; "
-        f"{machine()}; issue 31's goal for Drake, sleep on: ≤ 2×):",
+        f"{machine()}; the goal for Drake, sleep on: ≤ 2×):",
         "",
     ]
     for k in keys:
@@ -614,7 +614,7 @@ def performance_goals(scene: str, rows: list[dict]) -> list[tuple]:
     """Rows of the goals table: (scene, at, configuration, RTF, goal).
 
     Bricks and grasper: the scene's default configuration at h = 1 ms and the fastest one at
-    h = 1 ms (issue 6 states their goals at h = 1 ms); the probe: its fastest configuration.
+    h = 1 ms (their goals are stated at h = 1 ms); the probe: its fastest configuration.
     """
     ok = [r for r in rows if not r["refused"] and not r["diverged"] and r["cost_median_s"]]
     out = []
