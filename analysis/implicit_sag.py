@@ -10,7 +10,8 @@ The path lifts brick_0 to z = 0.02 m by t = 0.5 s, carries it +x at 0.133 m/s un
 body's centre of mass G against its target T (``terms``' ``pose_WG`` and ``pose_WT``), and the
 implicit coupling's G against the explicit one's, in x (the carry) and z (the height), in mm.
 The former seven vertical distance constraints gave 4.6 mm lower and 3.5 mm ahead at 0.6 s and
-1.7–2.5 mm lower while moving (docs/design.md "The implicit coupling").
+1.7–2.5 mm lower while moving (docs/results.md "Seven vertical springs against fifteen along the
+world axes").
 """
 
 import argparse

@@ -44,7 +44,8 @@ sampled at the device rate (as the explicit coupling sees a held device), not pe
 logged coupling wrench (``terms``' ``F_Go_W``) is the springs' force evaluated at each logged
 state after the run (:func:`implicit_terms`), not the impulse SAP applied inside its step. Until
 the springs were laid along the three axes (seven springs, all vertical), the coupling did not
-damp across them: a moving body sagged and led by millimetres (docs/design.md).
+damp across them: a moving body sagged and led by millimetres (docs/results.md, "Seven vertical
+springs against fifteen along the world axes").
 """
 
 import dataclasses
@@ -371,8 +372,8 @@ class SpringHook:
     the springs go off (nothing held), or point at the held body (:func:`spring_layout`) with
     their world ends at the new target (:meth:`ImplicitCoupling.world_points`). The springs are
     set at the same steps as when the hook compared at every step (which read the coupling's
-    context and state: 2.4–3.3 µs a step against 0.3 µs now, docs/design.md "What runs every
-    plant step").
+    context and state: 2.4–3.3 µs a step against 0.3 µs now, docs/results.md "What was
+    cut").
     """
 
     def __init__(self, plant: MultibodyPlant, coupling: ImplicitCoupling):
