@@ -46,6 +46,7 @@ from godobject_drake.station.rigid_tool import (
     penetration_fix,
     penetration_pairs,
 )
+from godobject_drake.studies.kinds import study_kind
 from godobject_drake.studies.stability import (
     BodyLoop,
     DeviceParams,
@@ -623,7 +624,7 @@ def _device_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     tau = scenario.contact.relaxation_time_s or h
     g = coupling.gains
     # The implicit coupling's spring is backward Euler like the contact (docs/theory.md §7).
-    scheme = "implicit_euler" if station.god_object.loop_model == "implicit_body" else "drake"
+    scheme = "implicit_euler" if loop_model(station) == "implicit_body" else "drake"
     loop = BodyLoop.by_bandwidth(body.mass, g.omega_n, g.zeta, h, k_w=k_w, b_w=k_w * tau, scheme=scheme)
     dev = DeviceParams(haptic.device_mass_kg, haptic.device_damping, T, 0)
     pipe = Pipeline(loop, fb.kd, fb.gamma_d, T)
@@ -1209,7 +1210,7 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
         "quick": quick,
         "verify": verify,
     }
-    loop = LOOPS[station.god_object.loop_model]
+    loop = LOOPS[loop_model(station)]
     checks = loop.checks(station, out)
     checks += _contact_checks(station, s, out)
     checks += _tissue_checks(station, s, out)
@@ -1346,9 +1347,15 @@ def _verify_implicit(station, scenario, out: dict, rel_tol: float) -> Check | No
     return _verify_implicit_rate(station, scenario, out)
 
 
+def loop_model(station) -> str:
+    """How the station's tool's loop is modelled: its kind's study entry
+    (:attr:`~godobject_drake.studies.kinds.StudyKind.loop_model`) on its config."""
+    return study_kind(station.god_object.kind).loop_model(station.scenario.god_object)
+
+
 @dataclasses.dataclass(frozen=True)
 class Loop:
-    """How ``analyze`` checks a loop model (a tool kind's ``loop_model``): its own rows, its haptic
+    """How ``analyze`` checks a loop model (:func:`loop_model`): its own rows, its haptic
     device's rows, and the prediction it simulates in Drake with ``--verify``."""
 
     checks: Callable
