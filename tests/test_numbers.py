@@ -16,7 +16,8 @@ from godobject_drake.config.scenario import shipped_scenario
 from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.metrics import PenetrationBudgetWarning
 from godobject_drake.simulation import penetration_verdict
-from godobject_drake.studies import analyze as A
+from godobject_drake.studies.analyze import common as C
+from godobject_drake.studies.analyze import verify as V
 
 LIMIT_H = explicit_limit_omega_h(1.0)  # 0.8284 for ζ = 1
 
@@ -85,15 +86,15 @@ def test_a_refusal_names_every_limit_passed(capsys):
 def _pull(scale: float) -> bool:
     """The explicit limit's verification at ``scale`` × the brick scene's bandwidths (both 40 rad/s)."""
     s = shipped_scenario("lego", "god_object: {gains: {omega_n_rot: 40}}")
-    base = A._without_haptics(A.analysis_scenario(s))
-    station = A._quiet_build(base)
-    body = A._held_body(station)
-    away = -A._nearest_fixed_obstacle(station, body)[1]
-    X0 = A._start_pose(station, body)
+    base = V._without_haptics(C.analysis_scenario(s))
+    station = C._quiet_build(base)
+    body = C._held_body(station)
+    away = -V._nearest_fixed_obstacle(station, body)[1]
+    X0 = V._start_pose(station, body)
     X1 = RigidTransform(
         X0.rotation().multiply(RotationMatrix.MakeXRotation(np.radians(10.0))), X0.translation() + 0.03 * away
     )
-    return A.hold_is_stable(base, body.name, X0, X1, A._scaled(base.god_object.gains, scale), 0.05 + 0.6)
+    return V.hold_is_stable(base, body.name, X0, X1, V._scaled(base.god_object.gains, scale), 0.05 + 0.6)
 
 
 def test_a_body_thrown_still_past_the_limit_is_not_read_as_stable():

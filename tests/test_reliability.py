@@ -353,7 +353,7 @@ def test_the_device_limit_at_build_is_python_controls_closed_loop_limit():
     from godobject_drake.config.scene import Haptic
     from godobject_drake.limits import device_wall_limit
     from godobject_drake.station.haptic_chain import hand_on_handle
-    from godobject_drake.studies.analyze import _device_with_hand
+    from godobject_drake.studies.analyze.verify import _device_with_hand
     from godobject_drake.studies.stability import DeviceParams, bisect, wall_impedance
 
     haptic = Haptic(mode="impedance")

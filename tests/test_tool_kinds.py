@@ -11,7 +11,6 @@ import inspect
 import json
 from typing import ClassVar
 
-import numpy as np
 import pytest
 from conftest import REPO
 
@@ -26,7 +25,9 @@ from godobject_drake.station.build import build_station
 from godobject_drake.station.haptic_chain import add_haptic_chain
 from godobject_drake.station.kinds import GodObject, builder_of, kind_for
 from godobject_drake.station.rigid_tool import RigidGodObject
+from godobject_drake.studies.analyze import LOOPS
 from godobject_drake.studies.benchmark import case_config, describe, god_object_body, make_case
+from godobject_drake.studies.kinds import RIGID, STUDY_KINDS, columns, study_kind
 
 LEGO = REPO / "diagrams" / "lego.yaml"
 
@@ -53,18 +54,6 @@ class OneBrickTool(RigidGodObject):
         publisher = loop.render_feedback(builder, device, chain, feedback, coupling)
         return cls(coupling, feedback, source=device, chain=chain, publisher=publisher)
 
-    @classmethod
-    def describe(cls, scenario) -> list[str]:
-        return [f"one={scenario.god_object.brick}"]
-
-    @classmethod
-    def study_config(cls, scenario) -> dict:
-        return {
-            **GodObject.study_config(scenario),
-            "contact": scenario.contact.geometry,
-            "coupling": "explicit",
-        }
-
     def configuration(self, scenario, station) -> dict:
         return {"one_brick": scenario.god_object.brick}
 
@@ -83,6 +72,16 @@ class OneBrick:
     def check(self, scenario) -> None:
         if not self.brick.startswith("brick_"):
             raise ValueError(f"god_object.brick: {self.brick!r}; name a brick (brick_0, brick_1, ...)")
+
+
+# What the studies ask of it: the rigid kind's answers (its pose body, its label's tail, the engines
+# compared), but its own label words, its columns and its loop (the explicit coupling only).
+STUDY_KINDS["one_brick"] = dataclasses.replace(
+    RIGID,
+    describe=lambda scenario: [f"one={scenario.god_object.brick}"],
+    study_config=lambda scenario: columns(contact=scenario.contact.geometry, coupling="explicit"),
+    loop_model=lambda config: "body",
+)
 
 
 SCENARIO = (
@@ -157,9 +156,16 @@ def test_every_tool_kind_is_whole(config):
             target = getattr(target, part)
     if config is not OneBrick:  # a shipped kind: registered once, on its config, naming its builder
         assert TOOL_BUILDERS[config].startswith("godobject_drake.station."), TOOL_BUILDERS[config]
-    for question in ("build", "new_metrics", "pose_body"):
+    for question in ("build", "new_metrics"):
         assert getattr(kind, question) is not getattr(GodObject, question), (kind.__name__, question)
-    np.testing.assert_equal(kind.loop_model in ("body", "implicit_body", "joint"), True)
+    assert study_kind(kind.kind).loop_model(default) in LOOPS, kind.kind
+
+
+def test_a_kind_without_a_study_entry_is_refused_naming_the_entry_to_add():
+    with pytest.raises(
+        ValueError, match=r"tool kind 'nameless' has no study entry .*STUDY_KINDS\['nameless'\]"
+    ):
+        study_kind("nameless")
 
 
 @pytest.mark.parametrize("config", TOOL_CONFIGS, ids=lambda c: c.__name__)

@@ -43,7 +43,6 @@ class ArticulatedGodObject(GodObject):
 
     kind: ClassVar[str] = "articulated"
     device_space: ClassVar[str] = "joint"
-    loop_model: ClassVar[str] = "joint"
     sleeps_others: ClassVar[bool] = False
     no_prediction_reason: ClassVar[str] = (
         "articulated tool: its coupling has no force cap, so no worst-case pull to predict from"
@@ -101,19 +100,6 @@ class ArticulatedGodObject(GodObject):
         if god.grasp is not None:
             god.grasp.jaw_index = list(scenario.god_object.device_joints).index(god.grasp.config.jaw)
         return god
-
-    @classmethod
-    def describe(cls, scenario) -> list[str]:
-        return [scenario.god_object.coupling]
-
-    @classmethod
-    def study_config(cls, scenario) -> dict:
-        return {**super().study_config(scenario), "coupling": scenario.god_object.coupling}
-
-    @classmethod
-    def pose_body(cls, scenario, grasp_names) -> str:
-        """The tool's tip body."""
-        return scenario.god_object.tip_body
 
     def logged_ports(self, plant):
         ports = {**super().logged_ports(plant), "q_device": self.source.GetOutputPort("q_device")}

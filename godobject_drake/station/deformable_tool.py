@@ -16,7 +16,6 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import DeviceSource, first_pose
 from godobject_drake.metrics import ShellMetrics
-from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ShellVisualizer
 from godobject_drake.systems.shell import add_deformable_god_object, obstacle_geometries
@@ -61,25 +60,6 @@ class DeformableGodObject(RigidGodObject):
             haptic=scenario.haptic, connect_forces=scenario.simulation.mode == "god_object",
             check_gains=check_gains, forces=scene.forces,
         )  # fmt: skip
-
-    compares_engines: ClassVar[bool] = False
-
-    @classmethod
-    def describe(cls, scenario) -> list[str]:
-        return [scenario.god_object.shell]
-
-    @classmethod
-    def describe_tail(cls, scenario) -> list[str]:
-        return []
-
-    @classmethod
-    def study_config(cls, scenario) -> dict:
-        return {**GodObject.study_config(scenario), "shell": scenario.god_object.shell}
-
-    @classmethod
-    def pose_body(cls, scenario, grasp_names) -> str:
-        """The probe's core."""
-        return scenario.god_object.name
 
     def logged_ports(self, plant):
         ports = {"state": plant.get_state_output_port(), "pose_WT": self.coupling.GetOutputPort("pose_WT")}

@@ -5,9 +5,10 @@ scenario config's registration (:func:`godobject_drake.config.tools.tool_kind`);
 the one dispatch on a scenario's ``god_object``. Everything kind-specific is a method or class
 attribute of the subclass:
 what it adds to the plant before ``Finalize`` and how it builds its loop, its loggers, metrics and
-drawing, the penetration it can cause, what runs before each plant step, and what the studies ask
-of it. The builder, the simulation, the metrics, the CLI and the studies call these and never ask
-which kind they have (docs/design.md "Adding a tool kind"). The haptic chain is a part of its own
+drawing, the penetration it can cause and what runs before each plant step. The builder, the
+simulation, the metrics, the CLI and the studies call these and never ask which kind they have
+(docs/design.md "Adding a tool kind"); what only the studies ask of a kind is theirs, keyed by its
+``kind`` (:mod:`godobject_drake.studies.kinds`). The haptic chain is a part of its own
 (:mod:`~godobject_drake.station.haptic_chain`), composed into the loop.
 """
 
@@ -120,6 +121,7 @@ class GodObject:
     sleeps_others: ClassVar[bool] = True  # free bodies it can reach may be put to sleep around it
     predicts_penetration: ClassVar[bool] = False  # a force cap, so a worst-case static penetration
     no_prediction_reason: ClassVar[str] = ""  # why not, for analyze's contact row
+    tissue = None  # the FEM organ the tool presses (an articulated tool on organs.model fem)
 
     @classmethod
     def add_to_plant(
@@ -182,36 +184,6 @@ class GodObject:
     def before_step(self, plant: MultibodyPlant):
         """What must happen before every plant step, or None."""
         return None
-
-    # -- what the studies ask of a kind (the speed-against-error benchmark, analyze) ------------------
-    compares_engines: ClassVar[bool] = False  # the brick scene's engine-neutral errors apply
-    # How the stability analysis models the loop: "body" (each held body's explicit spring,
-    # symplectic Euler), "implicit_body" (SAP's backward Euler on it) or "joint" (the articulated
-    # tool's joint-space loop). studies.analyze.LOOPS says what each is checked with.
-    loop_model: ClassVar[str] = "body"
-    tissue = None  # the FEM organ the tool presses (an articulated tool on organs.model fem)
-
-    @classmethod
-    def describe(cls, scenario) -> list[str]:
-        """The words of a run's label that say what this kind varies (after ``h=...``)."""
-        return []
-
-    @classmethod
-    def describe_tail(cls, scenario) -> list[str]:
-        """The words a run's label ends with (after the device rate and brick count)."""
-        return []
-
-    @classmethod
-    def study_config(cls, scenario) -> dict:
-        """What this kind varies, as report columns: ``contact``, ``approximation``, ``coupling``,
-        ``shell``, ``bricks``, ``sleep`` (None where it does not apply)."""
-        return dict.fromkeys(("contact", "approximation", "coupling", "shell", "bricks", "sleep"))
-
-    @classmethod
-    def pose_body(cls, scenario, grasp_names) -> str:
-        """The body whose pose is "the god-object's pose" in a study; ``grasp_names``: those the
-        device reports."""
-        raise NotImplementedError(f"{cls.__name__}.pose_body")
 
     def diverged_part(self, root_context, max_speed: float) -> tuple[str, str] | None:
         """``(part, what and likely cause)`` if a part outside the plant diverged (the haptic chain's

@@ -60,38 +60,6 @@ class RigidGodObject(GodObject):
     def logged_ports(self, plant):
         return {**super().logged_ports(plant), "terms": self.coupling.GetOutputPort("terms")}
 
-    compares_engines: ClassVar[bool] = True
-
-    @classmethod
-    def describe(cls, scenario) -> list[str]:
-        parts = [scenario.contact.geometry, scenario.plant.discrete_contact_approximation]
-        if scenario.god_object.coupling != "explicit":  # the explicit coupling's labels stay as they were
-            parts.append(scenario.god_object.coupling)
-        return parts
-
-    @classmethod
-    def describe_tail(cls, scenario) -> list[str]:
-        return [] if scenario.sleep.enabled else ["awake"]
-
-    @classmethod
-    def study_config(cls, scenario) -> dict:
-        return {
-            **super().study_config(scenario),
-            "contact": scenario.contact.geometry,
-            "approximation": scenario.plant.discrete_contact_approximation,
-            "coupling": scenario.god_object.coupling,
-            "bricks": max(scenario.bricks, 8),
-            "sleep": scenario.sleep.enabled,
-        }
-
-    @classmethod
-    def pose_body(cls, scenario, grasp_names) -> str:
-        """The first body the device grasps."""
-        names = sorted(grasp_names)
-        if not names:
-            raise ValueError("the scenario's device grasps no body: no god-object pose to compare")
-        return names[0]
-
     def add_drawing(self, builder, meshcat, scene, scenario, drawing: Drawing = ONE_TOOL) -> None:
         period = scenario.visualization.publish_period_s
         ghost = builder.AddNamedSystem(
@@ -151,8 +119,6 @@ class ImplicitGodObject(RigidGodObject):
     """A rigid god-object on the implicit coupling (:mod:`godobject_drake.systems.implicit`): the same
     questions answered, its terms computed from the logs after the run, its springs applied to the
     plant between steps (:class:`~godobject_drake.systems.implicit.SpringHook`)."""
-
-    loop_model: ClassVar[str] = "implicit_body"
 
     @functools.cached_property
     def hook(self):

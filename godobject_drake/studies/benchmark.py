@@ -29,6 +29,7 @@ from godobject_drake.station.build import build_station
 from godobject_drake.station.kinds import kind_for
 from godobject_drake.station.loop import make_device
 from godobject_drake.station.plant import add_plant
+from godobject_drake.studies.kinds import StudyKind, study_kind
 from godobject_drake.systems.coupling import GodObjectCoupling, graspable_bodies
 
 SAMPLE_DT_S = 0.01  # trajectories are compared on this grid (s)
@@ -91,10 +92,15 @@ def make_case(scenario: Scenario, label: str | None = None, repeats: int = 3, en
                 mujoco_cone, mujoco_sleep)  # fmt: skip
 
 
+def _study(scenario: Scenario) -> StudyKind:
+    """What the studies ask of the scenario's tool kind (:mod:`godobject_drake.studies.kinds`)."""
+    return study_kind(kind_for(scenario.god_object).kind)
+
+
 def describe(scenario: Scenario, short: bool = False) -> str:
     """``h=1ms proxies sap``, ``h=1ms cartesian``, ``h=10ms fem``, with ``dev=250Hz`` off 60 Hz: the
-    tool kind says what it varies (:meth:`~godobject_drake.station.kinds.GodObject.describe`)."""
-    kind = kind_for(scenario.god_object)
+    tool kind says what it varies (:attr:`~godobject_drake.studies.kinds.StudyKind.describe`)."""
+    kind = _study(scenario)
     parts = [f"h={scenario.time_step * 1e3:g}ms"]
     if not short:
         parts += kind.describe(scenario)
@@ -107,11 +113,11 @@ def describe(scenario: Scenario, short: bool = False) -> str:
 
 def case_config(scenario: Scenario, case: Case) -> dict:
     """What a case varies, as a flat dict for reports: scene, time_step, duration, device_rate,
-    what the tool kind varies (:meth:`~godobject_drake.station.kinds.GodObject.study_config`:
+    what the tool kind varies (:attr:`~godobject_drake.studies.kinds.StudyKind.study_config`:
     contact and approximation, coupling, shell, bricks, sleep; None where it does not apply),
     engine, repeats. A MuJoCo case (the brick scene's peer) has its mode as the coupling, its
     sleeping islands as sleep, and no Drake contact settings."""
-    config = kind_for(scenario.god_object).study_config(scenario)
+    config = _study(scenario).study_config(scenario)
     mujoco = case.engine == "mujoco"
     if mujoco:
         config.update(contact=None, approximation=None, coupling=case.mujoco_mode, sleep=case.mujoco_sleep)
@@ -179,8 +185,7 @@ def round_robin(scenarios: dict, rounds: int = 3) -> dict:
 def god_object_body(scenario: Scenario) -> str:
     """The body whose pose is "the god-object's pose" (the tool kind says which: the first body a
     rigid scene's device grasps, an articulated tool's tip body, a deformable probe's core)."""
-    kind = kind_for(scenario.god_object)
-    return kind.pose_body(scenario, make_device(scenario.device).grasp_names())
+    return _study(scenario).pose_body(scenario, make_device(scenario.device).grasp_names())
 
 
 def run_case(case: Case) -> dict:
@@ -232,7 +237,7 @@ def run_case(case: Case) -> dict:
         q_WG=q,
         energy_j=energy,
     )
-    if kind_for(scenario.god_object).compares_engines:
+    if _study(scenario).compares_engines:
         # Every stride-th step: at h = 4 ms that is every 8 ms, not every 10.
         stride = max(1, round(SAMPLE_DT_S / scenario.time_step))
         out.update(engine_neutral_errors(scenario, first.states[::stride], stride * scenario.time_step))

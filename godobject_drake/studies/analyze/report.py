@@ -1,0 +1,90 @@
+"""The report of an analysis: the verdict table as Markdown (:func:`verdict_table`), and
+``report.md``, ``summary.json`` and ``margins.png`` (:func:`write_report`)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from godobject_drake.studies.analyze.common import WARN_FRACTION
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.4g}"
+    return str(v)
+
+
+def verdict_table(summary: dict) -> str:
+    """The verdict table as Markdown."""
+    lines = ["| verdict | check | subject | value | limit | unit | predicted | simulated | fix |",
+             "|---|---|---|---:|---:|---|---:|---:|---|"]  # fmt: skip
+    for c in summary["checks"]:
+        cells = [c["verdict"], c["name"], c["subject"], _fmt(c["value"]), _fmt(c["limit"]), c["unit"],
+                 _fmt(c["predicted"]), _fmt(c["simulated"]), c["fix"]]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_report(summary: dict, out_dir: str | Path) -> Path:
+    """``report.md``, ``summary.json`` and ``margins.png`` in ``out_dir``; returns the report's path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    _margins_figure(summary, out / "margins.png")
+    md = [
+        f"# Stability and passivity of `{summary['scene']}` ({summary['kind']} god-object)",
+        "",
+        f"Verdict: **{summary['verdict']}**. h = {summary['time_step_s']:g} s; "
+        f"{'quick' if summary['quick'] else 'full'} analysis, "
+        f"{'checked in Drake' if summary['verify'] else 'not checked in Drake'}; "
+        f"{summary['elapsed_s']:.1f} s.",
+        "",
+        "A row passes (`ok`) with more than 25 % margin, `warn`s within 25 % of its limit, `fail`s past it;",
+        "`info` rows say why there is nothing to judge. `fix` is the change that makes the row pass.",
+        "",
+        verdict_table(summary),
+        "",
+        "![margins](margins.png)",
+        "",
+    ]
+    if summary.get("explicit") and "axis" in summary["explicit"][0]:
+        md += ["## Explicit limit per body and axis", "",
+               "| body | axis | inertia (kg, kg·m²) | ω (rad/s) | ζ | ω·h | limit | radius | h_max (s) |",
+               "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+        for r in summary["explicit"]:
+            md.append(f"| {r['body']} | {r['axis']} | {r['inertia']:.4g} | {r['omega_rad_s']:.4g} "
+                      f"| {r['zeta']:.3g} "
+                      f"| {r['omega_h']:.4g} | {r['omega_h_limit']:.4g} | {r['spectral_radius']:.5f} "
+                      f"| {r['h_max_s']:.4g} |")  # fmt: skip
+        md.append("")
+    (out / "report.md").write_text("\n".join(md))
+    return out / "report.md"
+
+
+def _margins_figure(summary: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [
+        c for c in summary["checks"]
+        if c["value"] is not None and c["limit"] and c["section"] != "verify" and c["bound"] == "upper"
+    ]  # fmt: skip
+    fig, ax = plt.subplots(figsize=(11, 0.45 * len(rows) + 1.4))
+    colors = {"ok": "tab:green", "warn": "tab:orange", "fail": "tab:red"}
+    ratios = [c["value"] / c["limit"] for c in rows]
+    ax.barh(range(len(rows)), ratios, color=[colors.get(c["verdict"], "grey") for c in rows])
+    ax.axvline(1.0, color="k", lw=1)
+    ax.axvline(WARN_FRACTION, color="k", lw=0.5, ls="--")
+    ax.set_yticks(range(len(rows)), [f"{c['name']} [{c['subject']}]"[:64] for c in rows], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("value / limit (past 1: fails; past 0.8: warns)")
+    ax.set_title(f"{summary['scene']}: how close each check is to its limit")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
