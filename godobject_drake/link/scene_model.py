@@ -15,7 +15,6 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
@@ -32,9 +31,6 @@ from godobject_drake.link.messages import (
     LocalModel,
     alive_message,
 )
-
-if TYPE_CHECKING:
-    from godobject_drake.devices.lcm import LcmDevice
 
 PLANE_MARGIN_M = 0.005  # contacts the god-object could reach: within this of its held body
 # The local model is published every device period, at most this often (s of simulated time):
@@ -215,7 +211,8 @@ class LocalModelPublisher(LeafSystem):
     simulated time (docs/local_model.md):
     :class:`~godobject_drake.link.messages.LocalModel` on
     :data:`~godobject_drake.link.messages.LOCAL_MODEL_CHANNEL`, in the device's frame
-    (``p_Dev = R_WDevᵀ (p_W − p_WDev) / scale``; gains ``scale² kd``).
+    (``p_Dev = R_WDevᵀ (p_W − p_WDev) / scale``; gains ``scale² kd``). ``device``: the scene's
+    :class:`~godobject_drake.devices.lcm.LcmDevice` (its ``X_WDev``, ``scale`` and period).
 
     The planes: every geometry pair of the held body and another body within
     :data:`PLANE_MARGIN_M` (Drake's signed distance query, broad phase first), one plane per
@@ -224,7 +221,7 @@ class LocalModelPublisher(LeafSystem):
     (:func:`plane_point`), normal out of the obstacle, stiffness the pair's point-contact
     stiffness in series (inf when the geometries state none)."""
 
-    def __init__(self, device: LcmDevice, plant, gains, coupling=None):
+    def __init__(self, device, plant, gains, coupling=None):
         super().__init__()
         self.device, self.plant, self.gains = device, plant, gains
         X = device.X_WDev or RigidTransform()
