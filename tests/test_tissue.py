@@ -3,10 +3,12 @@ mechanics (godobject_drake.studies.indentation): the meshes by geometry, the sce
 the organ in a real plant under the grasper, the hard case's pop-through, Hertz."""
 
 import math
+import os
 
 import numpy as np
 import pytest
 from conftest import REPO
+from pydrake.multibody.fem import DeformableBodyConfig
 
 from godobject_drake.config import scenario as sc
 from godobject_drake.limits import semi_implicit_matrix, symplectic_euler_matrix
@@ -19,7 +21,13 @@ from godobject_drake.studies.tissue_stiffness import (
     ray_surface_hit,
     static_compliance,
 )
-from godobject_drake.systems.tissue import ellipsoid_tet_mesh, grid_tet_mesh, surface_triangles, tet_volumes
+from godobject_drake.systems.tissue import (
+    body_config,
+    ellipsoid_tet_mesh,
+    grid_tet_mesh,
+    surface_triangles,
+    tet_volumes,
+)
 
 RADII = (0.045, 0.03, 0.025)  # the uterus's semi-axes (models/laparoscopy/organs.sdf)
 DEEP_PATH = REPO / "models" / "laparoscopy" / "deep_press_path.yaml"
@@ -72,6 +80,9 @@ def test_hertz_by_hand_and_the_layer_correction_vanishes_for_a_thick_layer():
         ("organs: {model: fem, cells: 7}", ["organs.cells", "7", "even"]),
         ("organs: {model: fem, poissons_ratio: 0.5}", ["organs.poissons_ratio", "0.5", "[0, 0.5)"]),
         ("organs: {model: fem, youngs_modulus_pa: -1}", ["organs.youngs_modulus_pa", "-1", "> 0"]),
+        ("organs: {model: fem, material: rubber}", ["organs.material", "'rubber'", "linear_corotated"]),
+        ("organs: {model: fem, threads: 0}", ["organs.threads", "0", "from 1 to", "--set organs.threads=2"]),
+        ("organs: {model: fem, threads: 4096}", ["organs.threads", "4096", "cores"]),
     ],
 )
 def test_bad_organs_name_the_value_the_limit_and_the_fix(override, words):
@@ -79,6 +90,23 @@ def test_bad_organs_name_the_value_the_limit_and_the_fix(override, words):
         sc.shipped_scenario("laparoscopy", override)
     for word in words:
         assert word in str(e.value), (word, str(e.value))
+
+
+@pytest.mark.parametrize("material", ["linear_corotated", "corotated", "neohookean", "linear"])
+def test_the_material_and_the_threads_reach_drake(material):
+    """``organs.material`` is the FEM body's MaterialModel (Drake's default, linear corotated, when
+    not given); ``organs.threads`` is Drake's deformable model's parallelism."""
+    from pydrake.multibody.fem import MaterialModel
+
+    names = {"linear_corotated": "kLinearCorotated", "corotated": "kCorotated",
+             "neohookean": "kNeoHookean", "linear": "kLinear"}  # fmt: skip
+    s = fem_scenario(cells=2, material=material)
+    assert body_config(s.organs).material_model() == getattr(MaterialModel, names[material])
+    assert sc.Scenario().organs.material == "linear_corotated"
+    assert body_config(sc.Scenario().organs).material_model() == DeformableBodyConfig().material_model()
+    threads = 2 if material == "linear" and (os.cpu_count() or 1) >= 2 else 1
+    station = build_station(fem_scenario(cells=2, material=material, threads=threads))
+    assert station.plant.deformable_model()._parallelism().num_threads() == threads
 
 
 def test_rigid_organs_stay_the_default():

@@ -10,6 +10,7 @@ field types at run time.
 
 import dataclasses
 import math
+import os
 
 from pydrake.multibody.plant import MultibodyPlantConfig
 
@@ -335,6 +336,8 @@ class Metrics:
 
 
 TISSUE_MODELS = ("rigid", "fem")
+# Drake's FEM materials (pydrake.multibody.fem.MaterialModel), by the name a scenario gives
+TISSUE_MATERIALS = ("linear_corotated", "corotated", "neohookean", "linear")
 
 
 @dataclasses.dataclass
@@ -369,6 +372,12 @@ class Organs:
         with ``rigid`` organs, which cannot move, each is welded where it starts.
     glue_size_m : float
         The side of that cube (m).
+    material : str
+        Drake's FEM constitutive model: ``linear_corotated`` (Drake's default), ``corotated``,
+        ``neohookean`` or ``linear`` (small strains only: it resists rotation).
+    threads : int
+        Threads Drake's FEM may use for the tissue (its deformable model's parallelism): 1 by
+        default; more uses more CPU for a shorter step (docs/results.md, the FEM's levers).
     """
 
     model: str = "rigid"
@@ -384,6 +393,8 @@ class Organs:
     relaxation_time_s: float = 0.01
     glued: list[str] = dataclasses.field(default_factory=list)
     glue_size_m: float = 0.012
+    material: str = "linear_corotated"
+    threads: int = 1
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
@@ -415,6 +426,17 @@ class Organs:
             raise ValueError(
                 f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
                 "and steps far below real time)"
+            )
+        if self.material not in TISSUE_MATERIALS:
+            raise ValueError(
+                f"material: {self.material!r}; choose one of {TISSUE_MATERIALS} (Drake's FEM models; "
+                "linear_corotated is Drake's default)"
+            )
+        cores = os.cpu_count() or 1
+        if not (isinstance(self.threads, int) and 1 <= self.threads <= cores):
+            raise ValueError(
+                f"threads: {self.threads!r} must be a whole number from 1 to this machine's {cores} cores "
+                "(e.g. --set organs.threads=2)"
             )
 
 

@@ -35,6 +35,7 @@ import weakref
 from pathlib import Path
 
 import numpy as np
+from pydrake.common import Parallelism
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
     AddContactMaterial,
@@ -47,7 +48,7 @@ from pydrake.geometry import (
     Role,
 )
 from pydrake.math import RigidTransform
-from pydrake.multibody.fem import DeformableBodyConfig
+from pydrake.multibody.fem import DeformableBodyConfig, MaterialModel
 from pydrake.multibody.plant import ContactResults, CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import BodyIndex, JointIndex
 from pydrake.systems.framework import LeafSystem
@@ -193,6 +194,8 @@ class FemOrgan:
         props.AddProperty("material", "relaxation_time", spec.relaxation_time_s)
         instance.set_proximity_properties(props)
         model = plant.mutable_deformable_model()
+        if spec.threads > 1:  # Drake's only handle on it is private (drake#23106): said in the docs
+            model._set_parallelism(Parallelism(spec.threads))
         self.instance = plant.AddModelInstance(f"{name}_fem")
         self.body_id = model.RegisterDeformableBody(instance, self.instance, body_config(spec), 1.0)
         self.geometry_id = model.GetGeometryId(self.body_id)
@@ -293,6 +296,14 @@ def weld_glued(plant: MultibodyPlant, organs: Organs) -> None:
         plant.WeldFrames(plant.world_frame(), body.body_frame(), plant.GetDefaultFloatingBaseBodyPose(body))
 
 
+MATERIALS = {
+    "linear_corotated": MaterialModel.kLinearCorotated,
+    "corotated": MaterialModel.kCorotated,
+    "neohookean": MaterialModel.kNeoHookean,
+    "linear": MaterialModel.kLinear,
+}
+
+
 def body_config(organs: Organs) -> DeformableBodyConfig:
     """Drake's FEM material and Rayleigh damping of the organs' tissue."""
     config = DeformableBodyConfig()
@@ -301,6 +312,7 @@ def body_config(organs: Organs) -> DeformableBodyConfig:
     config.set_mass_density(organs.density_kg_m3)
     config.set_mass_damping_coefficient(organs.mass_damping_per_s)
     config.set_stiffness_damping_coefficient(organs.stiffness_damping_s)
+    config.set_material_model(MATERIALS[organs.material])
     return config
 
 
