@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
 from pydrake.multibody.plant import MultibodyPlant
 
+from godobject_drake.config.scenario import tool_records
 from godobject_drake.config.scene import is_proxy
+from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.outputs import dumps_metrics, write_atomically
 from godobject_drake.spatial import quats_to_rotations
 from godobject_drake.systems.coupling import GraspableBody, graspable_bodies
@@ -661,3 +664,111 @@ class SceneMetrics:
 
     def result(self) -> dict:
         return {**self._acc.result(), **self._sep.result()}
+
+
+def penetration_verdict(metrics: dict, scenario) -> dict:
+    """The run's deepest penetration against its budget (``metrics.penetration_budget_m``): the keys
+    ``penetration_budget_m`` and ``over_penetration_budget``, and a
+    :class:`~godobject_drake.metrics.PenetrationBudgetWarning` past it naming what is near
+    its limit, whatever got it there (the build's warning only covers the capped pull's static
+    depth: a coupling ringing near its explicit limit goes deeper with no warning at build). A run
+    that measures no penetration (None) gives nothing. The position baseline (``simulation.mode:
+    position``, the device's pose imposed) goes into obstacles by design: the keys, no warning.
+    """
+    return verdict(metrics, scenario, tool_records(scenario))
+
+
+def verdict(metrics: dict, scenario, records: dict) -> dict:
+    """:func:`penetration_verdict`, given the scenario's tools' records (a run's: ``Station.records``)."""
+    depth, budget = metrics.get("max_penetration_m"), scenario.metrics.penetration_budget_m
+    if depth is None or not math.isfinite(depth):
+        return {}
+    out = {"penetration_budget_m": budget, "over_penetration_budget": bool(depth > budget)}
+    if depth > budget and scenario.simulation.mode != "position":  # the baseline goes in: its point
+        predicted = metrics.get("predicted_static_penetration_m")
+        near = _what_is_near_its_limit(scenario.time_step, records)
+        said = (
+            f" (the capped pull's static depth predicted at build: {predicted * 1e3:.3g} mm)"
+            if predicted
+            else ""
+        )
+        warnings.warn(
+            f"the run went {depth * 1e3:.3g} mm into an obstacle, past its budget "
+            f"metrics.penetration_budget_m = {budget * 1e3:.3g} mm{said}. {near}",
+            PenetrationBudgetWarning,
+            stacklevel=3,
+        )
+    return out
+
+
+def _what_is_near_its_limit(h: float, records: dict) -> str:
+    """Each tool's coupling bandwidths as a share of their explicit limit at the run's step ``h``: a
+    gain near 100 % rings, and its overshoot is what drives the god-object deeper."""
+    parts = []
+    for record in records.values():
+        gains = getattr(record.view.god_object, "gains", None)
+        if not all(hasattr(gains, a) for a in ("omega_n", "omega_r", "zeta", "zeta_r")):
+            continue
+        for label, w, z in (
+            ("omega_n", gains.omega_n, gains.zeta),
+            ("omega_n_rot", gains.omega_r, gains.zeta_r),
+        ):
+            share = w * h / explicit_limit_omega_h(z)
+            parts.append((share, f"{record.who}{label} {w:g} rad/s is at {100 * share:.4g} %"))
+    if not parts:
+        return "Lower the time step or the coupling's gains, or stiffen the contact"
+    parts.sort(reverse=True)
+    worst = parts[0][0]
+    ringing = " (near 100 % the coupling rings and overshoots into what it meets)" if worst > 0.8 else ""
+    return (
+        f"At time_step {h:g} s, {'; '.join(p for _, p in parts)} of its explicit stability limit{ringing}. "
+        "Lower the time step or that gain, or raise the budget if the depth is acceptable"
+    )
+
+
+def worst_of(tools: dict[str, dict]) -> dict:
+    """The scene's figures from its tools': the deepest penetration, the worst tracking, the fastest
+    other body, the free-space samples of all (a tool that does not measure one: left out)."""
+    out = {}
+    for key, pick in (("max_penetration_m", max), ("rms_tracking_error_m", max),
+                      ("max_other_body_speed_mps", max), ("free_space_samples", sum)):  # fmt: skip
+        values = [m[key] for m in tools.values() if m.get(key) is not None]
+        out[key] = pick(values) if values else None
+    return out
+
+
+def scene_configuration(station) -> dict:
+    """The metrics' configuration keys of a run: a scene of one tool's, flat (:func:`configuration`
+    of its own view); a scene of several, what its tools share, each tool's own under its name
+    (``tools: {NAME: ...}``, :meth:`_Run.tool_metrics`)."""
+    if len(station.tools) == 1:
+        view = next(iter(station.views.values()))
+        return configuration(view.scenario, view)
+    scenario = station.scenario
+    return {
+        "contact": scenario.contact.geometry,
+        "contact_approximation": scenario.plant.discrete_contact_approximation,
+        "seed": scenario.random_seed,
+        "sleep": station.sleeper is not None,
+        "free_bodies": len(station.plant.GetFloatingBaseBodies()),
+        "tool_names": list(station.tools),
+    }
+
+
+def configuration(scenario, station) -> dict:
+    """The metrics' configuration keys: what was run."""
+    god = scenario.god_object
+    out = {
+        "contact": scenario.contact.geometry,
+        "contact_approximation": scenario.plant.discrete_contact_approximation,
+        "device": station.records[next(iter(station.tools))].device.name,
+        "device_rate_hz": scenario.device.rate_hz,
+        "omega_n_rad_s": god.gains.omega_n,
+        "omega_n_rot_rad_s": god.gains.omega_r,
+        "zeta": god.gains.zeta,
+        "seed": scenario.random_seed,
+        "sleep": station.sleeper is not None,
+        "free_bodies": len(station.plant.GetFloatingBaseBodies()),
+    }
+    out.update(next(iter(station.tools.values())).configuration(scenario, station))  # the kind's own keys
+    return out

@@ -14,8 +14,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from godobject_drake import cli
 from godobject_drake.config.scenario import shipped_scenario
 from godobject_drake.limits import explicit_limit_omega_h
-from godobject_drake.metrics import PenetrationBudgetWarning
-from godobject_drake.simulation import penetration_verdict
+from godobject_drake.metrics import PenetrationBudgetWarning, penetration_verdict
 from godobject_drake.studies.analyze import common as C
 from godobject_drake.studies.analyze import verify as V
 
