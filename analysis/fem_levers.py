@@ -23,32 +23,57 @@ import os
 import time
 from pathlib import Path
 
+import yaml
+
 from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 
-# name: (scene, YAML overrides on top of its soft uterus); "ref" is the reference
-BASE = "organs: {model: fem}\n"
+# name: (scene, overrides on top of its soft uterus); "ref" is the reference
+BASE = {"organs": {"model": "fem"}}
+SAP = {"god_object": {"coupling": "joint_pd_sap"}}
+G15 = {"cells": 6, "grading": 1.5}
 LEVERS = {
-    "ref": ("laparoscopy", "organs: {cells: 8}\nplant: {time_step: 0.001}\n"),
-    "cells6": ("laparoscopy", "organs: {cells: 6}\n"),
-    "cells4": ("laparoscopy", "organs: {cells: 4}\n"),
-    "h2": ("laparoscopy", "plant: {time_step: 0.002}\n"),
-    "h5": ("laparoscopy", "plant: {time_step: 0.005}\n"),
-    "h10": ("laparoscopy", "plant: {time_step: 0.01}\n"),
-    "sap": ("laparoscopy", "god_object: {coupling: joint_pd_sap}\n"),
-    "h10_sap": ("laparoscopy", "plant: {time_step: 0.01}\ngod_object: {coupling: joint_pd_sap}\n"),
-    "linear": ("laparoscopy", "organs: {material: linear}\n"),
-    "corotated": ("laparoscopy", "organs: {material: corotated}\n"),
-    "threads2": ("laparoscopy", "organs: {threads: 2}\n"),
+    "ref": ("laparoscopy", {"organs": {"cells": 8}, "plant": {"time_step": 0.001}}),
+    "cells6": ("laparoscopy", {"organs": {"cells": 6}}),
+    "cells4": ("laparoscopy", {"organs": {"cells": 4}}),
+    "h2": ("laparoscopy", {"plant": {"time_step": 0.002}}),
+    "h5": ("laparoscopy", {"plant": {"time_step": 0.005}}),
+    "h10": ("laparoscopy", {"plant": {"time_step": 0.01}}),
+    "sap": ("laparoscopy", SAP),
+    "h10_sap": ("laparoscopy", {"plant": {"time_step": 0.01}, **SAP}),
+    "linear": ("laparoscopy", {"organs": {"material": "linear"}}),
+    "corotated": ("laparoscopy", {"organs": {"material": "corotated"}}),
+    "threads2": ("laparoscopy", {"organs": {"threads": 2}}),
+    "cells6_g15": ("laparoscopy", {"organs": G15}),
+    "cells4_g2": ("laparoscopy", {"organs": {"cells": 4, "grading": 2.0}}),
     # combinations, by --only
-    "cells4_h10_sap": ("laparoscopy", "organs: {cells: 4}\nplant: {time_step: 0.01}\n"
-                                      "god_object: {coupling: joint_pd_sap}\n"),
-    "cells6_h5_sap": ("laparoscopy", "organs: {cells: 6}\nplant: {time_step: 0.005}\n"
-                                     "god_object: {coupling: joint_pd_sap}\n"),
-    "cells6_h10_sap": ("laparoscopy", "organs: {cells: 6}\nplant: {time_step: 0.01}\n"
-                                      "god_object: {coupling: joint_pd_sap}\n"),
-}  # fmt: skip
+    "cells6_g15_h5_sap": (
+        "laparoscopy",
+        {"organs": {"cells": 6, "grading": 1.5}, "plant": {"time_step": 0.005}, **SAP},
+    ),
+    "cells6_g15_h10_sap": (
+        "laparoscopy",
+        {"organs": {"cells": 6, "grading": 1.5}, "plant": {"time_step": 0.01}, **SAP},
+    ),
+    "cells4_h10_sap": ("laparoscopy", {"organs": {"cells": 4}, "plant": {"time_step": 0.01}, **SAP}),
+    "cells6_h5_sap": ("laparoscopy", {"organs": {"cells": 6}, "plant": {"time_step": 0.005}, **SAP}),
+    "cells6_h10_sap": ("laparoscopy", {"organs": {"cells": 6}, "plant": {"time_step": 0.01}, **SAP}),
+}
+
+
+def merged(*parts: dict) -> dict:
+    """The overrides of ``parts`` merged field by field (a later part's value wins)."""
+    out: dict = {}
+    for part in parts:
+        for key, value in part.items():
+            if isinstance(value, dict) and isinstance(out.get(key), dict):
+                out[key] = merged(out[key], value)
+            else:
+                out[key] = value
+    return out
+
+
 SINGLE = ("ref", "cells6", "cells4", "h2", "h5", "h10", "sap", "h10_sap", "linear", "corotated", "threads2")
 KEYS = ("max_tissue_contact_force_N", "tissue_max_displacement_m", "tool_tip_inside_tissue_steps",
         "max_penetration_m", "max_trocar_offset_m", "tissue_vertices", "diverged")  # fmt: skip
@@ -63,16 +88,16 @@ def cpu_model() -> str:
 
 def run(name: str, duration: float | None) -> dict:
     """One lever's run over the scene's whole path (or ``duration`` s of it)."""
-    scene, text = LEVERS[name]
-    if duration is not None:
-        text += f"simulation: {{duration_s: {duration}}}\n"
-    station = build_station(sc.shipped_scenario(scene, BASE + text))
+    scene, lever = LEVERS[name]
+    overrides = merged(BASE, lever, {} if duration is None else {"simulation": {"duration_s": duration}})
+    text = yaml.safe_dump(overrides, default_flow_style=True).strip()
+    station = build_station(sc.shipped_scenario(scene, text))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     m = simulate(station, progress=False, keep_logs=False).metrics
     total = time.perf_counter() - t0
     sim = m["sim_time_s"]
-    row = {"lever": name, "scene": scene, "overrides": text.strip().replace("\n", "; "),
+    row = {"lever": name, "scene": scene, "overrides": text,
            "time_step_s": m["time_step_s"], "sim_s": sim, "wall_s_per_s": m["wall_time_s"] / sim,
            "cpu_s_per_s": m["cpu_time_s"] / sim, "run_s": total, "load": load}  # fmt: skip
     return {**row, **{k: m.get(k) for k in KEYS}}

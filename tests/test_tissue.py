@@ -24,6 +24,7 @@ from godobject_drake.studies.tissue_stiffness import (
 from godobject_drake.systems.tissue import (
     body_config,
     ellipsoid_tet_mesh,
+    graded_axis,
     grid_tet_mesh,
     surface_triangles,
     tet_volumes,
@@ -65,6 +66,25 @@ def test_ellipsoid_mesh_is_inscribed_and_closes(cells, deficit):
     assert set(np.unique(F)) == set(surface)
 
 
+@pytest.mark.parametrize("cells, grading", [(4, 2.0), (6, 1.5), (8, 1.2)])
+def test_a_graded_mesh_is_finest_at_the_tops_centre_and_each_cell_grows_by_the_grading(cells, grading):
+    """x and y: widths grow by ``grading`` from the middle outward; z: from the top downward; the
+    cube's faces stay at ±1 (so the same surface), every tetrahedron positive, and grading 1 is
+    the evenly spaced grid bit for bit."""
+    xy, z = graded_axis(cells, grading), graded_axis(cells, grading, from_top=True)
+    for axis in (xy, z):
+        assert axis[0] == -1.0 and axis[-1] == 1.0 and np.all(np.diff(axis) > 0)
+    half = np.diff(xy)[cells // 2 :]  # from the middle outward
+    np.testing.assert_allclose(half[1:] / half[:-1], grading, rtol=1e-12)
+    down = -np.diff(z[::-1])  # from the top downward
+    np.testing.assert_allclose(down[1:] / down[:-1], grading, rtol=1e-12)
+    V, T, surface = ellipsoid_tet_mesh(RADII, cells, grading)
+    assert tet_volumes(V, T).min() > 0 and len(surface) == 6 * cells**2 + 2
+    assert np.array_equal(graded_axis(cells, 1.0), np.linspace(-1.0, 1.0, cells + 1))
+    even, default = ellipsoid_tet_mesh(RADII, cells, 1.0), ellipsoid_tet_mesh(RADII, cells)
+    assert all(np.array_equal(a, b) for a, b in zip(even, default, strict=True))
+
+
 def test_hertz_by_hand_and_the_layer_correction_vanishes_for_a_thick_layer():
     # (4/3) · 50 kPa / (1 − 0.45²) · √5 mm · (1 mm)^1.5 = 0.1869 N
     assert hertz_force(5e4, 0.45, 0.005, 1e-3) == pytest.approx(0.18693, rel=1e-4)
@@ -80,6 +100,7 @@ def test_hertz_by_hand_and_the_layer_correction_vanishes_for_a_thick_layer():
         ("organs: {model: fem, cells: 7}", ["organs.cells", "7", "even"]),
         ("organs: {model: fem, poissons_ratio: 0.5}", ["organs.poissons_ratio", "0.5", "[0, 0.5)"]),
         ("organs: {model: fem, youngs_modulus_pa: -1}", ["organs.youngs_modulus_pa", "-1", "> 0"]),
+        ("organs: {model: fem, grading: 0.5}", ["organs.grading", "0.5", "[1, 3]", "evenly"]),
         ("organs: {model: fem, material: rubber}", ["organs.material", "'rubber'", "linear_corotated"]),
         ("organs: {model: fem, threads: 0}", ["organs.threads", "0", "from 1 to", "--set organs.threads=2"]),
         ("organs: {model: fem, threads: 4096}", ["organs.threads", "4096", "cores"]),

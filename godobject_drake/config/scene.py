@@ -372,6 +372,10 @@ class Organs:
         with ``rigid`` organs, which cannot move, each is welded where it starts.
     glue_size_m : float
         The side of that cube (m).
+    grading : float
+        1: the mesh's cells evenly spaced. Above 1, finest at the organ's top centre (where the
+        instruments press) and each cell this many times as wide as its neighbour toward there,
+        so fewer cells (vertices: the FEM's cost) keep the resolution under the tool.
     material : str
         Drake's FEM constitutive model: ``linear_corotated`` (Drake's default), ``corotated``,
         ``neohookean`` or ``linear`` (small strains only: it resists rotation).
@@ -393,6 +397,7 @@ class Organs:
     relaxation_time_s: float = 0.01
     glued: list[str] = dataclasses.field(default_factory=list)
     glue_size_m: float = 0.012
+    grading: float = 1.0
     material: str = "linear_corotated"
     threads: int = 1
 
@@ -426,6 +431,11 @@ class Organs:
             raise ValueError(
                 f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
                 "and steps far below real time)"
+            )
+        if not (isinstance(self.grading, int | float) and 1.0 <= self.grading <= 3.0):
+            raise ValueError(
+                f"grading: {self.grading!r} must be in [1, 3] (1: cells evenly spaced; 1.5: each cell 1.5 "
+                "times as wide as its neighbour toward the top's centre)"
             )
         if self.material not in TISSUE_MATERIALS:
             raise ValueError(

@@ -95,17 +95,37 @@ def orient(V: np.ndarray, T: np.ndarray) -> np.ndarray:
     return T
 
 
-def ellipsoid_tet_mesh(radii, cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def graded_axis(cells: int, grading: float, from_top: bool = False) -> np.ndarray:
+    """``cells + 1`` grid coordinates on [−1, 1], each cell ``grading`` times as wide as the one
+    before it counted from the middle outward (``from_top``: from +1 downward); ``grading`` 1:
+    evenly spaced."""
+    if grading == 1.0:
+        return np.linspace(-1.0, 1.0, cells + 1)
+    if from_top:
+        widths = grading ** np.arange(cells)
+        z = 1.0 - 2.0 * np.cumsum(widths) / widths.sum()
+        z[-1] = -1.0  # exactly: the cube's face
+        return np.concatenate([[1.0], z])[::-1]
+    widths = grading ** np.arange(cells // 2)
+    half = np.cumsum(widths) / widths.sum()
+    half[-1] = 1.0
+    return np.concatenate([-half[::-1], [0.0], half])
+
+
+def ellipsoid_tet_mesh(radii, cells: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A tetrahedral ellipsoid of semi-axes ``radii`` (m): a cube grid of ``cells`` a side
-    mapped radially onto the ball (``p ‖p‖∞ / ‖p‖₂``), then scaled.
+    mapped radially onto the ball (``p ‖p‖∞ / ‖p‖₂``), then scaled. ``grading`` > 1 makes the
+    cells finest at the top's centre, where instruments reach, and each cell that many times as
+    wide as its neighbour toward there (:func:`graded_axis`: x and y from the middle, z from the
+    top), so a coarse count keeps fine cells under the tool.
 
     Returns ``(V, T, surface)``: vertices, tetrahedra and the indices of the surface
     vertices (those on the cube's faces). ``cells`` even, ≥ 2.
     """
     if not (isinstance(cells, int) and cells >= 2 and cells % 2 == 0):
         raise ValueError(f"cells: {cells!r} must be an even integer ≥ 2 (the centre is a grid vertex)")
-    s = np.linspace(-1.0, 1.0, cells + 1)
-    V, T = grid_tet_mesh(s, s, s)
+    s = graded_axis(cells, grading)
+    V, T = grid_tet_mesh(s, s, graded_axis(cells, grading, from_top=True))
     inf = np.max(np.abs(V), axis=1)
     two = np.linalg.norm(V, axis=1)
     scale = np.divide(inf, two, out=np.zeros_like(inf), where=two > 0)
@@ -177,7 +197,8 @@ class FemOrgan:
             for other in _geometries_named(plant, inspector, host, inspector.GetName(gid)):
                 if inspector.GetProperties(other, role) is not None:
                     scene_graph.RemoveRole(source, other, role)
-        V, T, self.surface = ellipsoid_tet_mesh(radii, spec.cells)
+        V, T, self.surface = ellipsoid_tet_mesh(radii, spec.cells, spec.grading)
+        self.tets = T
         self.triangles = surface_triangles(T)
         self.tet_count = len(T)
         if vtk_dir is None:  # a folder of this organ's own, removed with it (or at exit)
@@ -186,7 +207,8 @@ class FemOrgan:
         vtk_dir = Path(vtk_dir)
         self.vtk_dir = vtk_dir
         name = spec.organ.split("::")[-1]
-        path = write_vtk(vtk_dir / f"{name}_{spec.cells}.vtk", V, T)
+        graded = f"_g{spec.grading:g}" if spec.grading != 1.0 else ""
+        path = write_vtk(vtk_dir / f"{name}_{spec.cells}{graded}.vtk", V, T)
         instance = GeometryInstance(X_WG, Mesh(str(path)), f"{name}_fem")
         props = ProximityProperties()
         friction = CoulombFriction(spec.friction, spec.friction)
@@ -481,8 +503,7 @@ def max_tet_strain(organ: FemOrgan, p: np.ndarray) -> float:
 
 
 def organ_tets(organ: FemOrgan) -> np.ndarray:
-    _, T, _ = ellipsoid_tet_mesh((1.0, 1.0, 1.0), organ.spec.cells)  # same connectivity
-    return T
+    return organ.tets
 
 
 def capsule_against_surface(p, surface, triangles, a, axis, radius, half) -> tuple[float, bool]:
