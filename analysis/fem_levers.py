@@ -33,6 +33,7 @@ from godobject_drake.station.build import build_station
 BASE = {"organs": {"model": "fem"}}
 SAP = {"god_object": {"coupling": "joint_pd_sap"}}
 G15 = {"cells": 6, "grading": 1.5}
+RT = {"cells": 6, "grading": 1.7, "relaxation_time_s": 0.2, "stiffness_damping_s": 0.03}
 LEVERS = {
     "ref": ("laparoscopy", {"organs": {"cells": 8}, "plant": {"time_step": 0.001}}),
     "cells6": ("laparoscopy", {"organs": {"cells": 6}}),
@@ -56,6 +57,19 @@ LEVERS = {
         "laparoscopy",
         {"organs": {"cells": 6, "grading": 1.5}, "plant": {"time_step": 0.01}, **SAP},
     ),
+    # the real-time candidates: a graded 6-cell mesh at h = 10 ms, the tissue's contact relaxed over
+    # 20 h (a shorter one chatters at this step), its stiffness damping raised to 0.03 s
+    "rt_h10": ("laparoscopy", {"organs": RT, "plant": {"time_step": 0.01}, **SAP}),
+    "rt_h10_threads2": ("laparoscopy", {"organs": {**RT, "threads": 2}, "plant": {"time_step": 0.01}, **SAP}),
+    "rt_h5": (
+        "laparoscopy",
+        {"organs": {**RT, "relaxation_time_s": 0.1}, "plant": {"time_step": 0.005}, **SAP},
+    ),
+    "rt_h10_tau01": (
+        "laparoscopy",
+        {"organs": {**RT, "relaxation_time_s": 0.01}, "plant": {"time_step": 0.01}, **SAP},
+    ),
+    "rt_h10_even": ("laparoscopy", {"organs": {**RT, "grading": 1.0}, "plant": {"time_step": 0.01}, **SAP}),
     "cells4_h10_sap": ("laparoscopy", {"organs": {"cells": 4}, "plant": {"time_step": 0.01}, **SAP}),
     "cells6_h5_sap": ("laparoscopy", {"organs": {"cells": 6}, "plant": {"time_step": 0.005}, **SAP}),
     "cells6_h10_sap": ("laparoscopy", {"organs": {"cells": 6}, "plant": {"time_step": 0.01}, **SAP}),
