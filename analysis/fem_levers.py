@@ -48,6 +48,7 @@ LEVERS = {
     "threads2": ("laparoscopy", {"organs": {"threads": 2}}),
     "cells6_g15": ("laparoscopy", {"organs": G15}),
     "cells4_g2": ("laparoscopy", {"organs": {"cells": 4, "grading": 2.0}}),
+    "cells6_g17_sap": ("laparoscopy", {"organs": {"cells": 6, "grading": 1.7}, **SAP}),
     # combinations, by --only
     "cells6_g15_h5_sap": (
         "laparoscopy",
@@ -57,9 +58,33 @@ LEVERS = {
         "laparoscopy",
         {"organs": {"cells": 6, "grading": 1.5}, "plant": {"time_step": 0.01}, **SAP},
     ),
-    # the real-time candidates: a graded 6-cell mesh at h = 10 ms, the tissue's contact relaxed over
-    # 20 h (a shorter one chatters at this step), its stiffness damping raised to 0.03 s
+    # the real-time candidates: a graded 6-cell mesh at h = 10 to 20 ms, the tissue's contact relaxed
+    # over 20 h (a shorter one chatters at these steps), its stiffness damping raised to ~2.5 h
     "rt_h10": ("laparoscopy", {"organs": RT, "plant": {"time_step": 0.01}, **SAP}),
+    "rt_h15": (
+        "laparoscopy",
+        {
+            "organs": {**RT, "relaxation_time_s": 0.3, "stiffness_damping_s": 0.04},
+            "plant": {"time_step": 0.015},
+            **SAP,
+        },
+    ),
+    "rt_h20": (
+        "laparoscopy",
+        {
+            "organs": {**RT, "relaxation_time_s": 0.4, "stiffness_damping_s": 0.05},
+            "plant": {"time_step": 0.02},
+            **SAP,
+        },
+    ),
+    "rt_h20_beta01": (
+        "laparoscopy",
+        {
+            "organs": {**RT, "relaxation_time_s": 0.4, "stiffness_damping_s": 0.01},
+            "plant": {"time_step": 0.02},
+            **SAP,
+        },
+    ),
     "rt_h10_threads2": ("laparoscopy", {"organs": {**RT, "threads": 2}, "plant": {"time_step": 0.01}, **SAP}),
     "rt_h5": (
         "laparoscopy",
