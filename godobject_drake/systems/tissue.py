@@ -3,9 +3,9 @@
 The rigid scene models an organ as a rigid shape with a soft point-contact
 stiffness: its "penetration" stands for the tissue's indentation, and the organ
 is drawn undeformed. With ``organs.model: fem`` the organ is a Drake FEM
-deformable body instead (linear tetrahedra, corotated material, integrated
-implicitly in SAP), held to the pelvis where it attaches, and the tool's
-contact deforms it.
+deformable body instead (linear tetrahedra, Drake's linear corotated material
+unless ``organs.material`` says otherwise, integrated implicitly in SAP), held
+to the pelvis where it attaches, and the tool's contact deforms it.
 
 Drake 1.51 meshes a deformable Sphere or Box from a resolution hint but not an
 Ellipsoid ("We don't yet generate deformable meshes for Ellipsoid"), so the
@@ -216,7 +216,7 @@ class FemOrgan:
         props.AddProperty("material", "relaxation_time", spec.relaxation_time_s)
         instance.set_proximity_properties(props)
         model = plant.mutable_deformable_model()
-        if spec.threads > 1:  # Drake's only handle on it is private (drake#23106): said in the docs
+        if spec.threads > 1:  # Drake offers it as a private method only (drake issue 23106)
             model._set_parallelism(Parallelism(spec.threads))
         self.instance = plant.AddModelInstance(f"{name}_fem")
         self.body_id = model.RegisterDeformableBody(instance, self.instance, body_config(spec), 1.0)
