@@ -28,6 +28,7 @@ import yaml
 from godobject_drake.config import scenario as sc
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
+from godobject_drake.studies.benchmark import cpu_model, machine
 
 # name: (scene, overrides on top of its soft uterus); "ref" is the reference
 BASE = {"organs": {"model": "fem"}}
@@ -118,13 +119,6 @@ KEYS = ("max_tissue_contact_force_N", "tissue_max_displacement_m", "tool_tip_ins
         "max_penetration_m", "max_trocar_offset_m", "tissue_vertices", "diverged")  # fmt: skip
 
 
-def cpu_model() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown"
-
-
 def run(name: str, duration: float | None) -> dict:
     """One lever's run over the scene's whole path (or ``duration`` s of it)."""
     scene, lever = LEVERS[name]
@@ -185,7 +179,7 @@ def main(argv=None) -> int:
     parser.add_argument("--reference", type=Path, help="an earlier rows.json whose reference row to reuse")
     parser.add_argument("--duration", type=float, help="simulated seconds (default: the whole path)")
     args = parser.parse_args(argv)
-    print(f"nproc {os.cpu_count()}, CPU {cpu_model()}, load average {os.getloadavg()[0]:.2f}", flush=True)
+    print(f"{machine()}, load average {os.getloadavg()[0]:.2f}", flush=True)
     names = list(args.only or SINGLE)
     ref = None
     if args.reference is not None:
