@@ -1,5 +1,5 @@
 """The command line: ``python -m godobject_drake run SCENARIO.yaml [flags]``, ``python -m
-godobject_drake analyze SCENARIO.yaml --out DIR [flags]``, and the scene scripts.
+godobject_drake analyze SCENARIO.yaml [--out DIR] [flags]``, and the scene scripts.
 
 Every named flag is an alias of one scenario field, ``--set FIELD=VALUE`` (``--help`` names the
 field; the few that set a second field declare it: :mod:`godobject_drake.config.flags`); a flag
@@ -39,11 +39,11 @@ DESCRIPTION = """Run a god-object scene, or analyse its stability.
 
   godobject run lego --record lego.html --metrics metrics.json
   godobject run my_scene.yaml --set simulation.duration_s=2
-  godobject analyze lego --out reports/lego --quick
+  godobject analyze lego --quick        # the report in analysis_lego/
 
-A scenario is a YAML file or a shipped scene's name (lego, laparoscopy,
-deformable_probe). Every flag overrides one scenario field (its help names
-the field); --set KEY=VALUE overrides any field. Exit status: 0 done, 1 a
+A scenario is a YAML file or a shipped scene's name ('godobject run --help'
+lists them). Every flag overrides one scenario field (its help names the
+field); --set KEY=VALUE overrides any field. Exit status: 0 done, 1 a
 diverged run or a failed check, 2 bad input. 'godobject run --help' lists
 the flags."""
 
@@ -582,7 +582,11 @@ def main(argv=None, *, prog: str = "python -m godobject_drake") -> int:
         "analyze", help="the scenario's stability and passivity report, each verdict checked in Drake"
     )
     analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
-    analyze.add_argument("--out", type=Path, required=True, help="directory for report.md, summary.json")
+    analyze.add_argument(
+        "--out", type=Path,
+        help="the folder for report.md, summary.json and margins.png (default: analysis_SCENE in the "
+        "current folder)",
+    )  # fmt: skip
     analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
     analyze.add_argument(
         "--verify", action=argparse.BooleanOptionalAction, default=None,
@@ -660,6 +664,12 @@ def _run_locked(args: argparse.Namespace, parser: argparse.ArgumentParser, locks
     return 1 if metrics["diverged"] or "metrics_error" in metrics else 0
 
 
+def default_report_folder(path: Path) -> Path:
+    """``analyze``'s folder without ``--out``: ``analysis_SCENE`` in the current folder, SCENE the
+    scenario file's name without ``.yaml`` (a shipped scene's name)."""
+    return Path(f"analysis_{Path(path).stem}")
+
+
 def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``analyze``: write the report; exit 1 if a check fails, 2 for bad input."""
     # The studies (python-control, matplotlib) load for ``analyze`` only: ``run`` starts without them.
@@ -670,7 +680,7 @@ def _analyze(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         summary = analyze(s, quick=args.quick, verify=args.verify)
     except USER_ERRORS as e:
         refuse_input(parser, e)
-    path = write_report(summary, args.out)
+    path = write_report(summary, args.out or default_report_folder(args.scenario))
     print(verdict_table(summary))
     print(f"verdict: {summary['verdict']}")  # the product, with the table: stdout
     logger.info("report written to %s", path)
