@@ -673,7 +673,11 @@ def parser() -> argparse.ArgumentParser:
         help="render the scene's newest wrench, held, without the local model (for comparison): the "
         "scene's local model is ignored",
     )
-    run.add_argument("--log", default="", help="write every period to FILE.csv at exit")
+    run.add_argument(
+        "--log",
+        default="",
+        help="write every period to FILE.csv as the loop runs (flushed every 100 periods; closed at exit)",
+    )
     run.add_argument("--summary", default="", help="write the counts, limits and timing to FILE.json at exit")
     cal = sub.add_parser("calibrate", help="record the device's reachable box as a scenario's workspace")
     family_args(cal)
