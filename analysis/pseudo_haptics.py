@@ -7,7 +7,7 @@ A relative device (the paper's mouse) pushes the held brick into the wall, 12 cm
 it, and comes straight back (models/lego/push_and_return.csv). The same run with no aid, with
 tethers and with control/display ratios; plotted over time: the target's separation from the
 god-object, and the brick's and device's x. Prints each run's figures as a Markdown table,
-with what the theory predicts (README "Pseudo-haptics").
+with what the theory predicts (docs/guide/visual.md).
 """
 
 import argparse

@@ -8,8 +8,8 @@ not colliding) carrying a deformable shell (drawn, colliding), paper Fig. 4
 and 8. ``--shell fem`` is Drake's FEM deformable body; ``--shell
 mass_spring`` the paper's mass–spring net. ``--mode position`` imposes the
 core's pose (the paper's first idea, which it rejects) and leaves only the
-shell simulated. The scene is diagrams/deformable_probe.yaml (README
-"Deformable probe"); every flag overrides a field (--help).
+shell simulated. The scene is diagrams/deformable_probe.yaml (docs/guide/deformable.md);
+every flag overrides a field (--help).
 
 This script is ``godobject run diagrams/deformable_probe.yaml`` with the same flags: every entry point builds
 the scene through one path (``godobject_drake.station.build.build_station``). The loop it wires,

@@ -6,8 +6,8 @@
 The grasper (models/laparoscopy/grasper.sdf) pivots about the insertion point
 in the abdominal wall, slides and spins through the trocar and opens its
 jaws; a 5-DoF laparoscopic interface gives ``yaw, pitch, insertion, roll,
-jaw`` at 60 Hz. The scene is diagrams/laparoscopy.yaml (README "Laparoscopy
-scene"); ``--coupling`` picks the paper's per-body Cartesian springs or
+jaw`` at 60 Hz. The scene is diagrams/laparoscopy.yaml (docs/guide/laparoscopy.md);
+``--coupling`` picks the paper's per-body Cartesian springs or
 joint-space PD (explicit, or implicit in SAP), ``--jaws imposed`` (the
 paper's choice) or ``simulated``; every flag overrides a field (--help).
 

@@ -3,7 +3,7 @@
 
     python diagrams/lego.py --metrics m.json --record r.html
 
-The scene is diagrams/lego.yaml (README "Brick scene"); every flag overrides
+The scene is diagrams/lego.yaml (docs/guide/brick_scene.md); every flag overrides
 one of its fields (--help names them). The same run:
 python -m godobject_drake run diagrams/lego.yaml.
 

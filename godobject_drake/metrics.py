@@ -39,7 +39,7 @@ def _rotations(q: np.ndarray) -> np.ndarray:
     return quats_to_rotations(q / np.linalg.norm(q, axis=1, keepdims=True))
 
 
-# Keys every scene's metrics JSON has, in table order (README "Metrics JSON").
+# Keys every scene's metrics JSON has, in table order (docs/metrics.md).
 METRIC_KEYS = (
     "scene",
     "mode",

@@ -146,7 +146,7 @@ def simulate(
     record : str | Path | None
         Write the Meshcat HTML recording here; None: the scenario's ``recording.file``
         (empty: no recording). It covers at most ``recording.max_duration_s`` of the run (its
-        size is stated in advance: README "Recordings"). The station needs a Meshcat (built
+        size is stated in advance: docs/guide/visual.md). The station needs a Meshcat (built
         with a recording file, or given one).
     realtime_rate : float | None
         None: the scenario's, and 1 for a live device or a served page.

@@ -1,4 +1,4 @@
-"""Sleeping bodies: cost that follows what moves (README "Sleeping bodies").
+"""Sleeping bodies: cost that follows what moves (docs/guide/sleeping.md).
 
 Drake has no automatic sleeping, but SAP drops the contact pairs of a *locked* tree against
 anchored geometry or other locked trees (Drake PR 19349), so a free body that rests is cheap

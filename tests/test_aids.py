@@ -1,4 +1,4 @@
-"""The pseudo-haptic aids on their own (README "Pseudo-haptics"): the tether, the control/display
+"""The pseudo-haptic aids on their own (docs/guide/visual.md): the tether, the control/display
 ratio and the device code that applies them, fast enough for the mutation run.
 
 Each test drives a :class:`RelativeDevice` alone in a ``Simulator``: the coupling's target T and

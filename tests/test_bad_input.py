@@ -1,6 +1,6 @@
 """Bad device input (issue 7): each case gets a clear error or a documented, counted safe behaviour.
 
-README "Bad device input" lists what happens in each case. The device outputs are read after
+docs/guide/devices.md#bad-device-input lists what happens in each case. The device outputs are read after
 simulating the device alone, sample by sample; ``device_status`` counts what the guard did.
 """
 

@@ -58,7 +58,7 @@ def test_shell_deforms_while_the_core_stays_outside_and_comes_back_to_rest(defau
     assert m["max_core_penetration_m"] == 0.0  # the core sphere never touches the block
     assert m["final_shell_deformation_m"] <= 0.0005  # 2.5 s after release, in free space
     # Shell points dip into the block for a step or two as they land while sliding at h = 10 ms
-    # (README "Deformable probe": 2–5 mm here, < 0.4 mm at h = 1 ms).
+    # (docs/guide/deformable.md: 2–5 mm here, < 0.4 mm at h = 1 ms).
     assert m["max_penetration_m"] < 0.006
 
 

@@ -3,7 +3,10 @@
 shipped scene it names."""
 
 import dataclasses
+import re
 import runpy
+import unicodedata
+from pathlib import Path
 
 from conftest import REPO, assert_refused
 
@@ -51,3 +54,64 @@ def test_a_workspace_upside_down_is_refused():
         fix="lowest corner as lower_m",
     )
     Workspace().check()  # the default box is the right way round
+
+
+# --- References to a section (issue 56 item 3) -------------------------------------------------
+# README.md "Title", README's "Title" and PAGE.md#anchor, in the docs, the docstrings, the help
+# strings, the scenarios' and the models' comments, each names a heading that exists: a section
+# moved or renamed leaves no pointer to nowhere.
+
+SOURCES = [
+    REPO / "README.md",
+    *(REPO / "docs").rglob("*.md"),
+    *(
+        p
+        for folder in ("godobject_drake", "diagrams", "analysis", "examples", "tests")
+        for p in (REPO / folder).rglob("*.py")
+    ),
+    *(
+        p
+        for folder in ("diagrams", "models", "examples")
+        for ext in ("yaml", "sdf")
+        for p in (REPO / folder).rglob(f"*.{ext}")
+    ),
+]
+README_SECTION = re.compile(r"README(?:\.md)?(?:'s)?(?:\s+section)?\s+\"([^\"]+)\"")
+ANCHOR = re.compile(r"([\w./-]+\.md)#([\w-]+)")
+
+
+def slug(heading: str) -> str:
+    """A heading's anchor as MkDocs makes it (Python-Markdown's toc slugify)."""
+    text = unicodedata.normalize("NFKD", heading).encode("ascii", "ignore").decode()
+    text = re.sub(r"[^\w\s-]", "", re.sub(r"\[([^]]*)\]\([^)]*\)", r"\1", text)).strip().lower()
+    return re.sub(r"[-\s]+", "-", text)
+
+
+def headings(page: Path) -> list[str]:
+    text = re.sub(r"^```.*?^```", "", page.read_text(), flags=re.S | re.M)
+    return [h.strip() for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.M)]
+
+
+def dangling_references() -> list[str]:
+    readme = [" ".join(h.split()) for h in headings(REPO / "README.md")]
+    found = []
+    for source in SOURCES:
+        if source == Path(__file__):  # this file's own examples
+            continue
+        text = source.read_text()
+        where = source.relative_to(REPO)
+        for title in README_SECTION.findall(text):
+            if " ".join(title.split()) not in readme:
+                found.append(f'{where}: README "{title}" is not a heading of README.md')
+        for page, anchor in ANCHOR.findall(text):
+            near = source.parent / page if source.suffix == ".md" else REPO / page
+            target = near if near.exists() else REPO / page
+            if not target.exists():
+                found.append(f"{where}: {page} does not exist")
+            elif anchor not in {slug(h) for h in headings(target)}:
+                found.append(f"{where}: {page}#{anchor} is not a heading of {page}")
+    return found
+
+
+def test_every_reference_to_a_section_names_one_that_exists():
+    assert dangling_references() == []

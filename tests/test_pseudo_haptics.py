@@ -1,4 +1,4 @@
-"""Pseudo-haptics for a device that cannot feel the god-object (README "Pseudo-haptics"): the
+"""Pseudo-haptics for a device that cannot feel the god-object (docs/guide/visual.md): the
 tether, the control/display ratio, and the figures that measure what they do.
 
 The scene is the brick pushed into the wall and on through it by a relative device (the

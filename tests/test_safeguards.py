@@ -1,6 +1,6 @@
 """The safeguards under a plain ``Simulator``, and the wiring mistakes caught at build time.
 
-A user who composes a diagram by hand (README "Compose your own diagram") and runs it with
+A user who composes a diagram by hand (docs/guide/own_scene.md#compose-your-own-diagram) and runs it with
 ``Simulator`` plus ``install_safeguards`` gets: the wiring checked before the first step,
 divergence stopped with the body named, free bodies' quaternions kept on unit norm, and an
 action before every plant step (the position baseline).

@@ -34,7 +34,7 @@ from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station, make_meshcat
 from godobject_drake.station.loop import make_device
 
-# Keys every run's metrics have, whatever the scene (README "Metrics JSON").
+# Keys every run's metrics have, whatever the scene (docs/metrics.md).
 COMMON_KEYS = (
     *METRIC_KEYS, "diagnosis", "step_cost_us", "free_space_samples", "predicted_static_penetration_m",
     "contact", "contact_approximation", "device", "device_rate_hz", "omega_n_rad_s", "omega_n_rot_rad_s",

@@ -1,4 +1,4 @@
-"""Sleeping bodies (README "Sleeping bodies"): resting free bodies are locked and cost nothing,
+"""Sleeping bodies (docs/guide/sleeping.md): resting free bodies are locked and cost nothing,
 and wake before anything reaches them, so a run with sleep on is the run with sleep off.
 
 Each check compares a run with sleep on against the same run with every body awake: the held

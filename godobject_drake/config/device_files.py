@@ -52,7 +52,7 @@ DEVICE_STATUS_KEYS = (
 
 @dataclasses.dataclass
 class SampleGuard:
-    """What a device does with samples it cannot use (README "Bad device input").
+    """What a device does with samples it cannot use (docs/guide/devices.md#bad-device-input).
 
     Every sample a device reports passes this guard before it reaches the
     target; the plant never sees a NaN. What each case does, and the
@@ -107,7 +107,7 @@ class SampleGuard:
 
 @dataclasses.dataclass
 class RelativeAids:
-    """What an increment device does for a god-object it cannot feel (README "Pseudo-haptics").
+    """What an increment device does for a god-object it cannot feel (docs/guide/visual.md).
 
     A relative device (a mouse, the live keys and gamepad) moves its target by increments; with
     the god-object stopped at an obstacle, nothing stops the target, which runs on through the

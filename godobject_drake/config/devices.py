@@ -200,7 +200,7 @@ class DeviceConfig:
 class _PoseDevice(DeviceConfig):
     """What every pose device has: its rate, latency, interpolation, noise and sample guard;
     and, for the increment devices (``!Relative``, ``!MeshcatSliders``) only, the pseudo-haptic
-    aids (README "Pseudo-haptics", :class:`~godobject_drake.devices.sources.RelativeAids`).
+    aids (docs/guide/visual.md, :class:`~godobject_drake.devices.sources.RelativeAids`).
 
     Attributes
     ----------
@@ -459,7 +459,7 @@ class DeviceToWorld:
 )
 @dataclasses.dataclass
 class Lcm(_PoseDevice):
-    """A real device whose driver publishes pose samples over LCM (README "Real devices over LCM").
+    """A real device whose driver publishes pose samples over LCM (docs/guide/lcm.md).
 
     Attributes
     ----------

@@ -167,8 +167,8 @@ class Scenario:
         The brick scene's brick count: 0 keeps the directives' models; N adds brick_2x4 models
         (``brick_8``, ...) on a grid beside the path, in layers, up to N in all (``--bricks``).
     sleep : Sleep
-        When resting free bodies are locked, so they cost nothing (``--sleep on|off``; README
-        "Sleeping bodies").
+        When resting free bodies are locked, so they cost nothing (``--sleep on|off``;
+        docs/guide/sleeping.md).
     organs : Organs
         Rigid organs (the default: the directives' shapes) or FEM tissue (``--set
         organs.model=fem``: the laparoscopy scene's uterus as a Drake FEM body,

@@ -223,7 +223,7 @@ class Visualization:
         The interface Meshcat listens on: ``localhost`` (this machine only; the default), or
         an address or ``*`` (every interface) to let other machines open the page, which
         drives a live device: it is announced loudly. An SSH tunnel is the safe way to watch
-        from elsewhere (README "Driving a scene live").
+        from elsewhere (docs/guide/live.md).
     port : int | None
         The live page's port; None: Drake's default (7000, or the next free one).
     publish_period_s : float
@@ -276,7 +276,7 @@ class Recording:
     max_duration_s : float
         The recording covers the run's first this many seconds (the rest runs unrecorded), so its
         size is known in advance: about 2.2 MB of viewer plus the frames, some 0.1 MB per second
-        for the brick scene at 64 frames per second (README "Recordings").
+        for the brick scene at 64 frames per second (docs/guide/visual.md).
     """
 
     file: str = ""

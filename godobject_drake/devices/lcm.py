@@ -1,7 +1,7 @@
 """Devices on LCM, Drake's hardware convention: a driver publishes the device's samples, the
 scene publishes the feedback wrench back.
 
-Messages (the ``lcmt_*`` types the drake wheel ships; README "Real devices over LCM"):
+Messages (the ``lcmt_*`` types the drake wheel ships; docs/guide/lcm.md):
 
 - **Pose samples** on ``GODOBJECT_DEVICE_POSE``: ``lcmt_robot_state`` with ``utime`` (µs, the
   driver's clock), ``joint_name = [x, y, z, qw, qx, qy, qz]`` (m; a unit quaternion, W first)

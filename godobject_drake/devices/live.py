@@ -1,6 +1,6 @@
 """Live devices: drive a scene's target from the browser (Meshcat).
 
-``--device meshcat`` on every scene uses these (README "Driving a scene live").
+``--device meshcat`` on every scene uses these (docs/guide/live.md).
 They are ordinary device sources, sampled at the device rate through the
 same :class:`~godobject_drake.devices.sources.SampleGuard`, so a live run is the loop
 of a scripted one with a human in it:

@@ -2,11 +2,11 @@
 
 ``python -m godobject_drake.driver.replay LOG.csv --lcm-url URL [--key-file K] [--channel C] [--speed S]``
 
-Each row ``t,x,y,z,qw,qx,qy,qz,grasp`` (README "Device log format") is published at ``t / S``
+Each row ``t,x,y,z,qw,qx,qy,qz,grasp`` (docs/guide/devices.md#device-log-format-csv) is published at ``t / S``
 seconds after the start as an ``lcmt_robot_state`` pose sample (``utime`` = t in µs; a grasp
 column ``*`` becomes ``grasp=*``, an empty one ``grasp=``). A real driver does the same from
 its servo loop with the device's pose, and listens on the feedback channel for the wrench to
-render (README "Real devices over LCM"). On a ``udp://`` link it is a driver: it pairs with
+render (docs/guide/lcm.md). On a ``udp://`` link it is a driver: it pairs with
 the scene first (the key of ``--key-file``, :mod:`godobject_drake.link.keys`), then replays.
 """
 

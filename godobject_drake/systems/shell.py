@@ -30,7 +30,7 @@ zero-length spring k = E A / t (a column of shell under the node), and
 edges a quarter of that. Damping: Rayleigh stiffness damping 2ζ/ω_s (FEM),
 the same ζ on every spring (mass–spring).
 
-Which to pick (measured, README "Deformable probe"): the mass–spring shell
+Which to pick (measured, docs/guide/deformable.md): the mass–spring shell
 with 42 nodes is the cheaper interactive shell; the FEM shell is the
 realistic one (a continuum, any mesh) at 129 vertices. Mass–spring cost
 grows as the cube of its node count (the nodes are one kinematic tree with
