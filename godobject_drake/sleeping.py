@@ -32,7 +32,8 @@ boundary and never per step:
   A call costs 4 µs for one brick and 0.75 ms for 63 at once (Drake 1.58, measured alone);
   with the reach test at each check it is about 2 % of the brick scene's CPU time at 8 bricks
   and 1 % at 64, where a transient filter declaration cost 20–370 ms a change (its table holds
-  every geometry pair, ~700 000 at 64 bricks: docs/results.md, "Collision filters in a context").
+  every geometry pair, ~700 000 at 64 bricks: docs/results.md, "The cost of a step and of
+  changing its context").
   Older Drake has no ``Deactivate``: the query still finds a sleeping body's contacts and SAP
   drops them. The run's log says once which it is.
 

@@ -8,6 +8,7 @@ import runpy
 import unicodedata
 from pathlib import Path
 
+import pytest
 from conftest import REPO, assert_refused
 
 from godobject_drake.config.scene import Workspace
@@ -57,9 +58,9 @@ def test_a_workspace_upside_down_is_refused():
 
 
 # --- References to a section (issue 56 item 3) -------------------------------------------------
-# README.md "Title", README's "Title" and PAGE.md#anchor, in the docs, the docstrings, the help
-# strings, the scenarios' and the models' comments, each names a heading that exists: a section
-# moved or renamed leaves no pointer to nowhere.
+# README.md "Title", README's "Title", PAGE.md "Title" (a heading's start) and PAGE.md#anchor, in
+# the docs, the docstrings, the help strings, the scenarios' and the models' comments, each names a
+# heading that exists: a section moved or renamed leaves no pointer to nowhere.
 
 SOURCES = [
     REPO / "README.md",
@@ -78,6 +79,7 @@ SOURCES = [
 ]
 README_SECTION = re.compile(r"README(?:\.md)?(?:'s)?(?:\s+section)?\s+\"([^\"]+)\"")
 ANCHOR = re.compile(r"([\w./-]+\.md)#([\w-]+)")
+PAGE_SECTION = re.compile(r"([\w./-]+\.md)\)?,?\s+\"([^\"]+)\"")  # docs/design.md "Adding a tool kind"
 
 
 def slug(heading: str) -> str:
@@ -104,14 +106,71 @@ def dangling_references() -> list[str]:
             if " ".join(title.split()) not in readme:
                 found.append(f'{where}: README "{title}" is not a heading of README.md')
         for page, anchor in ANCHOR.findall(text):
-            near = source.parent / page if source.suffix == ".md" else REPO / page
-            target = near if near.exists() else REPO / page
+            target = _page(source, page)
             if not target.exists():
                 found.append(f"{where}: {page} does not exist")
             elif anchor not in {slug(h) for h in headings(target)}:
                 found.append(f"{where}: {page}#{anchor} is not a heading of {page}")
+        for page, title in PAGE_SECTION.findall(text):
+            target, title = _page(source, page), " ".join(title.split())
+            if page != "README.md" and not any(h.startswith(title) for h in _plain_headings(target)):
+                found.append(f'{where}: {page} "{title}" does not start a heading of {page}')
     return found
+
+
+def _page(source: Path, page: str) -> Path:
+    """``page`` as ``source`` names it: beside a Markdown page, else from the clone's root."""
+    near = source.parent / page
+    return near if source.suffix == ".md" and near.exists() else REPO / page
+
+
+def _plain_headings(page: Path) -> list[str]:
+    return [" ".join(h.replace("`", "").split()) for h in headings(page)] if page.exists() else []
 
 
 def test_every_reference_to_a_section_names_one_that_exists():
     assert dangling_references() == []
+
+
+# --- The present tense (issue 56 item 6) ------------------------------------------------------
+# The guides, the pages beside them and the help say what holds today; a measurement keeps its
+# date and its command in docs/results.md, which alone may tell what came before.
+
+PAST = re.compile(
+    r"(?<!Drake )\bissue #?\d+|\bused to\b|\bthis round\b|\bwe changed\b|\bno longer\b"
+    r"|\bbefore this\b|\bas before\b|\bnow\b",
+    flags=re.I,
+)
+
+
+def narration(text: str) -> list[str]:
+    """The lines of ``text`` (its code blocks and table rows aside) that tell of an earlier state."""
+    prose = re.sub(r"^```.*?^```", "", text, flags=re.S | re.M)
+    return [line for line in prose.splitlines() if not line.lstrip().startswith("|") and PAST.search(line)]
+
+
+def test_the_guides_say_what_holds_today():
+    pages = [REPO / "README.md", *(REPO / "docs").rglob("*.md")]
+    found = {
+        str(page.relative_to(REPO)): narration(page.read_text())
+        for page in pages
+        if page.name != "results.md"
+    }
+    assert {page: lines for page, lines in found.items() if lines} == {}
+
+
+def test_the_help_says_what_holds_today(capsys):
+    from godobject_drake import cli
+    from godobject_drake.driver import process
+
+    for main, argv in (
+        (cli.main, ["--help"]),
+        (cli.main, ["run", "--help"]),
+        (cli.main, ["analyze", "--help"]),
+        (process.main, ["--help"]),
+        (process.main, ["run", "--help"]),
+        (process.main, ["calibrate", "--help"]),
+    ):
+        with pytest.raises(SystemExit):
+            main(argv)
+    assert narration(capsys.readouterr().out) == []
