@@ -60,7 +60,8 @@ def device_help() -> str:
     for k in DEVICE_KINDS.values():
         if k.summary not in summaries.setdefault(k.name, []):
             summaries[k.name].append(k.summary)
-    return plain("; ".join(f"{name}: {' / '.join(texts)}" for name, texts in summaries.items()))
+    kinds = "; ".join(f"{name}: {' / '.join(texts)}" for name, texts in summaries.items())
+    return plain(f"{kinds}; a new kind keeps the old one's rate, latency and guard")
 
 
 def _keep_rotation_ratio(given: float, s: sc.Scenario, flags: set) -> dict:
@@ -84,7 +85,7 @@ def _as_str(given, s) -> str:
 # --set god_object.gains.omega_n=30. The tool kinds add their own (config.tools: FLAGS).
 COMMON_FLAGS = (
     Flag("--mode", "simulation.mode",
-         "god_object: the PD coupling; position: impose the device pose (the baseline)",
+         "god_object: the PD coupling; position: impose the device pose (the baseline, the paper's Fig. 5)",
          choices=sc.SIMULATION_MODES),
     Flag("--duration", "simulation.duration_s", "simulated time (s)", type=float),
     Flag("--time-step", "plant.time_step", "plant step h (s)", type=float),
@@ -99,14 +100,15 @@ COMMON_FLAGS = (
          "the CSV for --device replay (t,x,y,z,qw,qx,qy,qz,grasp; a joint device's t,<channels>) or "
          "relative (t,dx,dy,dz,drx,dry,drz,clutch,grasp)", type=Path,
          value=lambda given, s: str(sc.absolute(given))),
-    Flag("--device-rate", "device.rate_hz", "device rate (Hz)", type=float),
+    Flag("--device-rate", "device.rate_hz", "device rate (Hz), independent of --time-step", type=float),
     Flag("--device-latency", "device.latency_s", "device latency (s)", type=float),
     Flag("--device-interpolation", "device.interpolation",
          "between device samples: hold, or linear (smooth, one period late)", choices=INTERPOLATIONS),
     Flag("--max-device-speed", "device.guard.max_speed_m_s",
          "a sample farther than this speed (m/s) could go is held back as a glitch; inf: off", type=float),
     Flag("--device-noise", "device.noise_m",
-         "std. dev. of Gaussian noise on each device position sample (m), seeded by --seed", type=float),
+         "std. dev. of Gaussian noise on each device position sample (m), seeded by --seed (sample k draws "
+         "from (seed, k))", type=float),
     Flag("--seed", "random_seed", "seed of every random draw", type=int),
     Flag("--omega-n", "god_object.gains.omega_n", "coupling bandwidth ωn (rad/s); without --omega-n-rot "
          "the rotation keeps the scenario's ratio to it", type=float, also=_keep_rotation_ratio),
@@ -120,7 +122,8 @@ COMMON_FLAGS = (
          "haptic device held by a simulated hand; admittance: a simulated admittance device",
          choices=sc.HAPTIC_MODES),
     Flag("--haptic-rate", "haptic.rate_hz", "haptic servo rate (Hz)", type=float),
-    Flag("--kd", "feedback.kd", "feedback stiffness kd (N/m)", type=float),
+    Flag("--kd", "feedback.kd", "feedback stiffness kd (N/m); the feedback port is wired with any gains, a "
+         "haptic device or not", type=float),
     Flag("--gamma-d", "feedback.gamma_d", "feedback damping γd (N·s/m)", type=float),
     Flag("--passivity-damping", "haptic.passivity_damping",
          "a passivity observer/controller on the impedance device's feedback, its damping capped at this "

@@ -1,6 +1,8 @@
 """docs/scenario.md, the scenario reference, is generated from the config dataclasses
-(analysis/scenario_reference.py): it must be fresh, and each of its examples must load onto the
-shipped scene it names."""
+(analysis/scenario_reference.py), and docs/guide/flags.md's scenes and flags tables from the code
+(analysis/flags_reference.py): each must be fresh, and each example of the reference must load
+onto the shipped scene it names. References to a section name one that exists; the guides and
+the help are in the present tense."""
 
 import dataclasses
 import re
@@ -14,12 +16,23 @@ from conftest import REPO, assert_refused
 from godobject_drake.config.scene import Workspace
 
 reference = runpy.run_path(str(REPO / "analysis" / "scenario_reference.py"))
+flags_reference = runpy.run_path(str(REPO / "analysis" / "flags_reference.py"))
 
 
 def test_the_scenario_reference_is_fresh():
     assert (REPO / "docs" / "scenario.md").read_text() == reference["page"](), (
         "docs/scenario.md is stale: run python analysis/scenario_reference.py"
     )
+
+
+def test_the_scenes_and_flags_tables_are_fresh():
+    """docs/guide/flags.md's two tables are the code's: every shipped scenario file and every flag."""
+    page = (REPO / "docs" / "guide" / "flags.md").read_text()
+    assert page == flags_reference["page"](), (
+        "docs/guide/flags.md is stale: run python analysis/flags_reference.py"
+    )
+    scenes = {path.stem for path in (REPO / "diagrams").glob("*.yaml")}
+    assert len(scenes) == 7 and all(f"| `{name}` |" in page for name in scenes)
 
 
 def test_every_example_of_the_reference_loads():
@@ -99,6 +112,8 @@ def dangling_references() -> list[str]:
     found = []
     for source in SOURCES:
         if source == Path(__file__):  # this file's own examples
+            continue
+        if source == REPO / "analysis" / "flags_reference.py":  # its links are flags.md's, checked there
             continue
         text = source.read_text()
         where = source.relative_to(REPO)
