@@ -145,6 +145,7 @@ NOT_RUN = {
     "python -m godobject_drake.driver.": "a device's loop: runs until its scene stops (tests/test_driver.py)",
     "godobject run lego_driver": "waits for its driver, in another terminal (tests/test_pairing.py)",
     "python -m godobject_drake run diagrams/lego_haptic.yaml": "waits for its driver (tests/test_pairing.py)",
+    "godobject run diagrams/lego_haptic.yaml": "waits for its driver (tests/test_pairing.py)",
     "godobject run lego --device lcm": "waits for a device on LCM (tests/test_lcm.py)",
     "godobject analyze laparoscopy --set organs.model=fem --verify": (
         "checks the FEM tissue in Drake: minutes"
