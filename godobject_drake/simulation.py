@@ -431,15 +431,17 @@ def wait_for_devices(station: Station, clock=time.monotonic) -> None:
         who = f"tools.{name}: " if name else ""
         log.info(
             "%swaiting up to %g s for the device's first sample on %s (channel %s); the run's clock starts "
-            "then. Start its driver: godobject-driver run KIND --lcm-url %s",
+            "then. Start its driver: godobject-driver run FAMILY --scene %s (FAMILY: emulated without "
+            "hardware)",
             who, wait_s, url, receiver.channel, url,
         )  # fmt: skip
         t0 = clock()
         if not receiver.wait_first(wait_s, clock):
             raise DeviceNotHeardError(
                 f"{who}no sample from the device's driver on {url} (channel {receiver.channel}) in "
-                f"device.wait_s = {wait_s:g} s: start the driver (godobject-driver run KIND --lcm-url {url}, "
-                "with the scene's key file), check its URL and channel, or raise device.wait_s "
+                f"device.wait_s = {wait_s:g} s: start the driver (godobject-driver run FAMILY --scene {url}, "
+                "FAMILY emulated without hardware, with the scene's key file), check its URL and channel, "
+                "or raise device.wait_s "
                 "(0: start without it, the device at its start pose)"
             )
         log.info("%sdevice heard after %.2f s: the run starts", who, clock() - t0)

@@ -337,3 +337,19 @@ def test_every_documented_command_runs(command, docs_folder):
     done = subprocess.run(shortened(command), cwd=docs_folder, env=env, capture_output=True, text=True,
                           timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
+
+
+def test_the_driver_commands_the_code_prints_parse(capsys):
+    """The ``godobject-driver`` commands the package and the scenario files tell a user to type
+    (the scene's hint while it waits for its driver, the driver's own docstring) parse by the
+    driver's parser: a hint once named --lcm-url, which the driver does not have."""
+    sources = [*(REPO / "godobject_drake").rglob("*.py"), *(REPO / "diagrams").glob("*.yaml")]
+    commands = []
+    for source in sources:
+        for found in re.findall(r"godobject-driver (?:run|calibrate) [^\n,()\"`#]*", source.read_text()):
+            if "{args" in found:  # the calibrated file's comment, not a command to type
+                continue
+            command = re.sub(r"\{url\}|%s", "udp://127.0.0.1:7667", found.replace("[", "").replace("]", ""))
+            commands.append(re.sub(r"\b(FAMILY|KIND)\b", "emulated", command).strip())
+    assert len(commands) >= 4
+    assert {c: f for c in commands if (f := parse_failure(c, capsys))} == {}
