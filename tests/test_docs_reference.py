@@ -11,7 +11,7 @@ import unicodedata
 from pathlib import Path
 
 import pytest
-from conftest import REPO, assert_refused
+from conftest import REPO, assert_refused, load_script
 
 from godobject_drake.config.scene import Workspace
 
@@ -175,9 +175,12 @@ def test_the_guides_say_what_holds_today():
 
 
 def test_the_help_says_what_holds_today(capsys):
+    """``godobject``'s, ``godobject-driver``'s and each scene script's ``--help``."""
     from godobject_drake import cli
     from godobject_drake.driver import process
 
+    paths = [path for path in (REPO / "diagrams").glob("*.py") if path.stem != "__init__"]
+    scripts = [load_script(f"diagrams/{path.name}").main for path in paths]
     for main, argv in (
         (cli.main, ["--help"]),
         (cli.main, ["run", "--help"]),
@@ -185,6 +188,7 @@ def test_the_help_says_what_holds_today(capsys):
         (process.main, ["--help"]),
         (process.main, ["run", "--help"]),
         (process.main, ["calibrate", "--help"]),
+        *((main, ["--help"]) for main in scripts),
     ):
         with pytest.raises(SystemExit):
             main(argv)
