@@ -515,8 +515,10 @@ def report(results: list[dict], metrics_path: str | Path | None) -> bool:
 
 
 def refuse_input(parser: argparse.ArgumentParser, error: Exception):
-    """Bad input: the message alone (no usage block: the flags were parsed), exit status 2."""
-    parser.exit(2, f"{parser.prog}: error: {error}\n")
+    """Bad input: the message alone (no usage block: the flags were parsed), exit status 2; a
+    control character a name or path brought into it is escaped, not sent to the terminal."""
+    said = "\n".join(sc.shown(line) for line in str(error).split("\n"))
+    parser.exit(2, f"{parser.prog}: error: {said}\n")
 
 
 class Terminated(KeyboardInterrupt):

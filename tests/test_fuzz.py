@@ -812,3 +812,93 @@ def test_any_changed_local_model_is_read_whole_and_checked_or_refused_naming_why
     for point, normal, stiffness in m.planes:
         assert all(math.isfinite(v) for v in point) and abs(math.hypot(*normal) - 1.0) <= 1e-6
         assert stiffness > 0 and not math.isnan(stiffness)
+
+
+# -- YAML bounds (config.yaml_guard) -----------------------------------------------------------------------
+
+
+@st.composite
+def aliased_yaml(draw):
+    """Top-level private keys, each anchoring a flow list of scalars, nested lists and aliases of the
+    anchors before it (so a bomb is a few lines), sometimes a key twice or one nest very deep."""
+    lines = []
+    for n in range(draw(st.integers(1, 8))):
+
+        def value(depth, n=n):
+            items = []
+            for _ in range(draw(st.integers(0, 6))):
+                kind = draw(
+                    st.sampled_from(["scalar", "alias", "list"] if depth < 3 else ["scalar", "alias"])
+                )
+                if kind == "alias" and n:
+                    items.append(f"*a{draw(st.integers(0, n - 1))}")
+                elif kind == "list":
+                    items.append(value(depth + 1))
+                else:
+                    items.append(str(draw(st.integers(0, 9))))
+            return "[" + ", ".join(items) + "]"
+
+        lines.append(f"_k{n}: &a{n} {value(0)}")
+    if draw(st.booleans()):
+        deep = draw(st.integers(1, 2 * 64))
+        lines.append("_deep: " + "[" * deep + "]" * deep)
+    if draw(st.integers(0, 4)) == 0:
+        lines.append(draw(st.sampled_from(lines)).split(":")[0] + ": 0")  # a key twice
+    return "\n".join(lines) + "\n"
+
+
+def _expanded_count(value, cap):
+    """Nodes of the loaded (shared) value, each alias expanded, counted up to ``cap``; and its depth."""
+    count, deepest, stack = 0, 0, [(value, 1)]
+    while stack and count <= cap:
+        v, depth = stack.pop()
+        count += 1
+        deepest = max(deepest, depth)
+        if isinstance(v, list):
+            stack.extend((c, depth + 1) for c in v)
+        elif isinstance(v, dict):
+            stack.extend(x for k, c in v.items() for x in ((k, depth + 1), (c, depth + 1)))
+    return count, deepest
+
+
+@FUZZ
+@given(text=aliased_yaml())
+def test_any_aliased_yaml_is_refused_exactly_when_it_is_past_a_bound(text):
+    """check_yaml refuses a text (a YamlShapeError, never another exception) exactly when its
+    expansion, counted by loading it, adds more than MAX_ALIAS_NODES nodes, nests deeper than
+    MAX_YAML_DEPTH or gives a key twice; in well under a second however large the expansion."""
+    import time
+
+    import yaml
+
+    from godobject_drake.config.yaml_guard import MAX_ALIAS_NODES, MAX_YAML_DEPTH, YamlShapeError, check_yaml
+
+    keys = [line.split(":")[0] for line in text.splitlines()]
+    twice = len(keys) != len(set(keys))
+    start = time.perf_counter()
+    try:
+        check_yaml(text, "text")
+        refused = None
+    except YamlShapeError as e:
+        refused = str(e)
+    assert time.perf_counter() - start < 0.5
+    event("refused" if refused else "accepted")
+    if twice:
+        assert refused and ("given twice" in refused or "deep" in refused or "alias" in refused)
+        return
+    nodes = yaml.compose(text)
+    written = len({id(n) for n in _all_nodes(nodes)})
+    count, deepest = _expanded_count(yaml.safe_load(text), written + MAX_ALIAS_NODES)
+    past = count > written + MAX_ALIAS_NODES or deepest > MAX_YAML_DEPTH
+    assert bool(refused) == past, (refused, count, written, deepest)
+
+
+def _all_nodes(node):
+    seen, stack = {}, [node]
+    while stack:
+        n = stack.pop()
+        if id(n) not in seen:
+            seen[id(n)] = n
+            if isinstance(n.value, list):
+                stack.extend(x for item in n.value for x in (item if isinstance(item, tuple) else (item,)))
+    return seen.values()

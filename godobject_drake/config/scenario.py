@@ -88,6 +88,7 @@ from godobject_drake.config.tools import (  # noqa: F401
     ShellSpec,
     tool_union,
 )
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, shown
 
 
 class ScenarioError(ValueError):
@@ -327,14 +328,18 @@ def load_scenario(filename: str | Path, overrides: str | None = None, *, check: 
         raise ScenarioError(f"scenario file {path} does not exist")
     where = str(path)
     try:
+        check_yaml(path.read_text(errors="replace"), where)  # an alias bomb, a deep nest, a key twice
         scenario = yaml_load_typed(schema=Scenario, filename=str(path))
         if overrides:
             where = "the overrides"
+            check_yaml(overrides, where)
             overrides = _keep_kinds(scenario, overrides)
             scenario = yaml_load_typed(schema=Scenario, data=overrides, defaults=scenario)
+    except YamlShapeError as e:
+        raise ScenarioError(str(e)) from None
     except LOAD_ERRORS as e:
         text = path.read_text(errors="replace") if where == str(path) else overrides
-        raise ScenarioError(f"{path}: {_explain(e, text, where)}") from None
+        raise ScenarioError(f"{shown(path)}: {_explain(e, text, where)}") from None
     resolve_paths(scenario, path.resolve().parent)
     if check:
         check_scenario(scenario, where=str(path))
@@ -384,7 +389,10 @@ def _tag_kinds(node, holder, hints) -> bool:
 def scenario_from_yaml(text: str, base_dir: str | Path = ".") -> Scenario:
     """A scenario from YAML text (relative paths against ``base_dir``)."""
     try:
+        check_yaml(text, "scenario text")
         scenario = yaml_load_typed(schema=Scenario, data=text)
+    except YamlShapeError as e:
+        raise ScenarioError(str(e)) from None
     except LOAD_ERRORS as e:
         raise ScenarioError(f"scenario text: {_explain(e, text, 'the text')}") from None
     resolve_paths(scenario, Path(base_dir).resolve())
@@ -397,13 +405,17 @@ def scenario_to_yaml(scenario: Scenario) -> str:
     return yaml_dump_typed(scenario)
 
 
+# The most of the loader's message a ScenarioError repeats: it quotes the value it could not read.
+MAX_QUOTED = 300
 # What yaml_load_typed raises for a file it cannot read into a Scenario.
 LOAD_ERRORS = (RuntimeError, ValueError, TypeError, AssertionError, yaml.YAMLError)
 
 
 def _explain(e: Exception, source: str = "", where: str = "") -> str:
-    """The loader's message, with the key it is about and the fix where they can be told."""
-    text = str(e) or type(e).__name__
+    """The loader's message, with the key it is about and the fix where they can be told; a long
+    value it quotes is cut and control characters are escaped (a file's content stays out)."""
+    full = str(e) or type(e).__name__
+    text = shown(full if len(full) <= MAX_QUOTED else full[:MAX_QUOTED] + " …")
     if isinstance(e, yaml.YAMLError):
         return (
             f"not valid YAML in {where}: {' '.join(text.split())}; check the brackets, colons and indentation"
@@ -412,7 +424,7 @@ def _explain(e: Exception, source: str = "", where: str = "") -> str:
         return f"{text}: a key the scenario does not know (check its spelling and indentation)"
     if "did not match any of the allowed type options" in text:
         return f"{text}: give the YAML tag of one of those types, e.g. device: !Scripted {{...}}"
-    keys = _keys_holding(source, text)
+    keys = _keys_holding(source, full)
     if keys:
         at = ", ".join(keys)
         return f"{text} (at {at} in {where}): give that key a value of its type (a number, a list, ...)"
