@@ -141,3 +141,94 @@ def test_a_control_character_in_a_name_is_escaped_in_the_message(tmp_path):
 
 def test_the_limits_are_what_the_docs_say():
     assert MAX_YAML_DEPTH == 64 and MAX_ALIAS_NODES == 100_000
+
+
+# -- model files: meshes and inertia --------------------------------------------------------------------
+
+TETRA = "v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nv 0 0 0.01\nf 1 2 3\nf 1 3 4\nf 2 3 4\nf 1 4 2\n"
+INERTIAL = (
+    "<inertial><mass>{mass}</mass><inertia><ixx>{ixx}</ixx><iyy>1e-5</iyy><izz>1e-5</izz>"
+    "<ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>"
+)
+MODEL = """<?xml version="1.0"?>
+<sdf version="1.7" xmlns:drake="http://drake.mit.edu">
+  <model name="thing">
+    <link name="body">
+      {inertial}
+      <collision name="c"><geometry><mesh><uri>{mesh}</uri></mesh></geometry>
+        <drake:proximity_properties><drake:rigid_hydroelastic/></drake:proximity_properties></collision>
+    </link>
+  </model>
+</sdf>
+"""
+MESH_SCENE = """directives:
+- add_model: {name: thing, file: thing.sdf}
+device: !Scripted
+  waypoints: [{t: 0, xyz: [0, 0, 0.3]}, {t: 1, xyz: [0, 0, 0.3]}]
+simulation: {duration_s: 0.01}
+"""
+
+
+def mesh_scene(tmp_path, mesh=TETRA, mass="0.1", ixx="1e-5", suffix=".obj"):
+    (tmp_path / f"mesh{suffix}").write_text(mesh)
+    inertial = INERTIAL.format(mass=mass, ixx=ixx)
+    (tmp_path / "thing.sdf").write_text(MODEL.format(inertial=inertial, mesh=f"mesh{suffix}"))
+    (tmp_path / "scene.yaml").write_text(MESH_SCENE)
+    return tmp_path / "scene.yaml"
+
+
+def test_an_obj_whose_face_names_a_vertex_it_does_not_have_exits_2_instead_of_crashing(tmp_path):
+    """Before: exit 139, a segmentation fault inside Drake (a rigid hydroelastic mesh built from
+    the face tinyobjloader only warned about)."""
+    scene = mesh_scene(tmp_path, TETRA.replace("f 1 3 4", "f 1 3 400000000"))
+    done = run("run", str(scene), "--no-progress", "--contact", "hydroelastic")
+    assert done.returncode == 2, (done.returncode, done.stderr[-800:])
+    assert "mesh.obj: line 6: a face names vertex 400000000, but the mesh has 4" in done.stderr
+
+
+@pytest.mark.parametrize(
+    "face, said",
+    [("f 1 2 0", "vertex 0"), ("f -1 -2 -9", "vertex -9"), ("f 1/5 2/5 3/5", "texture coordinate 5"),
+     ("f 1//2 2//2 3//2", "normal 2")],
+    ids=["zero", "negative", "texcoord", "normal"],
+)  # fmt: skip
+def test_each_kind_of_obj_index_is_checked(tmp_path, face, said):
+    from godobject_drake.config.meshes import MeshFileError, check_mesh
+
+    (tmp_path / "m.obj").write_text(TETRA + "vt 0 0\nvn 0 0 1\n" + face + "\n")
+    with pytest.raises(MeshFileError, match=said):
+        check_mesh(tmp_path / "m.obj", "m.obj")
+
+
+def test_a_well_formed_obj_with_forward_references_and_negative_indices_passes(tmp_path):
+    from godobject_drake.config.meshes import check_mesh
+
+    (tmp_path / "m.obj").write_text(
+        "f 1 2 3\n" + TETRA + "f -1 -2 -3\nf 1/1/1 2/1/1 3/1/1\nvt 0 0\nvn 0 0 1\n"
+    )
+    check_mesh(tmp_path / "m.obj", "m.obj")
+
+
+def test_a_vtk_cell_past_its_points_is_refused_and_a_good_one_passes(tmp_path):
+    from godobject_drake.config.meshes import MeshFileError, check_mesh
+    from godobject_drake.systems.tissue import write_vtk
+
+    good = write_vtk(tmp_path / "t.vtk", [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 1, 2, 3]])
+    check_mesh(good, "t.vtk")
+    (tmp_path / "bad.vtk").write_text(good.read_text().replace("4 0 1 2 3", "4 0 1 2 4"))
+    with pytest.raises(MeshFileError, match="a cell names point 4, but the mesh has 4"):
+        check_mesh(tmp_path / "bad.vtk", "bad.vtk")
+
+
+@pytest.mark.parametrize("ixx", ["nan", "-1", "1"], ids=["nan", "negative", "triangle"])
+def test_an_inertia_drake_replaces_is_refused_not_warned(tmp_path, ixx):
+    """Before: Drake warned ("invalid inertia"), replaced it, and the scene ran (exit 0)."""
+    done = run("run", str(mesh_scene(tmp_path, ixx=ixx)), "--no-progress")
+    assert done.returncode == 2, done.stderr[-800:]
+    assert "rotational inertia is not physically valid" in done.stderr and "thing.sdf:4" in done.stderr
+
+
+@pytest.mark.parametrize("mass", ["nan", "-1"])
+def test_a_nan_or_negative_mass_is_refused(tmp_path, mass):
+    done = run("run", str(mesh_scene(tmp_path, mass=mass)), "--no-progress")
+    assert done.returncode == 2 and "no positive mass" in done.stderr, done.stderr[-800:]

@@ -7,7 +7,9 @@ and the device read (the directives' ``file:`` of ``add_model`` and ``add_direct
 directives those files add in turn, the files a model includes or meshes it names, each device's
 ``path`` and ``log``) and refuses, naming the file and where the scenario names it, one that is
 not a regular file (a FIFO, a device, a socket), past :data:`MAX_INPUT_FILE_BYTES`, or a symlink
-loop. A file that does not exist is left to the reader that says so today (Drake, the device).
+loop; a mesh whose indices reach past its vertices (:mod:`godobject_drake.config.meshes`); a
+directives file past the YAML bounds (:mod:`godobject_drake.config.yaml_guard`). A file that
+does not exist is left to the reader that says so today (Drake, the device).
 
 What the check cannot close: a file swapped for a FIFO between the check and Drake's read (a
 race only someone who can write the scene's folder can run), and a model file Drake reaches by a
@@ -22,6 +24,7 @@ from pathlib import Path
 
 import yaml
 
+from godobject_drake.config.meshes import MeshFileError, check_mesh
 from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, shown
 
 # A model, mesh, directives or device file larger than this is refused before anything reads it:
@@ -126,6 +129,10 @@ class _Walk:
         if not check_input_file(path, where):
             return
         name = path.name.lower()
+        try:  # a mesh whose indices reach past its vertices crashed Drake's reader (config.meshes)
+            check_mesh(path, f"{shown(where)}: {shown(path)}")
+        except MeshFileError as e:
+            raise InputFileError(str(e)) from None
         if name.endswith(DIRECTIVES_SUFFIX):
             self.directives_file(path, where)
         elif name.endswith(MODEL_SUFFIXES):
