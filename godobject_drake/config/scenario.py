@@ -57,7 +57,7 @@ from godobject_drake.config.devices import (  # noqa: F401
     kind_of,
     on_register,
 )
-from godobject_drake.config.gains import CouplingGains, FeedbackGains  # noqa: F401
+from godobject_drake.config.gains import MAX_RENDERED_STIFFNESS_N_M, CouplingGains, FeedbackGains  # noqa: F401
 from godobject_drake.config.inputs import InputFileError, check_input_file, check_inputs
 from godobject_drake.config.scene import (  # noqa: F401
     CONTACT_GEOMETRIES,
@@ -622,12 +622,30 @@ def _check_tool(record: ToolRecord, where: str) -> None:
             f"{getattr(device, field)!r} is for a device that cannot feel the god-object; with haptic.mode "
             f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
         )
+    if device_kind.renders_feedback:
+        _check_rendered_stiffness(s, at, where)
     if device_kind.renders_feedback and s.haptic.mode != "none":
         _fail(
             where,
             f"{at}haptic.mode",
             f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
             "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
+        )
+
+
+def _check_rendered_stiffness(s: Scenario, at: str, where: str) -> None:
+    """A device that renders the feedback feels ``scale² kd``: at most what a device renders."""
+    scale = getattr(getattr(s.device, "device_to_world", None), "scale", 1.0)
+    felt = s.feedback.kd * scale**2
+    if felt > MAX_RENDERED_STIFFNESS_N_M:
+        said = f" (× scale² = {scale**2:g}: {felt:.4g} N/m on the device)" if scale != 1.0 else ""
+        _fail(
+            where,
+            f"{at}feedback.kd",
+            f"{s.feedback.kd:.4g} N/m{said} is past the stiffest a haptic device renders, "
+            f"{MAX_RENDERED_STIFFNESS_N_M:,.0f} N/m (an omega.3's; a Touch's is 1,020): its driver would "
+            f"refuse every model. Give --kd ≤ {MAX_RENDERED_STIFFNESS_N_M / scale**2:.4g} (the shipped scene "
+            "uses 50)",
         )
 
 
