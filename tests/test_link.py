@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 from drake import lcmt_force_torque, lcmt_robot_state
 
+from godobject_drake.driver.process import main as process_main
 from godobject_drake.link import keys as key_files
 from godobject_drake.link import messages, transport
 from godobject_drake.link.keys import KeyFileError
@@ -923,3 +924,65 @@ def test_a_port_that_cannot_be_bound_is_refused_naming_it():
         )
     finally:
         scene.close()
+
+
+# -- the key: a key for a path, a missing named file, a guessable key, another key ---------------------------
+
+
+def test_the_key_itself_in_the_environment_or_as_the_key_file_is_refused_and_nothing_made(
+    tmp_path, monkeypatch
+):
+    """Before: $GODOBJECT_LINK_KEY holding the key was taken as a file name, and a new key made in
+    the current folder under that name."""
+    monkeypatch.chdir(tmp_path)
+    key = hashlib.sha256(b"k").hexdigest()
+    monkeypatch.setenv(key_files.KEY_ENV, key)
+    with pytest.raises(
+        KeyFileError, match=r"\$GODOBJECT_LINK_KEY holds 64 hex digits, a key itself .*put the key in a file"
+    ):
+        key_files.load_key()
+    monkeypatch.delenv(key_files.KEY_ENV)
+    with pytest.raises(KeyFileError, match="the key file holds 64 hex digits"):
+        key_files.load_key(key)
+    assert list(tmp_path.iterdir()) == []
+    assert process_main(["run", "emulated", "--scene", "udp://127.0.0.1:9", "--key-file", key]) == 2
+
+
+def test_a_named_key_file_that_does_not_exist_is_an_error_naming_it(tmp_path, monkeypatch, capsys):
+    """Before: a mistyped --key-file made a new key there, which paired with nothing."""
+    missing = tmp_path / "link.kye"
+    with pytest.raises(KeyFileError, match=rf"key file {missing} does not exist: give the key file"):
+        key_files.load_key(missing)
+    assert not missing.exists()
+    assert process_main(["run", "emulated", "--scene", "udp://127.0.0.1:9", "--key-file", str(missing)]) == 2
+    assert f"key file {missing} does not exist" in capsys.readouterr().err
+    monkeypatch.setenv(key_files.KEY_ENV, str(tmp_path / "default" / "link.key"))
+    assert len(key_files.load_key()[0]) == 32  # the default file is made on first use, as documented
+
+
+@pytest.mark.parametrize("text", ["00" * 32, "ff" * 32, "0123456789abcdef" * 4])
+def test_a_key_anyone_could_guess_is_refused(tmp_path, text):
+    """Before: an all-zero key paired a scene and a driver."""
+    path = tmp_path / "k" / "link.key"
+    path.parent.mkdir(mode=0o700)
+    path.write_text(text + "\n")
+    path.chmod(0o600)
+    with pytest.raises(KeyFileError, match=r"distinct bytes .*not a random one"):
+        key_files.load_key(path)
+
+
+def test_a_datagram_with_another_key_is_counted_and_named_once_with_the_fix(caplog):
+    """Before: counted only; the scene said "start the driver" while one with another key knocked."""
+    scene = SceneEnd(hashlib.sha256(b"scene's").digest())
+    driver = DriverEnd(hashlib.sha256(b"driver's").digest(), ("127.0.0.1", 7667))
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        for now in (0.0, 1.0, 2.0):
+            message, reply = scene.receive(driver.hello(now), ("127.0.0.1", 40123))
+            assert message is None and reply is None
+    assert scene.counts["udp_unauthenticated"] == 3
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1
+    assert said[0].startswith(
+        "a datagram with a wrong key arrived from port 40123 (127.0.0.1): the two processes use different "
+        "key files (give both the same --key-file"
+    )

@@ -1,8 +1,7 @@
-"""The hostile round's smaller defects, each reproduced: a feedback stiffness no device renders, a
-key given where its file's path belongs, a mistyped key file, a key anyone could guess, a driver
-with another key never named, and a hint naming a driver flag that does not exist."""
+"""The hostile round's smaller defects, each reproduced: a feedback stiffness no device renders,
+and a hint naming a driver flag that does not exist. (The key's defects are tested with the key
+file, in tests/test_link.py, where mutation testing runs them.)"""
 
-import hashlib
 import logging
 import shlex
 
@@ -14,10 +13,7 @@ from godobject_drake.config.gains import MAX_RENDERED_STIFFNESS_N_M
 from godobject_drake.config.scenario import ScenarioError, load_scenario
 from godobject_drake.driver import process as drv
 from godobject_drake.driver.families import FAMILIES, RATED, HandPath
-from godobject_drake.link import keys as key_files
-from godobject_drake.link.keys import KeyFileError
 from godobject_drake.link.messages import LocalModel
-from godobject_drake.link.transport import DriverEnd, SceneEnd
 from godobject_drake.simulation import DRIVER_FAMILIES, driver_command
 
 LEGO_DRIVER = REPO / "diagrams" / "lego_driver.yaml"
@@ -75,68 +71,6 @@ def test_a_driver_refuses_a_local_model_stiffer_than_its_device_renders_and_says
 def test_each_family_states_its_stiffness_and_the_scene_bound_is_the_stiffest():
     assert max(r.max_stiffness_n_m for r in RATED.values()) == MAX_RENDERED_STIFFNESS_N_M
     assert RATED["openhaptics"].max_stiffness_n_m == 1020.0
-
-
-# -- the key ------------------------------------------------------------------------------------------
-
-
-def test_the_key_itself_in_the_environment_or_as_the_key_file_is_refused_and_nothing_made(
-    tmp_path, monkeypatch
-):
-    """Before: $GODOBJECT_LINK_KEY holding the key was taken as a file name, and a new key made in
-    the current folder under that name."""
-    monkeypatch.chdir(tmp_path)
-    key = hashlib.sha256(b"k").hexdigest()
-    monkeypatch.setenv(key_files.KEY_ENV, key)
-    with pytest.raises(
-        KeyFileError, match=r"\$GODOBJECT_LINK_KEY holds 64 hex digits, a key itself .*put the key in a file"
-    ):
-        key_files.load_key()
-    monkeypatch.delenv(key_files.KEY_ENV)
-    with pytest.raises(KeyFileError, match="the key file holds 64 hex digits"):
-        key_files.load_key(key)
-    assert list(tmp_path.iterdir()) == []
-    assert drv.main(["run", "emulated", "--scene", "udp://127.0.0.1:9", "--key-file", key]) == 2
-
-
-def test_a_named_key_file_that_does_not_exist_is_an_error_naming_it(tmp_path, monkeypatch, capsys):
-    """Before: a mistyped --key-file made a new key there, which paired with nothing."""
-    missing = tmp_path / "link.kye"
-    with pytest.raises(KeyFileError, match=rf"key file {missing} does not exist: give the key file"):
-        key_files.load_key(missing)
-    assert not missing.exists()
-    assert drv.main(["run", "emulated", "--scene", "udp://127.0.0.1:9", "--key-file", str(missing)]) == 2
-    assert f"key file {missing} does not exist" in capsys.readouterr().err
-    monkeypatch.setenv(key_files.KEY_ENV, str(tmp_path / "default" / "link.key"))
-    assert len(key_files.load_key()[0]) == 32  # the default file is made on first use, as documented
-
-
-@pytest.mark.parametrize("text", ["00" * 32, "ff" * 32, "0123456789abcdef" * 4])
-def test_a_key_anyone_could_guess_is_refused(tmp_path, text):
-    """Before: an all-zero key paired a scene and a driver."""
-    path = tmp_path / "k" / "link.key"
-    path.parent.mkdir(mode=0o700)
-    path.write_text(text + "\n")
-    path.chmod(0o600)
-    with pytest.raises(KeyFileError, match=r"distinct bytes .*not a random one"):
-        key_files.load_key(path)
-
-
-def test_a_datagram_with_another_key_is_counted_and_named_once_with_the_fix(caplog):
-    """Before: counted only; the scene said "start the driver" while one with another key knocked."""
-    scene = SceneEnd(hashlib.sha256(b"scene's").digest())
-    driver = DriverEnd(hashlib.sha256(b"driver's").digest(), ("127.0.0.1", 7667))
-    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
-        for now in (0.0, 1.0, 2.0):
-            message, reply = scene.receive(driver.hello(now), ("127.0.0.1", 40123))
-            assert message is None and reply is None
-    assert scene.counts["udp_unauthenticated"] == 3
-    said = [r.getMessage() for r in caplog.records]
-    assert len(said) == 1
-    assert said[0].startswith(
-        "a datagram with a wrong key arrived from port 40123 (127.0.0.1): the two processes use different "
-        "key files (give both the same --key-file"
-    )
 
 
 # -- the hint ------------------------------------------------------------------------------------------
