@@ -986,3 +986,10 @@ def test_a_datagram_with_another_key_is_counted_and_named_once_with_the_fix(capl
         "a datagram with a wrong key arrived from port 40123 (127.0.0.1): the two processes use different "
         "key files (give both the same --key-file"
     )
+
+
+def test_a_control_character_in_a_key_files_name_is_escaped_in_the_message(tmp_path):
+    path = tmp_path / "evil\x1b[2J" / "link.key"
+    with pytest.raises(KeyFileError) as refused:
+        key_files.load_key(path)
+    assert "\x1b" not in str(refused.value) and "evil\\x1b[2J" in str(refused.value)

@@ -129,7 +129,8 @@ class FeedbackGains:
     Attributes
     ----------
     kd : float
-        Translational stiffness (N/m).
+        Translational stiffness (N/m). With a device that renders the feedback (``!Lcm``), at
+        most 14,500 N/m on the device (``scale² kd``), the stiffest a supported device renders.
     gamma_d : float
         Translational damping (N·s/m).
     kd_rot : float

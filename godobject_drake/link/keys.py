@@ -26,7 +26,12 @@ KEY_HEX = 2 * KEY_BYTES
 
 
 class KeyFileError(ValueError):
-    """A key file that cannot pair a link: the message names the file, what is wrong and the fix."""
+    """A key file that cannot pair a link: the message names the file, what is wrong and the fix
+    (a control character in the file's name escaped: it is printed to a terminal)."""
+
+    def __str__(self) -> str:
+        text = super().__str__()
+        return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 # A random 32-byte key has about 30 distinct bytes; fewer than 16 has a chance under 1e-14.
