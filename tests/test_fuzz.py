@@ -639,6 +639,11 @@ def yaml_value(v) -> str:
 BAD = [-1.0, 0.0, math.nan, math.inf, -math.inf, 1e300, "fast", [], {}, None, True, [1.0, 2.0]]
 
 
+# aliases of aliases under a private root key (Drake's loader drops it): 9**6 nodes
+ALIAS_BOMB = (
+    "".join(f"_a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9 if i else ['1'] * 9)}]\n" for i in range(6))
+    + "_b: [*a5, *a5]\n"
+)
 SCENARIO_TEMPLATE = """\
 name: fuzz
 plant:
@@ -734,7 +739,17 @@ def scenario_text(draw):
         device=device.format(rate=text["rate"], tether=text["tether"]),
         directive=draw(st.sampled_from([""] * 6 + DIRECTIVES)),
         extra=draw(
-            st.sampled_from([""] * 4 + ["unknown_section: 3\n", "simulation:\n  nothing: 1\n", "bricks: [\n"])
+            st.sampled_from(
+                [""] * 6
+                + [
+                    "unknown_section: 3\n",
+                    "simulation:\n  nothing: 1\n",
+                    "bricks: [\n",
+                    "name: twice\n",
+                    "_deep: " + "[" * 100 + "]" * 100 + "\n",
+                    ALIAS_BOMB,
+                ]
+            )
         ),
     )
 
