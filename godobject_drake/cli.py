@@ -267,6 +267,7 @@ def load_with_sets(path: str | Path, items: list[str], *, check: bool = True) ->
     except sc.ScenarioError as e:
         if not text:
             raise
+        sc.load_scenario(path, check=False)  # the file's own error (a key twice, say) is the file's
         for item in items:  # which item: the first that fails alone
             try:
                 sc.load_scenario(path, set_overrides([item]), check=check)
