@@ -917,3 +917,55 @@ def _all_nodes(node):
             if isinstance(n.value, list):
                 stack.extend(x for item in n.value for x in (item if isinstance(item, tuple) else (item,)))
     return seen.values()
+
+
+# -- mesh files (config.meshes) ----------------------------------------------------------------------------
+
+obj_index = st.one_of(st.integers(-6, 8).map(str), st.sampled_from(["", "x", "1.5", "99999999999"]))
+obj_ref = st.tuples(obj_index, obj_index, obj_index).map(
+    lambda r: st.sampled_from([r[0], f"{r[0]}/{r[1]}", f"{r[0]}//{r[2]}", f"{r[0]}/{r[1]}/{r[2]}"])
+)
+obj_line = st.one_of(
+    st.sampled_from(["v 0 0 0", "vt 0 0", "vn 0 0 1", "# a comment", "", "o thing", "usemtl m"]),
+    st.tuples(
+        st.sampled_from(["f", "l", "p"]), st.lists(obj_ref.flatmap(lambda s: s), min_size=1, max_size=4)
+    ).map(lambda t: " ".join([t[0], *t[1]])),
+)
+
+
+@FUZZ
+@given(lines=st.lists(obj_line, max_size=30))
+def test_any_obj_is_passed_only_when_every_index_names_what_the_file_has(lines):
+    """check_mesh passes an OBJ exactly when each integer index of its faces, lines and points
+    names a vertex, texture coordinate or normal the file has (positive: 1 to the count; negative:
+    counting back from those written before it), and refuses it otherwise with a MeshFileError
+    naming the line (never another exception)."""
+    from godobject_drake.config.meshes import MeshFileError, check_mesh
+
+    counts, seen, bad = {"v": 0, "vt": 0, "vn": 0}, [], None
+    for number, line in enumerate(lines, start=1):
+        words = line.split()
+        if words and words[0] in counts:
+            counts[words[0]] += 1
+        elif words and words[0] in ("f", "l", "p"):
+            for ref in words[1:]:
+                for kind, text in zip(("v", "vt", "vn"), ref.split("/"), strict=False):
+                    if text.lstrip("-").isdigit():
+                        i = int(text)
+                        if i > 0:
+                            seen.append((kind, i, number))
+                        elif (i == 0 or -i > counts[kind]) and bad is None:
+                            bad = number
+    late = [n for kind, i, n in seen if i > counts[kind]]
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.obj"
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            check_mesh(path, "m.obj")
+            refused = None
+        except MeshFileError as e:
+            refused = str(e)
+    event("refused" if refused else "passed")
+    assert (refused is not None) == (bad is not None or bool(late)), (refused, lines)
+    if refused:
+        assert re.match(r"m\.obj: line \d+: a face names ", refused), refused
