@@ -232,3 +232,15 @@ def test_an_inertia_drake_replaces_is_refused_not_warned(tmp_path, ixx):
 def test_a_nan_or_negative_mass_is_refused(tmp_path, mass):
     done = run("run", str(mesh_scene(tmp_path, mass=mass)), "--no-progress")
     assert done.returncode == 2 and "no positive mass" in done.stderr, done.stderr[-800:]
+
+
+def test_a_scenario_file_past_the_yaml_size_limit_is_refused_before_it_is_parsed(tmp_path):
+    from godobject_drake.config.yaml_guard import MAX_YAML_BYTES
+
+    file = tmp_path / "huge.yaml"
+    with file.open("w") as f:
+        f.truncate(MAX_YAML_BYTES + 1)  # sparse: nothing written, nothing to read
+    start = time.perf_counter()
+    with pytest.raises(ScenarioError, match=r"huge\.yaml: 16\.0 MiB of YAML, past the 16 MiB limit"):
+        load_scenario(file)
+    assert time.perf_counter() - start < 0.5

@@ -25,7 +25,7 @@ from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RigidTransform, RotationMatrix
 
-from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, shown
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml_file, shown
 from godobject_drake.spatial import normalized_quaternion, rotation_error
 
 CSV_HEADER = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "grasp")
@@ -263,7 +263,7 @@ def _load_yaml_file(schema, filename, what: str, form: str):
     a private file): only the schema's own field names."""
     where = f"{what} file {shown(filename)}"
     try:
-        check_yaml(Path(filename).read_text(errors="replace"), where)
+        check_yaml_file(filename, where)
         return yaml_load_typed(schema=schema, filename=str(filename))
     except YamlShapeError as e:
         raise ValueError(str(e)) from None

@@ -25,7 +25,7 @@ from pathlib import Path
 import yaml
 
 from godobject_drake.config.meshes import MeshFileError, check_mesh
-from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, shown
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml_file, shown
 
 # A model, mesh, directives or device file larger than this is refused before anything reads it:
 # the shipped scenes' largest is 0.02 MB, and a mesh this size is far past what a real-time scene
@@ -146,11 +146,11 @@ class _Walk:
                 self.file(d.add_directives.file, f"{where}[{i}].add_directives.file", base)
 
     def directives_file(self, path: Path, where: str) -> None:
-        text = path.read_text(errors="replace")
         try:  # Drake's parser expands its aliases: a bomb, a deep nest, a key twice, before it reads it
-            check_yaml(text, f"{where}: {path}")
+            check_yaml_file(path, f"{where}: {path}")
         except YamlShapeError as e:
             raise InputFileError(str(e)) from None
+        text = path.read_text(errors="replace")
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError:

@@ -88,7 +88,7 @@ from godobject_drake.config.tools import (  # noqa: F401
     ShellSpec,
     tool_union,
 )
-from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, shown
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, check_yaml_file, shown
 
 
 class ScenarioError(ValueError):
@@ -328,7 +328,7 @@ def load_scenario(filename: str | Path, overrides: str | None = None, *, check: 
         raise ScenarioError(f"scenario file {path} does not exist")
     where = str(path)
     try:
-        check_yaml(path.read_text(errors="replace"), where)  # an alias bomb, a deep nest, a key twice
+        check_yaml_file(path, where)  # an alias bomb, a deep nest, a key twice, a huge file
         scenario = yaml_load_typed(schema=Scenario, filename=str(path))
         if overrides:
             where = "the overrides"

@@ -19,6 +19,8 @@ and the fix:
 Its messages name lines and keys, never a value of the file.
 """
 
+import os
+
 import yaml
 
 # The shipped scenarios are 1-3 kB; a device path of 100,000 waypoints is about 5 MB.
@@ -138,14 +140,27 @@ def _written(root) -> int:
     return len(seen)
 
 
+def check_yaml_file(path, where: str) -> None:
+    """:func:`check_yaml` of the file at ``path``, its size refused before it is read."""
+    size = os.stat(path).st_size
+    if size > MAX_YAML_BYTES:
+        _too_large(size, where)
+    with open(path, encoding="utf-8", errors="replace") as f:
+        check_yaml(f.read(), where)
+
+
+def _too_large(size: int, where: str):
+    raise YamlShapeError(
+        f"{shown(where)}: {size / 2**20:.1f} MiB of YAML, past the {MAX_YAML_BYTES // 2**20} MiB limit "
+        "(godobject_drake.config.yaml_guard.MAX_YAML_BYTES); write long paths or logs as a CSV log"
+    )
+
+
 def check_yaml(text: str, where: str) -> None:
     """Refuse ``text`` (YAML; ``where`` names it) past the module's bounds, with a
     :class:`YamlShapeError`. Not valid YAML is left to the loader, which says where."""
     if len(text) > MAX_YAML_BYTES:
-        raise YamlShapeError(
-            f"{where}: {len(text) / 2**20:.1f} MiB of YAML, past the {MAX_YAML_BYTES // 2**20} MiB limit "
-            "(godobject_drake.config.yaml_guard.MAX_YAML_BYTES); write long paths or logs as a CSV log"
-        )
+        _too_large(len(text), where)
     loader = _BoundedComposer(text, shown(where))
     try:
         roots = []
