@@ -42,6 +42,15 @@ left out keeps the default shown. Any field can be set from the command line wit
 `godobject run lego --set simulation.duration_s=2 --set 'feedback={kd: 50}'`; a tool's own field
 in a scene of several tools with `--set tools.NAME.field=value`.
 
+Before the loader reads it, a scenario file (and the overrides, a device's path file, a directives
+file) is bounded: at most 16 MiB, nested at most 64 deep, its aliases adding at most 100,000 nodes
+to those written (a "billion laughs" file is refused in milliseconds, naming the limit), and no key
+twice in one mapping (the loader would keep the last silently: a tool named twice was dropped),
+each refused with exit 2 naming the line (`godobject_drake.config.yaml_guard`). A model's meshes
+are read before Drake reads them: an OBJ face or a VTK cell naming a vertex the file does not have
+is refused (`godobject_drake.config.meshes`). No message repeats a line of a device's path or log
+file, and a control character in a name or a path is printed escaped (`\\x1b`).
+
 The `plant:` section is Drake's own `MultibodyPlantConfig` (`time_step`,
 `discrete_contact_approximation`, `contact_model`, `penetration_allowance`, ...), and
 `directives:` Drake's model directives (`add_model`, `add_weld` with `X_PC`, `add_directives`,

@@ -270,6 +270,7 @@ def load_with_sets(path: str | Path, items: list[str], *, check: bool = True) ->
     except sc.ScenarioError as e:
         if not text:
             raise
+        sc.load_scenario(path, check=False)  # the file's own error (a key twice, say) is the file's
         for item in items:  # which item: the first that fails alone
             try:
                 sc.load_scenario(path, set_overrides([item]), check=check)
@@ -518,8 +519,10 @@ def report(results: list[dict], metrics_path: str | Path | None) -> bool:
 
 
 def refuse_input(parser: argparse.ArgumentParser, error: Exception):
-    """Bad input: the message alone (no usage block: the flags were parsed), exit status 2."""
-    parser.exit(2, f"{parser.prog}: error: {error}\n")
+    """Bad input: the message alone (no usage block: the flags were parsed), exit status 2; a
+    control character a name or path brought into it is escaped, not sent to the terminal."""
+    said = "\n".join(sc.shown(line) for line in str(error).split("\n"))
+    parser.exit(2, f"{parser.prog}: error: {said}\n")
 
 
 class Terminated(KeyboardInterrupt):

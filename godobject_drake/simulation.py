@@ -16,6 +16,7 @@ covers at most ``recording.max_duration_s``.
 
 import dataclasses
 import logging
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -415,6 +416,23 @@ class DeviceNotHeardError(RuntimeError):
     """A device's driver sent nothing within ``device.wait_s`` before the run."""
 
 
+# The families a driver runs (godobject_drake.driver.families.FAMILIES; tests/test_bad_files.py
+# checks the two agree): the scene does not import the driver's process.
+DRIVER_FAMILIES = ("emulated", "forcedimension", "haply", "openhaptics")
+
+
+def driver_command(url: str, key_file=None) -> str:
+    """The command that starts a device's driver for the scene's link at ``url``, with the scene's
+    key file where it has one (``--allow-unauthenticated`` for a link that is not ``udp://``):
+    ``FAMILY`` stands for one of :data:`DRIVER_FAMILIES`."""
+    key = f" --key-file {shlex.quote(str(key_file))}" if key_file else ""
+    if not url.startswith("udp://"):  # the driver takes Drake's unpaired LCM only when told to
+        key = " --allow-unauthenticated"
+    return (
+        f"godobject-driver run FAMILY --scene {shlex.quote(url)}{key} (FAMILY: {', '.join(DRIVER_FAMILIES)})"
+    )
+
+
 def wait_for_devices(station: Station, clock=time.monotonic) -> None:
     """Wait for each LCM device's first sample (``device.wait_s``: the run's clock starts when its
     device is first heard, so starting the scene or the driver first gives the same run); saying
@@ -429,19 +447,18 @@ def wait_for_devices(station: Station, clock=time.monotonic) -> None:
             continue
         url = source.lcm.get_lcm_url()
         who = f"tools.{name}: " if name else ""
+        command = driver_command(url, getattr(source.lcm, "key_file", None))
         log.info(
             "%swaiting up to %g s for the device's first sample on %s (channel %s); the run's clock starts "
-            "then. Start its driver: godobject-driver run FAMILY --scene %s (FAMILY: emulated without "
-            "hardware)",
-            who, wait_s, url, receiver.channel, url,
+            "then. Start its driver: %s",
+            who, wait_s, url, receiver.channel, command,
         )  # fmt: skip
         t0 = clock()
         if not receiver.wait_first(wait_s, clock):
             raise DeviceNotHeardError(
                 f"{who}no sample from the device's driver on {url} (channel {receiver.channel}) in "
-                f"device.wait_s = {wait_s:g} s: start the driver (godobject-driver run FAMILY --scene {url}, "
-                "FAMILY emulated without hardware, with the scene's key file), check its URL and channel, "
-                "or raise device.wait_s "
+                f"device.wait_s = {wait_s:g} s: start the driver ({command}), check its URL, channel and "
+                "key file (a driver with another key is named in the lines above), or raise device.wait_s "
                 "(0: start without it, the device at its start pose)"
             )
         log.info("%sdevice heard after %.2f s: the run starts", who, clock() - t0)

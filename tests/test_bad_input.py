@@ -154,7 +154,7 @@ HEADER = "t,dx,dy,dz,drx,dry,drz,clutch,grasp\n"
 @pytest.mark.parametrize(
     "text, message",
     [
-        (HEADER + "0,0,0,0,0,0,0,2,\n", r"inc\.csv:2: clutch is '2'; it must be 0 .* or 1"),
+        (HEADER + "0,0,0,0,0,0,0,2,\n", r"inc\.csv:2: clutch is 2; it must be 0 .* or 1"),
         (HEADER + "0.1,0,0,0,0,0,0,0,\n0.1,0,0,0,0,0,0,0,\n", r"inc\.csv:3: time 0\.1 is not after"),
         (HEADER + "0.2,0,0,0,0,0,0,0,\n0.1,0,0,0,0,0,0,0,\n", r"inc\.csv:3: time 0\.1 is not after"),
         ("t,dx,dy,dz,clutch\n0,0,0,0,0\n", r"inc\.csv:1: header must be t,dx,dy,dz,drx,dry,drz,clutch,grasp"),

@@ -186,9 +186,22 @@ def test_the_one_check_names_the_flag_the_set_item_or_the_file(tmp_path, argv, n
     or the file itself (the file, not an unrelated --set item given beside it)."""
     bad = "simulation: {duration_s: -1}\n" if "god_object.gains.zeta=0.9" in argv else ""
     mine = tmp_path / "mine.yaml"
-    mine.write_text(sc.shipped_scenario_file("lego").read_text() + bad)
+    shipped = sc.shipped_scenario_file("lego").read_text()
+    if bad:  # the file's own simulation section, given once (a key twice is refused)
+        shipped = shipped.replace("\nsimulation:", "\n_simulation:", 1)  # a private key: dropped
+    mine.write_text(shipped + bad)
     parser = cli.argparse.ArgumentParser()
     cli.add_arguments(parser)
     args = parser.parse_args(argv)
     with pytest.raises(sc.ScenarioError, match=named):
         cli.scenario_of(mine, args)
+
+
+def test_an_error_of_the_file_itself_is_the_files_not_a_set_items(tmp_path):
+    """A key twice in the file, an unrelated --set beside it: the file is named, not the item."""
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(sc.shipped_scenario_file("lego").read_text() + "simulation: {duration_s: 1}\n")
+    with pytest.raises(
+        sc.ScenarioError, match=r"^\S*mine\.yaml: line \d+: the key 'simulation' is given twice"
+    ):
+        cli.load_with_sets(mine, ["god_object.gains.zeta=0.9"])

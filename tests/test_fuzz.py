@@ -639,6 +639,11 @@ def yaml_value(v) -> str:
 BAD = [-1.0, 0.0, math.nan, math.inf, -math.inf, 1e300, "fast", [], {}, None, True, [1.0, 2.0]]
 
 
+# aliases of aliases under a private root key (Drake's loader drops it): 9**6 nodes
+ALIAS_BOMB = (
+    "".join(f"_a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9 if i else ['1'] * 9)}]\n" for i in range(6))
+    + "_b: [*a5, *a5]\n"
+)
 SCENARIO_TEMPLATE = """\
 name: fuzz
 plant:
@@ -734,7 +739,17 @@ def scenario_text(draw):
         device=device.format(rate=text["rate"], tether=text["tether"]),
         directive=draw(st.sampled_from([""] * 6 + DIRECTIVES)),
         extra=draw(
-            st.sampled_from([""] * 4 + ["unknown_section: 3\n", "simulation:\n  nothing: 1\n", "bricks: [\n"])
+            st.sampled_from(
+                [""] * 6
+                + [
+                    "unknown_section: 3\n",
+                    "simulation:\n  nothing: 1\n",
+                    "bricks: [\n",
+                    "name: twice\n",
+                    "_deep: " + "[" * 100 + "]" * 100 + "\n",
+                    ALIAS_BOMB,
+                ]
+            )
         ),
     )
 
@@ -812,3 +827,145 @@ def test_any_changed_local_model_is_read_whole_and_checked_or_refused_naming_why
     for point, normal, stiffness in m.planes:
         assert all(math.isfinite(v) for v in point) and abs(math.hypot(*normal) - 1.0) <= 1e-6
         assert stiffness > 0 and not math.isnan(stiffness)
+
+
+# -- YAML bounds (config.yaml_guard) -----------------------------------------------------------------------
+
+
+@st.composite
+def aliased_yaml(draw):
+    """Top-level private keys, each anchoring a flow list of scalars, nested lists and aliases of the
+    anchors before it (so a bomb is a few lines), sometimes a key twice or one nest very deep."""
+    lines = []
+    for n in range(draw(st.integers(1, 8))):
+
+        def value(depth, n=n):
+            items = []
+            for _ in range(draw(st.integers(0, 6))):
+                kind = draw(
+                    st.sampled_from(["scalar", "alias", "list"] if depth < 3 else ["scalar", "alias"])
+                )
+                if kind == "alias" and n:
+                    items.append(f"*a{draw(st.integers(0, n - 1))}")
+                elif kind == "list":
+                    items.append(value(depth + 1))
+                else:
+                    items.append(str(draw(st.integers(0, 9))))
+            return "[" + ", ".join(items) + "]"
+
+        lines.append(f"_k{n}: &a{n} {value(0)}")
+    if draw(st.booleans()):
+        deep = draw(st.integers(1, 2 * 64))
+        lines.append("_deep: " + "[" * deep + "]" * deep)
+    if draw(st.integers(0, 4)) == 0:
+        lines.append(draw(st.sampled_from(lines)).split(":")[0] + ": 0")  # a key twice
+    return "\n".join(lines) + "\n"
+
+
+def _expanded_count(value, cap):
+    """Nodes of the loaded (shared) value, each alias expanded, counted up to ``cap``; and its depth."""
+    count, deepest, stack = 0, 0, [(value, 1)]
+    while stack and count <= cap:
+        v, depth = stack.pop()
+        count += 1
+        deepest = max(deepest, depth)
+        if isinstance(v, list):
+            stack.extend((c, depth + 1) for c in v)
+        elif isinstance(v, dict):
+            stack.extend(x for k, c in v.items() for x in ((k, depth + 1), (c, depth + 1)))
+    return count, deepest
+
+
+@FUZZ
+@given(text=aliased_yaml())
+def test_any_aliased_yaml_is_refused_exactly_when_it_is_past_a_bound(text):
+    """check_yaml refuses a text (a YamlShapeError, never another exception) exactly when its
+    expansion, counted by loading it, adds more than MAX_ALIAS_NODES nodes, nests deeper than
+    MAX_YAML_DEPTH or gives a key twice; in well under a second however large the expansion."""
+    import time
+
+    import yaml
+
+    from godobject_drake.config.yaml_guard import MAX_ALIAS_NODES, MAX_YAML_DEPTH, YamlShapeError, check_yaml
+
+    keys = [line.split(":")[0] for line in text.splitlines()]
+    twice = len(keys) != len(set(keys))
+    start = time.perf_counter()
+    try:
+        check_yaml(text, "text")
+        refused = None
+    except YamlShapeError as e:
+        refused = str(e)
+    assert time.perf_counter() - start < 0.5
+    event("refused" if refused else "accepted")
+    if twice:
+        assert refused and ("given twice" in refused or "deep" in refused or "alias" in refused)
+        return
+    nodes = yaml.compose(text)
+    written = len({id(n) for n in _all_nodes(nodes)})
+    count, deepest = _expanded_count(yaml.safe_load(text), written + MAX_ALIAS_NODES)
+    past = count > written + MAX_ALIAS_NODES or deepest > MAX_YAML_DEPTH
+    assert bool(refused) == past, (refused, count, written, deepest)
+
+
+def _all_nodes(node):
+    seen, stack = {}, [node]
+    while stack:
+        n = stack.pop()
+        if id(n) not in seen:
+            seen[id(n)] = n
+            if isinstance(n.value, list):
+                stack.extend(x for item in n.value for x in (item if isinstance(item, tuple) else (item,)))
+    return seen.values()
+
+
+# -- mesh files (config.meshes) ----------------------------------------------------------------------------
+
+obj_index = st.one_of(st.integers(-6, 8).map(str), st.sampled_from(["", "x", "1.5", "99999999999"]))
+obj_ref = st.tuples(obj_index, obj_index, obj_index).map(
+    lambda r: st.sampled_from([r[0], f"{r[0]}/{r[1]}", f"{r[0]}//{r[2]}", f"{r[0]}/{r[1]}/{r[2]}"])
+)
+obj_line = st.one_of(
+    st.sampled_from(["v 0 0 0", "vt 0 0", "vn 0 0 1", "# a comment", "", "o thing", "usemtl m"]),
+    st.tuples(
+        st.sampled_from(["f", "l", "p"]), st.lists(obj_ref.flatmap(lambda s: s), min_size=1, max_size=4)
+    ).map(lambda t: " ".join([t[0], *t[1]])),
+)
+
+
+@FUZZ
+@given(lines=st.lists(obj_line, max_size=30))
+def test_any_obj_is_passed_only_when_every_index_names_what_the_file_has(lines):
+    """check_mesh passes an OBJ exactly when each integer index of its faces, lines and points
+    names a vertex, texture coordinate or normal the file has (positive: 1 to the count; negative:
+    counting back from those written before it), and refuses it otherwise with a MeshFileError
+    naming the line (never another exception)."""
+    from godobject_drake.config.meshes import MeshFileError, check_mesh
+
+    counts, seen, bad = {"v": 0, "vt": 0, "vn": 0}, [], None
+    for number, line in enumerate(lines, start=1):
+        words = line.split()
+        if words and words[0] in counts:
+            counts[words[0]] += 1
+        elif words and words[0] in ("f", "l", "p"):
+            for ref in words[1:]:
+                for kind, text in zip(("v", "vt", "vn"), ref.split("/"), strict=False):
+                    if text.lstrip("-").isdigit():
+                        i = int(text)
+                        if i > 0:
+                            seen.append((kind, i, number))
+                        elif (i == 0 or -i > counts[kind]) and bad is None:
+                            bad = number
+    late = [n for kind, i, n in seen if i > counts[kind]]
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.obj"
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            check_mesh(path, "m.obj")
+            refused = None
+        except MeshFileError as e:
+            refused = str(e)
+    event("refused" if refused else "passed")
+    assert (refused is not None) == (bad is not None or bool(late)), (refused, lines)
+    if refused:
+        assert re.match(r"m\.obj: line \d+: a face names ", refused), refused

@@ -376,7 +376,8 @@ def test_a_scene_whose_driver_never_comes_says_how_to_start_it():
     station = build_scene("lego", "--device", "lcm", "--lcm-url", "memq://", "--lcm-wait", "0.2")
     message = (
         r"no sample from the device's driver on memq:// \(channel GODOBJECT_DEVICE_POSE\) in device.wait_s = "
-        r"0.2 s: start the driver \(godobject-driver run FAMILY --scene memq://.*or raise device.wait_s"
+        r"0.2 s: start the driver \(godobject-driver run FAMILY --scene memq:// --allow-unauthenticated "
+        r"\(FAMILY: emulated, .*or raise device.wait_s"
     )
     with pytest.raises(DeviceNotHeardError, match=message):
         simulate(station, progress=False)

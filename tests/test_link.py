@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 from drake import lcmt_force_torque, lcmt_robot_state
 
+from godobject_drake.driver.process import main as process_main
 from godobject_drake.link import keys as key_files
 from godobject_drake.link import messages, transport
 from godobject_drake.link.keys import KeyFileError
@@ -102,13 +103,13 @@ def ends(scene_nonce=b"s" * 16, driver_nonce=b"d" * 16):
 
 def test_the_key_is_created_on_first_use_user_only_and_read_back(tmp_path):
     path = tmp_path / "cfg" / "godobject" / "link.key"
-    key, where = key_files.load_key(path)
+    key, where = key_files.load_key(path, create=True)  # as the default file is
     assert where == path and len(key) == 32
     assert stat.S_IMODE(path.stat().st_mode) == 0o600 and stat.S_IMODE(path.parent.stat().st_mode) == 0o700
     assert path.read_text() == key.hex() + "\n"
     assert key_files.load_key(path) == (key, path)  # read back, not made again
     assert sorted(p.name for p in path.parent.iterdir()) == ["link.key"]  # no temporary file left
-    assert key_files.load_key(tmp_path / "another.key")[0] != key  # each new key is random
+    assert key_files.load_key(tmp_path / "another.key", create=True)[0] != key  # each new key is random
 
 
 def test_the_key_path_is_the_given_file_else_the_environment_else_the_config_folder(tmp_path, monkeypatch):
@@ -131,7 +132,7 @@ def test_two_ends_creating_the_key_at_once_get_the_same_one(tmp_path):
 
     def load():
         start.wait()
-        keys.append(key_files.load_key(path)[0])
+        keys.append(key_files.load_key(path, create=True)[0])
 
     threads = [threading.Thread(target=load) for _ in range(8)]
     for t in threads:
@@ -142,7 +143,10 @@ def test_two_ends_creating_the_key_at_once_get_the_same_one(tmp_path):
     assert sorted(p.name for p in path.parent.iterdir()) == ["link.key"]
 
 
-def _key_file(tmp_path, text="ab" * 32 + "\n", mode=0o600) -> Path:
+KEY_HEX = hashlib.sha256(b"a test key").hexdigest()  # 32 bytes that look random (not all equal)
+
+
+def _key_file(tmp_path, text=KEY_HEX + "\n", mode=0o600) -> Path:
     folder = tmp_path / "private"
     folder.mkdir(mode=0o700, exist_ok=True)
     path = folder / "link.key"
@@ -162,7 +166,7 @@ def test_a_key_others_may_read_or_change_is_refused_naming_its_mode_and_the_fix(
 
 
 def test_the_key_mode_0400_is_accepted(tmp_path):
-    assert key_files.load_key(_key_file(tmp_path, mode=0o400))[0] == bytes([0xAB] * 32)
+    assert key_files.load_key(_key_file(tmp_path, mode=0o400))[0] == bytes.fromhex(KEY_HEX)
 
 
 @pytest.mark.parametrize("mode", [0o777, 0o775, 0o757, 0o1777])
@@ -171,7 +175,7 @@ def test_a_key_in_a_folder_others_can_write_is_refused(tmp_path, mode):
     folder.mkdir()
     folder.chmod(mode)
     with pytest.raises(KeyFileError) as refused:
-        key_files.load_key(folder / "link.key")
+        key_files.load_key(folder / "link.key", create=True)
     message = str(refused.value)
     assert f"its folder {folder} (mode {mode:04o}" in message and f"chmod 700 {folder}" in message
     assert not (folder / "link.key").exists()  # nothing created there
@@ -181,7 +185,7 @@ def test_a_key_folder_readable_by_others_is_accepted(tmp_path):
     folder = tmp_path / "readable"
     folder.mkdir()
     folder.chmod(0o755)
-    assert len(key_files.load_key(folder / "link.key")[0]) == 32
+    assert len(key_files.load_key(folder / "link.key", create=True)[0]) == 32
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="changing a file's owner needs root")
@@ -201,10 +205,10 @@ def test_a_key_file_or_folder_of_another_user_is_refused(tmp_path):
         folder.mkdir(mode=0o700)
         os.chown(folder, uid, uid)
         with pytest.raises(KeyFileError, match=rf"its folder .*owner uid {uid}\)"):
-            key_files.load_key(folder / "link.key")
+            key_files.load_key(folder / "link.key", create=True)
     root_folder = tmp_path / "root_owned"  # root's own folders are accepted (the user's is too)
     root_folder.mkdir(mode=0o755)
-    assert len(key_files.load_key(root_folder / "link.key")[0]) == 32
+    assert len(key_files.load_key(root_folder / "link.key", create=True)[0]) == 32
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="running a process as another user needs root")
@@ -212,7 +216,7 @@ def test_another_user_cannot_read_the_key(tmp_path):
     import subprocess
 
     path = tmp_path / "k" / "link.key"
-    key_files.load_key(path)
+    key_files.load_key(path, create=True)
     os.chmod(tmp_path, 0o755)  # pytest's own folder is user-only: let the other user try the file itself
     done = subprocess.run(["cat", str(path)], user=65534, capture_output=True, text=True)
     assert done.returncode == 1 and "Permission denied" in done.stderr and done.stdout == ""
@@ -226,7 +230,7 @@ def test_a_symlink_a_folder_or_a_fifo_as_the_key_is_refused_naming_the_fix(tmp_p
         key_files.load_key(link)
     assert str(refused.value) == (
         f"key file {link}: Too many levels of symbolic links; give the path of a regular file (not a "
-        "link), or a new path where the key will be created"
+        "link), or leave the key file out to use the default, made on first use"
     )
     folder, fifo = real.parent / "a_folder", real.parent / "fifo"
     folder.mkdir()
@@ -235,8 +239,8 @@ def test_a_symlink_a_folder_or_a_fifo_as_the_key_is_refused_naming_the_fix(tmp_p
         with pytest.raises(KeyFileError) as refused:
             key_files.load_key(path)
         assert str(refused.value) == (
-            f"key file {path}: not a regular file; give the path of the key file (64 hex digits), or a "
-            "new path where the key will be created"
+            f"key file {path}: not a regular file; give the path of the key file (64 hex digits), or "
+            "leave the key file out to use the default, made on first use"
         )
 
 
@@ -284,7 +288,7 @@ def test_the_key_file_messages_name_the_file_and_the_fix(tmp_path, caplog):
     )
     with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
         new = tmp_path / "new" / "link.key"
-        key_files.load_key(new)
+        key_files.load_key(new, create=True)  # as the default file is
         key_files.load_key(new)
     assert [r.getMessage() for r in caplog.records] == [
         f"created the link key {new} (mode 0600): a scene and a driver pair with the same file; copy it "
@@ -797,6 +801,7 @@ def test_a_url_that_is_not_udp_host_port_is_refused_naming_the_form():
 
 def test_a_listening_link_names_its_own_address_key_and_buffer(tmp_path, caplog):
     key_file = tmp_path / "k" / "link.key"
+    key_files.load_key(key_file, create=True)
     with caplog.at_level(logging.INFO, logger="godobject_drake.link"):
         scene = UdpLcm.listen("udp://localhost:0", key_file)
         driver = driver_link(scene, key_file=key_file)
@@ -919,3 +924,72 @@ def test_a_port_that_cannot_be_bound_is_refused_naming_it():
         )
     finally:
         scene.close()
+
+
+# -- the key: a key for a path, a missing named file, a guessable key, another key ---------------------------
+
+
+def test_the_key_itself_in_the_environment_or_as_the_key_file_is_refused_and_nothing_made(
+    tmp_path, monkeypatch
+):
+    """Before: $GODOBJECT_LINK_KEY holding the key was taken as a file name, and a new key made in
+    the current folder under that name."""
+    monkeypatch.chdir(tmp_path)
+    key = hashlib.sha256(b"k").hexdigest()
+    monkeypatch.setenv(key_files.KEY_ENV, key)
+    with pytest.raises(
+        KeyFileError, match=r"\$GODOBJECT_LINK_KEY holds 64 hex digits, a key itself .*put the key in a file"
+    ):
+        key_files.load_key()
+    monkeypatch.delenv(key_files.KEY_ENV)
+    with pytest.raises(KeyFileError, match="the key file holds 64 hex digits"):
+        key_files.load_key(key)
+    assert list(tmp_path.iterdir()) == []
+    assert process_main(["run", "emulated", "--scene", "udp://127.0.0.1:9", "--key-file", key]) == 2
+
+
+def test_a_named_key_file_that_does_not_exist_is_an_error_naming_it(tmp_path, monkeypatch, capsys):
+    """Before: a mistyped --key-file made a new key there, which paired with nothing."""
+    missing = tmp_path / "link.kye"
+    with pytest.raises(KeyFileError, match=rf"key file {missing} does not exist: give the key file"):
+        key_files.load_key(missing)
+    assert not missing.exists()
+    assert process_main(["run", "emulated", "--scene", "udp://127.0.0.1:9", "--key-file", str(missing)]) == 2
+    assert f"key file {missing} does not exist" in capsys.readouterr().err
+    monkeypatch.setenv(key_files.KEY_ENV, str(tmp_path / "default" / "link.key"))
+    assert len(key_files.load_key()[0]) == 32  # the default file is made on first use, as documented
+
+
+@pytest.mark.parametrize("text", ["00" * 32, "ff" * 32, "0123456789abcdef" * 4])
+def test_a_key_anyone_could_guess_is_refused(tmp_path, text):
+    """Before: an all-zero key paired a scene and a driver."""
+    path = tmp_path / "k" / "link.key"
+    path.parent.mkdir(mode=0o700)
+    path.write_text(text + "\n")
+    path.chmod(0o600)
+    with pytest.raises(KeyFileError, match=r"distinct bytes .*not a random one"):
+        key_files.load_key(path)
+
+
+def test_a_datagram_with_another_key_is_counted_and_named_once_with_the_fix(caplog):
+    """Before: counted only; the scene said "start the driver" while one with another key knocked."""
+    scene = SceneEnd(hashlib.sha256(b"scene's").digest())
+    driver = DriverEnd(hashlib.sha256(b"driver's").digest(), ("127.0.0.1", 7667))
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        for now in (0.0, 1.0, 2.0):
+            message, reply = scene.receive(driver.hello(now), ("127.0.0.1", 40123))
+            assert message is None and reply is None
+    assert scene.counts["udp_unauthenticated"] == 3
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1
+    assert said[0].startswith(
+        "a datagram with a wrong key arrived from port 40123 (127.0.0.1): the two processes use different "
+        "key files (give both the same --key-file"
+    )
+
+
+def test_a_control_character_in_a_key_files_name_is_escaped_in_the_message(tmp_path):
+    path = tmp_path / "evil\x1b[2J" / "link.key"
+    with pytest.raises(KeyFileError) as refused:
+        key_files.load_key(path)
+    assert "\x1b" not in str(refused.value) and "evil\\x1b[2J" in str(refused.value)

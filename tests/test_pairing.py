@@ -30,6 +30,7 @@ from pydrake.systems.analysis import Simulator
 from godobject_drake.devices.lcm import LcmDevice
 from godobject_drake.driver.families import RATED, EmulatedDevice, HandPath
 from godobject_drake.driver.process import Driver
+from godobject_drake.link.keys import load_key
 from godobject_drake.link.messages import (
     DRIVER_STATUS_CHANNEL,
     FEEDBACK_CHANNEL,
@@ -423,7 +424,9 @@ def test_a_scene_takes_one_driver_and_a_second_renders_nothing(caplog):
 def test_the_driver_renders_nothing_before_it_is_paired_with_a_key_of_its_own(tmp_path):
     """A scene with another key (another user's): the driver's HELLOs go unanswered, so it never
     pairs and renders nothing however long the scene sends its feedback."""
-    scene = make_lcm("udp://127.0.0.1:0", tmp_path / "theirs" / "link.key")
+    theirs = tmp_path / "theirs" / "link.key"
+    load_key(theirs, create=True)  # a named key file must exist: made here as its own end would
+    scene = make_lcm("udp://127.0.0.1:0", theirs)
     d, thread = driver(driver_lcm(f"udp://127.0.0.1:{scene.port}"), 0.3)
     try:
         while thread.is_alive():

@@ -15,14 +15,17 @@ import csv
 import dataclasses
 import itertools
 import math
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import yaml
 from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RigidTransform, RotationMatrix
 
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml_file, shown
 from godobject_drake.spatial import normalized_quaternion, rotation_error
 
 CSV_HEADER = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "grasp")
@@ -251,7 +254,40 @@ class DevicePath:
 
 def load_device_path(filename: str | Path) -> DevicePath:
     """Load a :class:`DevicePath` from a YAML file."""
-    return yaml_load_typed(schema=DevicePath, filename=str(filename))
+    return _load_yaml_file(DevicePath, filename, "device path", "waypoints: [{t, xyz, rpy_deg, grasp}, ...]")
+
+
+def _load_yaml_file(schema, filename, what: str, form: str):
+    """``schema`` read from the YAML file ``filename`` (bounded: config.yaml_guard), or a ValueError
+    naming the file, the line where it can and the form; it quotes none of the file (a path may name
+    a private file): only the schema's own field names."""
+    where = f"{what} file {shown(filename)}"
+    try:
+        check_yaml_file(filename, where)
+        return yaml_load_typed(schema=schema, filename=str(filename))
+    except YamlShapeError as e:
+        raise ValueError(str(e)) from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ValueError(f"{where}: not valid YAML{at}; check the brackets, colons and indentation") from None
+    except (RuntimeError, TypeError, ValueError, AssertionError, AttributeError) as e:
+        known = _field_names(schema) | {"float", "int", "str", "list", "dict"}
+        said = QUOTED.sub(lambda m: m.group(0) if m.group(1) in known else "…", str(e))
+        raise ValueError(f"{where}: not a {what} ({shown(said)}); give {form}") from None
+
+
+# A quoted word in a loader's message: kept only when it is one of the schema's field names.
+QUOTED = re.compile(r"'([^']*)'|\"([^\"]*)\"")
+
+
+def _field_names(schema) -> set[str]:
+    names, todo = set(), [schema]
+    while todo:
+        for f in dataclasses.fields(todo.pop()):
+            names.add(f.name)
+            todo.extend(t for t in getattr(f.type, "__args__", ()) if dataclasses.is_dataclass(t))
+    return names
 
 
 @dataclasses.dataclass(frozen=True)
@@ -271,16 +307,18 @@ def _csv_rows(filename: str | Path, header: Sequence[str], hint: str = ""):
 
     ``where`` is ``file:line``, for errors that say where to look.
     """
-    filename = Path(filename)
-    if not filename.is_file():
+    path = Path(filename)
+    filename = shown(path)  # as messages name it
+    if not path.is_file():
         raise FileNotFoundError(f"device log {filename} does not exist")
     rows = 0
-    with filename.open(newline="", encoding="utf-8") as f:
+    with path.open(newline="", encoding="utf-8") as f:
         reader = csv.reader(f)
         try:
             first = next(reader, None)
             if first is None or tuple(c.strip() for c in first) != tuple(header):
-                got = first if first is not None else "an empty file"
+                # the line itself is not repeated: a log named by mistake may be a private file
+                got = f"a line of {len(first)} columns" if first is not None else "an empty file"
                 raise ValueError(f"{filename}:1: header must be {','.join(header)}; got {got}.{hint}")
             for line, row in enumerate(reader, start=2):
                 if row:
@@ -295,12 +333,15 @@ def _csv_rows(filename: str | Path, header: Sequence[str], hint: str = ""):
 
 
 def _finite_floats(where: str, cells: Sequence[str]) -> list[float]:
-    try:
-        values = [float(c) for c in cells]
-    except ValueError as e:
-        raise ValueError(f"{where}: {e}") from None
-    if not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{where}: non-finite value in {list(cells)}")
+    values = []
+    for column, c in enumerate(cells, start=1):  # the cell is not quoted: the file may be a private one
+        try:
+            values.append(float(c))
+        except ValueError:
+            raise ValueError(f"{where}: column {column} is not a number") from None
+    bad = [column for column, v in enumerate(values, start=1) if not math.isfinite(v)]
+    if bad:
+        raise ValueError(f"{where}: non-finite value (nan or inf) in column {bad[0]}")
     return values
 
 
@@ -377,7 +418,9 @@ def read_increment_log(filename: str | Path, until_s: float = math.inf) -> Incre
         values = _finite_floats(where, row[:8])
         _check_after(where, values[0], t)
         if values[7] not in (0.0, 1.0):
-            raise ValueError(f"{where}: clutch is {row[7]!r}; it must be 0 (released: move) or 1 (pressed)")
+            raise ValueError(
+                f"{where}: clutch is {values[7]:g}; it must be 0 (released: move) or 1 (pressed)"
+            )
         for name, vector, most, unit in (("dx,dy,dz", values[1:4], MAX_INCREMENT_M, "m"),
                                          ("drx,dry,drz", values[4:7], MAX_INCREMENT_RAD, "rad")):  # fmt: skip
             size = math.hypot(*vector)
@@ -458,11 +501,13 @@ class JointPath:
 
 def load_joint_path(filename: str | Path) -> JointPath:
     """Load a :class:`JointPath` from YAML; every waypoint must give every channel."""
-    path = yaml_load_typed(schema=JointPath, filename=str(filename))
+    path = _load_yaml_file(
+        JointPath, filename, "joint path", "channels: [...], waypoints: [{t, values}, ...]"
+    )
     for i, w in enumerate(path.waypoints):
         if set(w.values) != set(path.channels):
             raise ValueError(
-                f"{filename}: waypoint {i} (t={w.t}) gives {sorted(w.values)}; every waypoint must "
+                f"{shown(filename)}: waypoint {i} (t={w.t}) gives {sorted(w.values)}; every waypoint must "
                 f"give exactly the channels {path.channels}"
             )
     return path

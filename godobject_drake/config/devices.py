@@ -469,8 +469,10 @@ class Lcm(_PoseDevice):
         (``godobject-driver``, docs/haptic_devices.md), paired with it by a shared key.
     key_file : str
         ``udp://`` only: the file of the key the scene and its driver pair with (the driver's
-        ``--key-file``); empty: ``$GODOBJECT_LINK_KEY``, else ``~/.config/godobject/link.key``.
-        Created on first use (mode 0600); refused if others can read or replace it.
+        ``--key-file``); empty: ``$GODOBJECT_LINK_KEY``, else ``~/.config/godobject/link.key``,
+        created on first use (mode 0600). A file named here must exist (a mistyped name is an
+        error, not a new key); refused if others can read or replace it, or if it holds a key
+        of few distinct bytes (all zero).
     device_to_world : DeviceToWorld
         The device's frame and scale in the world (identity by default); the scenario's
         ``workspace`` is the box samples are expected in (outside ones are counted).

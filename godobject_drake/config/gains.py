@@ -111,6 +111,13 @@ class CouplingGains:
 
 DEFAULT_MAX_STRETCH_M = 0.2
 
+# The stiffest spring a supported haptic device renders (N/m, the device's frame: ``scale² kd``):
+# the omega.3's closed-loop stiffness, 14.5 N/mm (Force Dimension's datasheet, as cited in
+# docs/haptic_devices.md; not re-read here), the stiffest of driver.families.RATED (a Touch's is
+# 1.02 N/mm). A scene asking more of a device (``feedback.kd``) is refused at its start, and a driver
+# refuses a local model asking more than its own family's figure.
+MAX_RENDERED_STIFFNESS_N_M = 14_500.0
+
 
 DEFAULT_MAX_TWIST_RAD = math.pi  # the largest possible error: only a velocity spike is cut
 
@@ -122,7 +129,8 @@ class FeedbackGains:
     Attributes
     ----------
     kd : float
-        Translational stiffness (N/m).
+        Translational stiffness (N/m). With a device that renders the feedback (``!Lcm``), at
+        most 14,500 N/m on the device (``scale² kd``), the stiffest a supported device renders.
     gamma_d : float
         Translational damping (N·s/m).
     kd_rot : float

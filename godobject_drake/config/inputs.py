@@ -7,7 +7,9 @@ and the device read (the directives' ``file:`` of ``add_model`` and ``add_direct
 directives those files add in turn, the files a model includes or meshes it names, each device's
 ``path`` and ``log``) and refuses, naming the file and where the scenario names it, one that is
 not a regular file (a FIFO, a device, a socket), past :data:`MAX_INPUT_FILE_BYTES`, or a symlink
-loop. A file that does not exist is left to the reader that says so today (Drake, the device).
+loop; a mesh whose indices reach past its vertices (:mod:`godobject_drake.config.meshes`); a
+directives file past the YAML bounds (:mod:`godobject_drake.config.yaml_guard`). A file that
+does not exist is left to the reader that says so today (Drake, the device).
 
 What the check cannot close: a file swapped for a FIFO between the check and Drake's read (a
 race only someone who can write the scene's folder can run), and a model file Drake reaches by a
@@ -19,9 +21,11 @@ import os
 import re
 import stat
 from pathlib import Path
-from urllib.parse import urlparse
 
 import yaml
+
+from godobject_drake.config.meshes import MeshFileError, check_mesh
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml_file, shown
 
 # A model, mesh, directives or device file larger than this is refused before anything reads it:
 # the shipped scenes' largest is 0.02 MB, and a mesh this size is far past what a real-time scene
@@ -57,6 +61,7 @@ def check_input_file(path: str | Path, where: str, *, size_limit: bool = True) -
     """Refuse ``path`` (:class:`InputFileError`, naming ``where``) if it is a symlink loop, not a
     regular file, or (``size_limit``) past :data:`MAX_INPUT_FILE_BYTES`. Returns False when
     nothing is there (its reader says so), True for a file that may be read."""
+    name, where = shown(path), shown(where)  # a control character in a name is escaped, not printed
     try:
         st = os.stat(path)  # follows links, as a reader would
     except FileNotFoundError:
@@ -64,15 +69,15 @@ def check_input_file(path: str | Path, where: str, *, size_limit: bool = True) -
     except OSError as e:
         if e.errno == errno.ELOOP:
             raise InputFileError(
-                f"{where}: {path}: a symlink loop (the link points back at itself through other "
+                f"{where}: {name}: a symlink loop (the link points back at itself through other "
                 "links); point it at the file"
             ) from None
-        raise InputFileError(f"{where}: {path}: cannot be read: {e.strerror or e}") from None
+        raise InputFileError(f"{where}: {name}: cannot be read: {e.strerror or e}") from None
     if not stat.S_ISREG(st.st_mode):
-        raise InputFileError(f"{where}: {path} is {_kind(st.st_mode)}; give the model or data file itself")
+        raise InputFileError(f"{where}: {name} is {_kind(st.st_mode)}; give the model or data file itself")
     if size_limit and st.st_size > MAX_INPUT_FILE_BYTES:
         raise InputFileError(
-            f"{where}: {path} is {st.st_size / 2**20:.0f} MiB, past the {MAX_INPUT_FILE_BYTES // 2**20} MiB "
+            f"{where}: {name} is {st.st_size / 2**20:.0f} MiB, past the {MAX_INPUT_FILE_BYTES // 2**20} MiB "
             "limit on a model, mesh or directives file (it would be read whole into memory); decimate the "
             "mesh or split the model (godobject_drake.config.inputs.MAX_INPUT_FILE_BYTES)"
         )
@@ -101,8 +106,8 @@ class _Resolver:
             if package == "drake_models" or not self.map.Contains(package):
                 return None
             return Path(self.map.GetPath(package)) / rest
-        if uri.startswith("file://"):
-            return Path(urlparse(uri).path)
+        if uri.startswith("file://"):  # as written: urlparse drops a newline, cuts at a # or a ?
+            return Path(uri[len("file://") :])
         if "://" in uri or not uri:
             return None
         return Path(uri) if Path(uri).is_absolute() or base is None else base / uri
@@ -124,6 +129,10 @@ class _Walk:
         if not check_input_file(path, where):
             return
         name = path.name.lower()
+        try:  # a mesh whose indices reach past its vertices crashed Drake's reader (config.meshes)
+            check_mesh(path, f"{shown(where)}: {shown(path)}")
+        except MeshFileError as e:
+            raise InputFileError(str(e)) from None
         if name.endswith(DIRECTIVES_SUFFIX):
             self.directives_file(path, where)
         elif name.endswith(MODEL_SUFFIXES):
@@ -137,8 +146,13 @@ class _Walk:
                 self.file(d.add_directives.file, f"{where}[{i}].add_directives.file", base)
 
     def directives_file(self, path: Path, where: str) -> None:
+        try:  # Drake's parser expands its aliases: a bomb, a deep nest, a key twice, before it reads it
+            check_yaml_file(path, f"{where}: {path}")
+        except YamlShapeError as e:
+            raise InputFileError(str(e)) from None
+        text = path.read_text(errors="replace")
         try:
-            data = yaml.safe_load(path.read_text(errors="replace"))
+            data = yaml.safe_load(text)
         except yaml.YAMLError:
             return  # not YAML: Drake's parser names the error
         items = data.get("directives") if isinstance(data, dict) else None

@@ -57,7 +57,7 @@ from godobject_drake.config.devices import (  # noqa: F401
     kind_of,
     on_register,
 )
-from godobject_drake.config.gains import CouplingGains, FeedbackGains  # noqa: F401
+from godobject_drake.config.gains import MAX_RENDERED_STIFFNESS_N_M, CouplingGains, FeedbackGains  # noqa: F401
 from godobject_drake.config.inputs import InputFileError, check_input_file, check_inputs
 from godobject_drake.config.scene import (  # noqa: F401
     CONTACT_GEOMETRIES,
@@ -88,6 +88,7 @@ from godobject_drake.config.tools import (  # noqa: F401
     ShellSpec,
     tool_union,
 )
+from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, check_yaml_file, shown
 
 
 class ScenarioError(ValueError):
@@ -327,14 +328,18 @@ def load_scenario(filename: str | Path, overrides: str | None = None, *, check: 
         raise ScenarioError(f"scenario file {path} does not exist")
     where = str(path)
     try:
+        check_yaml_file(path, where)  # an alias bomb, a deep nest, a key twice, a huge file
         scenario = yaml_load_typed(schema=Scenario, filename=str(path))
         if overrides:
             where = "the overrides"
+            check_yaml(overrides, where)
             overrides = _keep_kinds(scenario, overrides)
             scenario = yaml_load_typed(schema=Scenario, data=overrides, defaults=scenario)
+    except YamlShapeError as e:
+        raise ScenarioError(str(e)) from None
     except LOAD_ERRORS as e:
         text = path.read_text(errors="replace") if where == str(path) else overrides
-        raise ScenarioError(f"{path}: {_explain(e, text, where)}") from None
+        raise ScenarioError(f"{shown(path)}: {_explain(e, text, where)}") from None
     resolve_paths(scenario, path.resolve().parent)
     if check:
         check_scenario(scenario, where=str(path))
@@ -384,7 +389,10 @@ def _tag_kinds(node, holder, hints) -> bool:
 def scenario_from_yaml(text: str, base_dir: str | Path = ".") -> Scenario:
     """A scenario from YAML text (relative paths against ``base_dir``)."""
     try:
+        check_yaml(text, "scenario text")
         scenario = yaml_load_typed(schema=Scenario, data=text)
+    except YamlShapeError as e:
+        raise ScenarioError(str(e)) from None
     except LOAD_ERRORS as e:
         raise ScenarioError(f"scenario text: {_explain(e, text, 'the text')}") from None
     resolve_paths(scenario, Path(base_dir).resolve())
@@ -397,13 +405,17 @@ def scenario_to_yaml(scenario: Scenario) -> str:
     return yaml_dump_typed(scenario)
 
 
+# The most of the loader's message a ScenarioError repeats: it quotes the value it could not read.
+MAX_QUOTED = 300
 # What yaml_load_typed raises for a file it cannot read into a Scenario.
 LOAD_ERRORS = (RuntimeError, ValueError, TypeError, AssertionError, yaml.YAMLError)
 
 
 def _explain(e: Exception, source: str = "", where: str = "") -> str:
-    """The loader's message, with the key it is about and the fix where they can be told."""
-    text = str(e) or type(e).__name__
+    """The loader's message, with the key it is about and the fix where they can be told; a long
+    value it quotes is cut and control characters are escaped (a file's content stays out)."""
+    full = str(e) or type(e).__name__
+    text = shown(full if len(full) <= MAX_QUOTED else full[:MAX_QUOTED] + " …")
     if isinstance(e, yaml.YAMLError):
         return (
             f"not valid YAML in {where}: {' '.join(text.split())}; check the brackets, colons and indentation"
@@ -412,7 +424,7 @@ def _explain(e: Exception, source: str = "", where: str = "") -> str:
         return f"{text}: a key the scenario does not know (check its spelling and indentation)"
     if "did not match any of the allowed type options" in text:
         return f"{text}: give the YAML tag of one of those types, e.g. device: !Scripted {{...}}"
-    keys = _keys_holding(source, text)
+    keys = _keys_holding(source, full)
     if keys:
         at = ", ".join(keys)
         return f"{text} (at {at} in {where}): give that key a value of its type (a number, a list, ...)"
@@ -610,12 +622,30 @@ def _check_tool(record: ToolRecord, where: str) -> None:
             f"{getattr(device, field)!r} is for a device that cannot feel the god-object; with haptic.mode "
             f"{s.haptic.mode!r} the force is felt: set haptic.mode: none, or remove {field}",
         )
+    if device_kind.renders_feedback:
+        _check_rendered_stiffness(s, at, where)
     if device_kind.renders_feedback and s.haptic.mode != "none":
         _fail(
             where,
             f"{at}haptic.mode",
             f"{s.haptic.mode!r} simulates a haptic device; with !{type(device).__name__} the real device is "
             "the haptic one and the feedback wrench goes to it: set haptic.mode: none",
+        )
+
+
+def _check_rendered_stiffness(s: Scenario, at: str, where: str) -> None:
+    """A device that renders the feedback feels ``scale² kd``: at most what a device renders."""
+    scale = getattr(getattr(s.device, "device_to_world", None), "scale", 1.0)
+    felt = s.feedback.kd * scale**2
+    if felt > MAX_RENDERED_STIFFNESS_N_M:
+        said = f" (× scale² = {scale**2:g}: {felt:.4g} N/m on the device)" if scale != 1.0 else ""
+        _fail(
+            where,
+            f"{at}feedback.kd",
+            f"{s.feedback.kd:.4g} N/m{said} is past the stiffest a haptic device renders, "
+            f"{MAX_RENDERED_STIFFNESS_N_M:,.0f} N/m (an omega.3's; a Touch's is 1,020): its driver would "
+            f"refuse every model. Give --kd ≤ {MAX_RENDERED_STIFFNESS_N_M / scale**2:.4g} (the shipped scene "
+            "uses 50)",
         )
 
 

@@ -44,6 +44,11 @@ class Rated:
     max_force_n: float
     rate_hz: float  # the device's servo rate
     source: str  # where the figure comes from
+    # The stiffest spring it renders (N/m, in its own frame): past it a wall buzzes or kicks, and a
+    # local model asking more is refused (Driver._on_local_model). The default is the omega.3's
+    # 14.5 N/mm, the stiffest, which config.gains.MAX_RENDERED_STIFFNESS_N_M repeats for the scene
+    # (the driver loads no config; tests/test_small_defects.py checks the two agree).
+    max_stiffness_n_m: float = 14_500.0
 
     @property
     def max_force_rate_n_s(self) -> float:
@@ -57,7 +62,8 @@ RATED = {
         "Haply Inverse3",
         10.0,
         1000.0,
-        "Haply's Inverse3 product page (peak force); NOT re-checked here: check your unit's datasheet",
+        "Haply's Inverse3 product page (peak force); NOT re-checked here: check your unit's datasheet; "
+        "its stiffness: the omega.3's taken, no figure of Haply's checked",
     ),
     "forcedimension": Rated(
         "Force Dimension omega.3",
@@ -71,7 +77,8 @@ RATED = {
         3.3,
         1000.0,
         "3D Systems Touch datasheet: maximum exertable force 3.3 N at the nominal position "
-        "(continuous 0.88 N); a Touch X is rated 7.9 N",
+        "(continuous 0.88 N); a Touch X is rated 7.9 N; stiffness 1.02 N/mm (its softest axis, z)",
+        max_stiffness_n_m=1020.0,
     ),
 }
 

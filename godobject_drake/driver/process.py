@@ -162,6 +162,7 @@ class Driver:
         self._sent_poses = np.zeros((self.POSES_KEPT, 3))
         self.pose_age = Quantiles(*TIMING_BINS)  # from reading the handle to commanding the force it gave
         self.bad_local_models = 0
+        self.stiff_local_models = 0  # local models asking more stiffness than the device renders
         lcm.Subscribe(feedback_channel, self._on_feedback)
         lcm.Subscribe(feedback_channel + STOP_SUFFIX, self._on_stop)
         if local_model:
@@ -181,6 +182,16 @@ class Driver:
         except LocalModelError:
             self.bad_local_models += 1
             self.counts["bad_feedback"] += 1
+            return
+        if model.kd > self.rated.max_stiffness_n_m:  # a wall stiffer than the device renders: it kicks
+            self.stiff_local_models += 1
+            self.counts["bad_feedback"] += 1
+            if self.stiff_local_models == 1:
+                logging.getLogger("godobject_drake").warning(
+                    f"the scene's local model asks a stiffness kd = {model.kd:.4g} N/m, past the "
+                    f"{self.rated.max_stiffness_n_m:,.0f} N/m the {self.rated.model} renders: refused, no "
+                    "force from it (counted in bad_feedback); give the scene a lower --kd"
+                )
             return
         now = time.monotonic() if self._arrived_after is None else self._arrived_after
         self.local.take(model, now, self.sent_pose(model.pose_utime))
@@ -386,6 +397,7 @@ class Driver:
                 "models": self.local.models,
                 "heartbeats": self.local.beats,
                 "bad": self.bad_local_models,
+                "too_stiff": self.stiff_local_models,
                 "energy_in_j": self.local.energy_in,
                 "unpaid_j": self.local.unpaid,
                 "trips": self.local.trips,

@@ -240,6 +240,19 @@ class _End:
         self.session: tuple[bytes, bytes] | None = None  # (scene nonce, driver nonce) once paired
         self._tx: _Tagger | None = None
         self._sent = 0  # the counter of the last DATA sent: it only grows
+        self._said_wrong_key = False
+
+    def _unauthenticated(self, sender) -> None:
+        """Count a datagram of this link's form whose tag does not verify; say why, once."""
+        self.counts["udp_unauthenticated"] += 1
+        if not self._said_wrong_key and sender is not None:
+            self._said_wrong_key = True
+            log.warning(
+                f"a datagram with a wrong key arrived from port {sender[1]} ({sender[0]}): the two processes "
+                "use different key files (give both the same --key-file / device.key_file; each names its "
+                "key's fingerprint when it starts), or another process sent it (counted in "
+                "udp_unauthenticated, said once)"
+            )
 
     def data_key(self, kind: bytes, session: tuple[bytes, bytes]) -> _Tagger:
         return _Tagger(_derive(self.key, b"data" + kind + session[0] + session[1]))
@@ -264,7 +277,7 @@ class _End:
             )
         return datagram
 
-    def _verified(self, datagram: bytes):
+    def _verified(self, datagram: bytes, sender=None):
         """:func:`data_fields` of a DATA datagram whose tag verifies (for its session's key),
         or None (counted)."""
         fields = data_fields(datagram)
@@ -274,7 +287,7 @@ class _End:
         session = fields[0]
         tagger = self._rx if session == self.session else self.data_key(self.TAKE, session)
         if not tagger.verify(datagram):
-            self.counts["udp_unauthenticated"] += 1
+            self._unauthenticated(sender)
             return None
         return fields
 
@@ -307,7 +320,7 @@ class SceneEnd(_End):
             return None, None
         if kind == HELLO:
             return None, self._answer(datagram, sender)
-        fields = self._verified(datagram)
+        fields = self._verified(datagram, sender)
         if fields is None:
             return None, None
         session, counter, message = fields
@@ -342,7 +355,7 @@ class SceneEnd(_End):
     def _answer(self, datagram: bytes, sender) -> bytes | None:
         """WELCOME to a HELLO when no driver or this one is paired; REFUSED to another driver."""
         if not self._hello.verify(datagram):
-            self.counts["udp_unauthenticated"] += 1
+            self._unauthenticated(sender)
             return None
         asked = datagram[HEAD:-TAG_BYTES]  # the driver's nonce and challenge
         if self.session is not None and asked[:NONCE_BYTES] != self.session[1]:
@@ -391,9 +404,9 @@ class DriverEnd(_End):
             self.counts["udp_malformed"] += 1
             return None, None
         if kind == SCENE_DATA:
-            return self._scene_data(datagram, now), None
+            return self._scene_data(datagram, sender, now), None
         if not self._hello.verify(datagram):
-            self.counts["udp_unauthenticated"] += 1
+            self._unauthenticated(sender)
             return None, None
         scene_nonce = datagram[HEAD : HEAD + NONCE_BYTES]
         if self.challenge is None or datagram[HEAD + NONCE_BYTES : -TAG_BYTES] != self.nonce + self.challenge:
@@ -410,8 +423,8 @@ class DriverEnd(_End):
         log.info(f"paired with the scene at {self.peer[0]}:{self.peer[1]}")
         return None, self.seal(LINK_CHANNEL, b"")
 
-    def _scene_data(self, datagram: bytes, now: float) -> tuple[str, bytes] | None:
-        fields = self._verified(datagram)
+    def _scene_data(self, datagram: bytes, sender, now: float) -> tuple[str, bytes] | None:
+        fields = self._verified(datagram, sender)
         if fields is None:
             return None
         session, counter, message = fields

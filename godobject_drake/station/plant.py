@@ -309,13 +309,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
                 f"directives: Drake could not build the scene's plant: {said}. Check the directives' files, "
                 "model names (each once) and frame names (model::frame)"
             ) from None
-    for message in drake_warnings.messages:
-        if "mass > 0" in message or "mass <= 0" in message:  # Drake then gives the body 1 kg, silently
-            raise sc.ScenarioError(
-                f"a model declares a body with no positive mass; Drake replaced its inertia ({message}). "
-                "Give the body <inertial><mass> > 0 in its model file, or weld it (add_weld) if it should "
-                "not move"
-            )
+    refuse_replaced_inertia(drake_warnings.messages)
     check_free_bodies(scene.plant)
     scene.tissue = tissue[0] if tissue else None
     scene.forces = ForceBus(scene.plant)
@@ -341,6 +335,26 @@ def _download_advice(package: str, said: str) -> str:
         f"your own files, or run the scene once where there is network: Drake keeps the download in {cache} "
         "(copy that folder to this machine to run offline)"
     )
+
+
+def refuse_replaced_inertia(messages) -> None:
+    """Drake's parser warns and replaces a body's mass or inertia it cannot use (a NaN, a negative or
+    zero mass, moments that are negative or break the triangle inequality): the body then moves
+    with an inertia its model does not give. Refused, naming the file and line Drake names."""
+    for message in messages:
+        if "mass > 0" in message or "mass <= 0" in message:  # Drake then gives the body 1 kg, silently
+            raise sc.ScenarioError(
+                f"a model declares a body with no positive mass; Drake replaced its inertia ({message}). "
+                "Give the body <inertial><mass> > 0 in its model file, or weld it (add_weld) if it should "
+                "not move"
+            )
+        if "While parsing inertia matrix" in message:  # a NaN or negative moment: Drake makes one up
+            raise sc.ScenarioError(
+                f"a model declares a body whose rotational inertia is not physically valid (a NaN, a "
+                f"negative moment, or one moment larger than the other two together); Drake replaced it "
+                f"({' '.join(message.split())[:400]}). Give the body's <inertia> finite moments ixx, iyy, "
+                "izz > 0, each at most the sum of the other two"
+            )
 
 
 class _DrakeWarnings(logging.Handler):
