@@ -51,9 +51,18 @@ Each device period the loop:
 4. publishes its counts (``GODOBJECT_DRIVER_STATUS``) ten times a second and at exit, which the
    scene puts in its metrics as ``driver_*``.
 
-On its own exit, SIGTERM or SIGINT the driver renders zero and closes the device before it
-returns. ``--log FILE.csv`` keeps every period (times on ``time.monotonic``, the clock every
-process on the machine shares); ``--summary FILE.json`` the counts, the link's counts, the
+On its own exit and on every signal that ends a process and can be caught (SIGTERM, SIGINT,
+SIGHUP: a closed terminal or a dropped SSH session, SIGQUIT) the driver renders zero, writes the
+log's ``exit`` row and closes the device before it returns. SIGTSTP (Ctrl-Z) renders zero, writes a
+``paused`` row and only then stops the process (SIGSTOP); on SIGCONT the loop goes on from zero: the
+rated-rate ramp starts from the zero rendered, and what the scene sent while it was stopped is as
+old as the stop (the watchdog's rule), so nothing is rendered until the scene speaks again. What
+no process can do for itself (SIGKILL, SIGSTOP sent by another, a crash of the interpreter) is
+covered only outside it, where at all (docs/haptic_devices.md, "What is guarded");
+``faulthandler`` prints the traceback of a crash.
+
+``--log FILE.csv`` keeps every period (times on ``time.monotonic``, the clock every process on the
+machine shares); ``--summary FILE.json`` the counts, the link's counts, the
 limits that applied and the loop's timing. Without a log the driver keeps only its last
 :attr:`Driver.ROWS_KEPT` periods, and its timing as histograms: its memory does not grow with
 the time it runs.
@@ -65,6 +74,7 @@ the fix).
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 import math
@@ -106,6 +116,9 @@ __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "For
 DEFAULT_URL = "udp://127.0.0.1:7667"
 TIMING_BINS = (1e-6, 0.01)  # the timing figures' bins: 1 µs wide up to 100 µs, 1 % wide above
 DEFAULT_WATCHDOG_PERIODS = 10
+# The signals that end the driver (each: zero force, the exit row, the device closed, exit 0):
+# the terminal's hang-up and quit keys as well as a stop (SIGTERM) and Ctrl-C.
+ENDING_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGQUIT)
 
 
 class Driver:
@@ -156,6 +169,9 @@ class Driver:
         self.late = Quantiles(*TIMING_BINS)  # how late each period started
         self.gaps = Quantiles(*TIMING_BINS)  # between two feedback messages
         self.stop_requested = False
+        self.pause_requested = False  # SIGTSTP: zero, then stop (:meth:`_pause`)
+        self.pauses = 0
+        self.ended_by = None  # the signal's name that ended the run, if one did
         self.local = LocalRenderer()  # the scene's local model, once it sends one
         # the last POSES_KEPT poses sent and their utimes, a ring allocated once (bounded memory)
         self._sent_utimes = np.full(self.POSES_KEPT, -1, np.int64)
@@ -248,6 +264,9 @@ class Driver:
         previous_poll = start
         try:
             while not self.stop_requested:
+                if self.pause_requested:
+                    self._pause()
+                    continue  # the stop may have been asked for while stopped
                 now = time.monotonic()
                 if now - start >= duration_s:
                     break
@@ -264,6 +283,22 @@ class Driver:
                     time.sleep(wait)
         finally:
             self.shutdown()
+
+    def _pause(self) -> None:
+        """SIGTSTP (Ctrl-Z): zero rendered and logged, then the process stopped (SIGSTOP); it goes on
+        here on SIGCONT. The safety's output is zero too, so its rated-rate ramp starts from zero; the
+        poll's clock is not moved on, so what the scene sent while this process was stopped is as old
+        as the stop and rendered only after fresh word (module docstring)."""
+        self.pause_requested = False
+        zero = np.zeros(3)
+        self.safety.step(zero, False)
+        self.device.render(zero)
+        self._row((time.monotonic(), *(math.nan,) * 3, *zero, *zero, math.nan, "paused", 0,
+                   *(0.0,) * 3, self.local.energy_in))  # fmt: skip
+        if self.log_file is not None:
+            self.log_file.flush()
+        self.pauses += 1
+        os.kill(os.getpid(), signal.SIGSTOP)
 
     def _count_period(self, now: float, next_tick: float) -> float:
         """Count the period and how late it started; the tick it runs from (``now`` after an
@@ -380,6 +415,8 @@ class Driver:
                 "period_s": self.period,
             },
             "rt_priority": getattr(self, "rt_priority", 0),
+            "ended_by": self.ended_by,
+            "pauses": self.pauses,
             "loop_lateness": self.late.summary(),
             "feedback_gap": self.gaps.summary(),
             "local_model": {
@@ -532,9 +569,14 @@ def _run(args) -> int:
 
     def on_signal(signum, frame):
         driver.stop_requested = True
+        driver.ended_by = signal.Signals(signum).name
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    def on_tstp(signum, frame):
+        driver.pause_requested = True
+
+    for signum in ENDING_SIGNALS:
+        signal.signal(signum, on_signal)
+    signal.signal(signal.SIGTSTP, on_tstp)
     if args.log:
         driver.open_log(args.log)
     try:
@@ -543,8 +585,18 @@ def _run(args) -> int:
         summary = driver.summary()
         if args.summary:
             Path(args.summary).write_text(json.dumps(summary, indent=1))
-        print(f"godobject-driver: {json.dumps(summary['counts'])}", file=sys.stderr, flush=True)
+        _say(f"godobject-driver: {json.dumps(summary['counts'])}")
+        if driver.ended_by:
+            _say(f"godobject-driver: ended by {driver.ended_by}: zero force commanded, the device closed")
     return 0
+
+
+def _say(text: str) -> None:
+    """A line on stderr, if there is still one: after SIGHUP the terminal may be gone (EIO)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except OSError:
+        pass
 
 
 def calibrate(
@@ -685,6 +737,8 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    if not faulthandler.is_enabled():  # a crash of the interpreter at least leaves its traceback
+        faulthandler.enable()
     try:
         return _run(args) if args.command == "run" else _calibrate(args)
     except BadInput as e:

@@ -1,0 +1,167 @@
+"""Every way the driver process ends, or is stopped, while it pushes: the device is commanded zero
+first (docs/haptic_devices.md, "What is guarded").
+
+A real driver process (the emulated device, ``--no-local-model``: the scene's newest wrench, held)
+paired with a scene end of this test's own that sends 6 N of feedback every millisecond, so the
+driver is rendering 6 N when the signal comes. Before, SIGHUP and SIGQUIT ended it with its log's
+last row ``ok`` at the force and no exit row, and SIGTSTP held the force for the whole stop.
+
+The checks are logical (which rows the log holds, in which order), not timings, so they hold on a
+loaded machine; each waits on the clock only for the driver to reach a state, generously."""
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from drake import lcmt_force_torque
+from test_link import scene_link
+
+from godobject_drake.driver import process as drv
+from godobject_drake.driver.families import RATED
+from godobject_drake.link.messages import FEEDBACK_CHANNEL
+
+PUSH_N = 6.0  # five rated-rate steps (12 N / 10 ms at 1 kHz: 1.2 N a period) from zero
+STEP_N = RATED["emulated"].max_force_n / 10
+
+
+class PushingScene:
+    """A scene's end on a free port of 127.0.0.1 that, once paired, sends ``PUSH_N`` along x every
+    millisecond (a thread), until :meth:`close`."""
+
+    def __init__(self):
+        self.link = scene_link()
+        self.url = f"udp://127.0.0.1:{self.link.port}"
+        self.running = True
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        k = 0
+        while self.running:
+            self.link.HandleSubscriptions(0)
+            if self.link.paired:
+                k += 1
+                m = lcmt_force_torque()
+                m.timestamp, m.fx = k * 1000, PUSH_N
+                self.link.Publish(FEEDBACK_CHANNEL, m.encode())
+            time.sleep(0.001)
+
+    def close(self):
+        self.running = False
+        self.thread.join(timeout=10)
+        self.link.close()
+
+
+def start(tmp_path, url, *extra):
+    command = [sys.executable, "-m", "godobject_drake.driver.process", "run", "emulated", "--scene", url,
+               "--no-local-model", "--grasp", "always", "--log", str(tmp_path / "driver.csv"),
+               "--summary", str(tmp_path / "driver.json"), *extra]  # fmt: skip
+    return subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+
+
+def forces(log) -> np.ndarray:
+    return np.linalg.norm(np.c_[log["fx"], log["fy"], log["fz"]], axis=1)
+
+
+def wait_until(what: str, done, timeout_s: float = 60.0):
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < deadline, f"not within {timeout_s} s: {what}"
+        time.sleep(0.05)
+
+
+def log_of(tmp_path):
+    path = tmp_path / "driver.csv"
+    return drv.read_log(path) if path.exists() else None
+
+
+def pushing(tmp_path, n: int = 300) -> bool:
+    """The log (flushed every 100 periods) holds ``n`` periods rendering the whole push."""
+    log = log_of(tmp_path)
+    return log is not None and np.sum(np.isclose(forces(log), PUSH_N)) >= n
+
+
+def process_state(pid: int) -> str:
+    """The process's state letter in /proc (``T``: stopped)."""
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGQUIT, signal.SIGTERM, signal.SIGINT],
+                         ids=lambda s: signal.Signals(s).name)  # fmt: skip
+def test_every_ending_signal_zeroes_the_device_and_writes_the_exit_row(tmp_path, signum):
+    """SIGHUP (a closed terminal, a dropped SSH session) and SIGQUIT (Ctrl-\\\\) as SIGTERM and
+    Ctrl-C: the driver, rendering 6 N, renders zero, writes its exit row and its summary (naming
+    the signal) and exits 0."""
+    scene = PushingScene()
+    driver = start(tmp_path, scene.url)
+    try:
+        wait_until("the driver renders the push", lambda: pushing(tmp_path))
+        driver.send_signal(signum)
+        err = driver.communicate(timeout=60)[1]
+    finally:
+        driver.kill()
+        scene.close()
+    assert driver.returncode == 0, err[-3000:]
+    log = log_of(tmp_path)
+    assert log["state"][-1] == "exit" and forces(log)[-1] == 0.0
+    summary = json.loads((tmp_path / "driver.json").read_text())
+    assert summary["ended_by"] == signal.Signals(signum).name
+    assert f"ended by {signal.Signals(signum).name}: zero force commanded" in err
+
+
+@pytest.mark.slow
+def test_ctrl_z_zeroes_the_device_before_the_process_stops_and_it_ramps_from_zero_after(tmp_path):
+    """SIGTSTP (Ctrl-Z) while 6 N is rendered: the log's last row before the stop is ``paused`` at
+    zero, and the process is stopped (it held 6 N for the whole stop). On SIGCONT the force comes
+    back from zero by at most the rated step a period, never a step to the held 6 N; SIGTERM then
+    ends it as usual."""
+    scene = PushingScene()
+    driver = start(tmp_path, scene.url)
+    try:
+        wait_until("the driver renders the push", lambda: pushing(tmp_path))
+        driver.send_signal(signal.SIGTSTP)
+        wait_until("the driver stops", lambda: process_state(driver.pid) == "T")
+        stopped = log_of(tmp_path)
+        time.sleep(0.3)  # stopped while the scene keeps sending
+        driver.send_signal(signal.SIGCONT)
+        wait_until("the driver pushes again", lambda: pushing(tmp_path, n=len(stopped["t"]) + 200))
+        driver.send_signal(signal.SIGTERM)
+        err = driver.communicate(timeout=60)[1]
+    finally:
+        driver.kill()
+        scene.close()
+    assert stopped["state"][-1] == "paused" and forces(stopped)[-1] == 0.0, stopped["state"][-5:]
+    assert driver.returncode == 0, err[-3000:]
+    log = log_of(tmp_path)
+    f = forces(log)
+    (paused,) = np.flatnonzero(log["state"] == "paused")
+    after = f[paused:]
+    assert np.all(np.diff(after) <= STEP_N + 1e-9), np.diff(after).max()
+    assert np.any(np.isclose(after, PUSH_N)) and log["state"][-1] == "exit"
+    assert json.loads((tmp_path / "driver.json").read_text())["pauses"] == 1
+
+
+@pytest.mark.slow
+def test_a_crash_of_the_driver_leaves_its_traceback(tmp_path):
+    """A crash (here SIGSEGV, as a vendor library's fault gives) cannot command zero from inside the
+    process: what covers it is the scene-side watchdog and the device's own, where armed. The
+    driver leaves at least the traceback of where it crashed (``faulthandler``), not a bare
+    'Segmentation fault'."""
+    scene = PushingScene()
+    driver = start(tmp_path, scene.url)
+    try:
+        wait_until("the driver renders the push", lambda: pushing(tmp_path, n=100))
+        driver.send_signal(signal.SIGSEGV)
+        err = driver.communicate(timeout=60)[1]
+    finally:
+        driver.kill()
+        scene.close()
+    assert driver.returncode == -signal.SIGSEGV
+    assert "Fatal Python error: Segmentation fault" in err and "godobject_drake/driver/process.py" in err
