@@ -101,15 +101,16 @@ def is_stream(path: str | Path) -> bool:
     return st is not None and not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode)
 
 
-def check_output(path: str | Path, field: str) -> None:
+def check_output(path: str | Path, field: str, example: str = "") -> None:
     """Refuse, before a run, an output ``path`` it could only fail to write at its end: a folder,
     a missing folder, a symlink loop or a link not to follow, something not writable (raises
-    :class:`OutputRefused` naming ``field``, the path and the fix)."""
+    :class:`OutputRefused` naming ``field``, the path and the fix; ``example``: a file name the fix
+    gives for a folder)."""
     path = Path(path)
     try:
         st = _stat(path)
         if st is not None and stat.S_ISDIR(st.st_mode):
-            example = "metrics.json" if field.startswith("metrics") else "recording.html"
+            example = example or ("metrics.json" if field.startswith("metrics") else "recording.html")
             raise OutputRefused(f"{path} is a folder; give a file name, e.g. {path / example}")
         if st is not None and not stat.S_ISREG(st.st_mode):
             if not os.access(path, os.W_OK):

@@ -10,6 +10,7 @@ The checks are logical (which rows the log holds, in which order), not timings, 
 loaded machine; each waits on the clock only for the driver to reach a state, generously."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -165,3 +166,86 @@ def test_a_crash_of_the_driver_leaves_its_traceback(tmp_path):
         scene.close()
     assert driver.returncode == -signal.SIGSEGV
     assert "Fatal Python error: Segmentation fault" in err and "godobject_drake/driver/process.py" in err
+
+
+# -- the driver's outputs, guarded before the device is opened -----------------------------------------------
+
+
+def run_driver(tmp_path, *extra, timeout_s: float = 30.0, **popen):
+    """The driver with no scene (``--duration 20``); its exit code and stderr, or a failure if it
+    has not ended within ``timeout_s`` (it hung)."""
+    command = [sys.executable, "-m", "godobject_drake.driver.process", "run", "emulated", "--scene",
+               "udp://127.0.0.1:9", "--duration", "20", *extra]  # fmt: skip
+    process = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True, **popen)
+    try:
+        err = process.communicate(timeout=timeout_s)[1]
+    except subprocess.TimeoutExpired:
+        process.terminate()
+        try:
+            process.communicate(timeout=5)
+            ended = f"ended by SIGTERM, rc {process.returncode}"
+        except subprocess.TimeoutExpired:
+            ended = "deaf to SIGTERM"
+        process.kill()
+        process.communicate()
+        pytest.fail(f"the driver had not ended after {timeout_s} s ({ended})")
+    return process.returncode, err
+
+
+@pytest.mark.slow
+def test_a_log_naming_a_fifo_nobody_reads_is_refused_at_once(tmp_path):
+    """It hung before the loop (opening the FIFO for writing waits for a reader), deaf to SIGTERM."""
+    fifo = tmp_path / "log.csv"
+    os.mkfifo(fifo)
+    rc, err = run_driver(tmp_path, "--log", str(fifo), timeout_s=20)
+    assert rc == 2, err
+    assert f"--log {fifo} is not a regular file" in err and "give a file, e.g. driver.csv" in err
+    assert "godobject-driver emulated:" not in err  # refused before the device was opened
+
+
+@pytest.mark.slow
+def test_a_log_on_a_character_device_is_refused_at_once(tmp_path):
+    """``/dev/full`` (every write fails with ENOSPC) was opened, and the driver died at its first
+    flush with a traceback; a device is no log the loop may write to every period."""
+    rc, err = run_driver(tmp_path, "--log", "/dev/full", timeout_s=20)
+    assert rc == 2 and "--log /dev/full is not a regular file" in err and "Traceback" not in err, err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where", ["folder", "missing folder"])
+def test_a_summary_naming_a_folder_or_a_missing_folder_is_refused_at_once(tmp_path, where):
+    """It failed only at the end of the run (IsADirectoryError, a traceback), the run's summary lost."""
+    target = tmp_path if where == "folder" else tmp_path / "no_such" / "driver.json"
+    rc, err = run_driver(tmp_path, "--summary", str(target), timeout_s=20)
+    assert rc == 2 and "Traceback" not in err, err
+    assert f"--summary: {target}" in err
+    assert ("give a file name, e.g." if where == "folder" else "create it or write elsewhere") in err
+    assert "godobject-driver emulated:" not in err
+
+
+@pytest.mark.slow
+def test_a_write_error_on_the_log_stops_the_driver_with_zero_and_says_why(tmp_path):
+    """A log that cannot grow (a file-size limit here, ``RLIMIT_FSIZE``: EFBIG as a full disk gives
+    ENOSPC, both a real write error at a flush) while the driver renders 6 N. It died at the flush
+    with a traceback; now it stops before its next period (zero, the device closed), says why,
+    writes its summary (naming the error) and exits 1."""
+    import resource
+
+    scene = PushingScene()
+    limit = 200_000  # ~1600 rows: past the first pushes
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    log = tmp_path / "driver.csv"
+    try:
+        rc, err = run_driver(tmp_path, "--scene", scene.url, "--no-local-model", "--grasp", "always",
+                             "--log", str(log), "--summary", str(tmp_path / "driver.json"),
+                             timeout_s=40, preexec_fn=small_files)  # fmt: skip
+    finally:
+        scene.close()
+    assert rc == 1 and "Traceback" not in err, err[-3000:]
+    assert f"--log {log}: could not write (File too large); the force was zeroed" in err
+    summary = json.loads((tmp_path / "driver.json").read_text())
+    assert "File too large" in summary["output_error"] and summary["counts"]["loops"] < 5000
+    assert np.any(np.isclose(forces(drv.read_log(log)), PUSH_N))  # it was pushing when the log filled

@@ -67,8 +67,9 @@ limits that applied and the loop's timing. Without a log the driver keeps only i
 :attr:`Driver.ROWS_KEPT` periods, and its timing as histograms: its memory does not grow with
 the time it runs.
 
-Exit codes: 0 done, 1 the device failed, 2 bad input (a message naming the value, the limit and
-the fix).
+Exit codes: 0 done, 1 the device or an output failed (the log or the summary could not be
+written: said why), 2 bad input (a message naming the value, the limit and the fix), refused before
+the device is opened where it is an option's.
 """
 
 from __future__ import annotations
@@ -80,6 +81,7 @@ import logging
 import math
 import os
 import signal
+import stat
 import sys
 import time
 from collections import deque
@@ -108,6 +110,7 @@ from godobject_drake.link.messages import (
     status_message,
 )
 from godobject_drake.link.transport import LINK_REJECTED, driver_lcm, is_udp_url
+from godobject_drake.outputs import OutputError, OutputRefused, check_output, is_stream, write_atomically
 from godobject_drake.quantiles import Quantiles
 
 __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "ForceSafety", "HandPath",
@@ -166,6 +169,8 @@ class Driver:
         self.held = None  # the pose sent while the clutch is held
         self.rows: deque = deque(maxlen=self.ROWS_KEPT)  # kept when there is no log file
         self.log_file = None
+        self.log_path = None
+        self.output_error: str | None = None  # why an output failed (the loop then stops)
         self.late = Quantiles(*TIMING_BINS)  # how late each period started
         self.gaps = Quantiles(*TIMING_BINS)  # between two feedback messages
         self.stop_requested = False
@@ -379,7 +384,10 @@ class Driver:
         if self.counts["loops"] % 100 == 0:
             self.publish_status(now)
             if self.log_file is not None:
-                self.log_file.flush()
+                try:
+                    self.log_file.flush()
+                except OSError as e:
+                    self._log_failed(e)
 
     def shutdown(self) -> None:
         """Zero force, close the device, tell the scene the last counts. Safe to call twice."""
@@ -395,7 +403,10 @@ class Driver:
         row = (now, *(math.nan,) * 3, *zero, *zero, math.nan, "exit", 0, *(0.0,) * 3, self.local.energy_in)
         self._row(row)
         if self.log_file is not None:
-            self.log_file.close()
+            try:
+                self.log_file.close()
+            except OSError as e:
+                self._log_failed(e)
         try:
             self.publish_status(now)
         except OSError:
@@ -416,6 +427,7 @@ class Driver:
             },
             "rt_priority": getattr(self, "rt_priority", 0),
             "ended_by": self.ended_by,
+            "output_error": self.output_error,
             "pauses": self.pauses,
             "loop_lateness": self.late.summary(),
             "feedback_gap": self.gaps.summary(),
@@ -437,16 +449,41 @@ class Driver:
     # the work the hand has done on the device (J) (driver/local_model.py)
     LOG_HEADER = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz,weight,beta,damping,energy_in"
 
-    def open_log(self, path: str | Path) -> None:
-        """Write every period to ``path`` as it runs (flushed every 100 periods, closed at exit)."""
-        self.log_file = open(path, "w")
-        self.log_file.write(self.LOG_HEADER + "\n")
+    def open_log(self, path: str | Path, file=None) -> None:
+        """Write every period to ``path`` as it runs (flushed every 100 periods, closed at exit);
+        ``file``: ``path`` already opened (:func:`open_log_file`)."""
+        self.log_path = path
+        self.log_file = open(path, "w") if file is None else file
+        try:
+            self.log_file.write(self.LOG_HEADER + "\n")
+        except OSError as e:
+            self._log_failed(e)
 
     def _row(self, row: tuple) -> None:
         if self.log_file is None:
             self.rows.append(row)
-        else:
+            return
+        try:
             self.log_file.write(",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n")
+        except OSError as e:
+            self._log_failed(e)
+            self.rows.append(row)
+
+    def _log_failed(self, error: OSError) -> None:
+        """A write to the log failed (a full disk, a file-size limit): the loop stops before its
+        next period (zero force, the exit row kept in memory, the device closed) and says why,
+        rather than die at the flush or run on unlogged (:attr:`output_error`)."""
+        if self.output_error is None:
+            self.output_error = (
+                f"--log {self.log_path}: could not write ({error.strerror or error}); the force was zeroed "
+                "and the driver stopped. Free space on that disk, or give --log another place"
+            )
+        self.stop_requested = True
+        file, self.log_file = self.log_file, None
+        try:
+            file.close()  # the file is closed even when its last flush fails
+        except OSError:
+            pass
 
 
 def read_log(path: str | Path) -> dict:
@@ -467,6 +504,42 @@ def read_log(path: str | Path) -> dict:
 
 class BadInput(ValueError):
     pass
+
+
+def open_log_file(path: str):
+    """``--log``, opened before the device is: a regular file, new or emptied. Refused (naming the
+    fix): a folder, a missing folder, a link not to follow, a place not writable
+    (:func:`~godobject_drake.outputs.check_output`) and anything but a regular file: the loop writes
+    to it every period and must never wait on a reader (a FIFO nobody reads blocked the driver's
+    start, deaf to SIGTERM). Opened without blocking, and checked again once open."""
+    refused = (
+        f"--log {path} is not a regular file (a FIFO, a pipe or a device): the device's loop writes to it "
+        "every period and must never wait on a reader; give a file, e.g. driver.csv"
+    )
+    try:
+        check_output(path, "--log", example="driver.csv")
+        if is_stream(path):
+            raise BadInput(refused)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
+        fd = os.open(path, flags, 0o666)
+    except OutputRefused as e:
+        raise BadInput(str(e)) from None
+    except OSError as e:  # ENXIO: a FIFO put there since the check, nobody reading it
+        raise BadInput(f"--log {path}: {e.strerror or e}; give a regular file you can write") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise BadInput(refused)
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "w")
+
+
+def check_summary(path: str) -> None:
+    """``--summary``, before the device is opened: a folder, a missing folder, a link not to follow or
+    a place not writable is refused naming the fix, not found at the end of the run."""
+    try:
+        check_output(path, "--summary", example="driver.json")
+    except OutputRefused as e:
+        raise BadInput(str(e)) from None
 
 
 def open_device(family: str, args) -> tuple:
@@ -536,7 +609,16 @@ def _run(args) -> int:
         link = f"scene {args.scene}, key {lcm.key_file} (fingerprint {key_fingerprint(lcm.end.key)})"
     else:
         link = f"scene {args.scene or 'udpm:// (Drake default)'} UNAUTHENTICATED (--allow-unauthenticated)"
-    device, rated = open_device(args.family, args)
+    # the outputs before the device: a bad one is refused before anything can push
+    log_file = open_log_file(args.log) if args.log else None
+    if args.summary:
+        check_summary(args.summary)
+    try:
+        device, rated = open_device(args.family, args)
+    except BaseException:
+        if log_file is not None:
+            log_file.close()
+        raise
     driver = Driver(
         device,
         lcm,
@@ -567,6 +649,15 @@ def _run(args) -> int:
             print(f"godobject-driver: --rt-priority {args.rt_priority} not applied ({e}); "
                   "running on the normal scheduler", file=sys.stderr)  # fmt: skip
 
+    if log_file is not None:
+        driver.open_log(args.log, log_file)
+    return _loop(driver, args)
+
+
+def _loop(driver: Driver, args) -> int:
+    """Run the driver with its signals handled (module docstring); the summary written whole
+    (:func:`~godobject_drake.outputs.write_atomically`). 0, or 1 if an output failed (said why)."""
+
     def on_signal(signum, frame):
         driver.stop_requested = True
         driver.ended_by = signal.Signals(signum).name
@@ -577,18 +668,22 @@ def _run(args) -> int:
     for signum in ENDING_SIGNALS:
         signal.signal(signum, on_signal)
     signal.signal(signal.SIGTSTP, on_tstp)
-    if args.log:
-        driver.open_log(args.log)
+    failed = []
     try:
         driver.run(args.duration)
     finally:
         summary = driver.summary()
         if args.summary:
-            Path(args.summary).write_text(json.dumps(summary, indent=1))
+            try:
+                write_atomically(args.summary, json.dumps(summary, indent=1))
+            except OutputError as e:
+                failed.append(f"--summary: {e}")
         _say(f"godobject-driver: {json.dumps(summary['counts'])}")
         if driver.ended_by:
             _say(f"godobject-driver: ended by {driver.ended_by}: zero force commanded, the device closed")
-    return 0
+        for message in ([driver.output_error] if driver.output_error else []) + failed:
+            _say(f"godobject-driver: {message}")
+    return 1 if failed or driver.output_error else 0
 
 
 def _say(text: str) -> None:
@@ -725,8 +820,14 @@ def parser() -> argparse.ArgumentParser:
         help="render the scene's newest wrench, held, without the local model (for comparison): the "
         "scene's local model is ignored",
     )
-    run.add_argument("--log", default="", help="write every period to FILE.csv at exit")
-    run.add_argument("--summary", default="", help="write the counts, limits and timing to FILE.json at exit")
+    run.add_argument(
+        "--log", default="", help="write every period to FILE.csv as it runs (a regular file; checked first)"
+    )
+    run.add_argument(
+        "--summary",
+        default="",
+        help="write the counts, limits and timing to FILE.json at exit (checked first)",
+    )
     cal = sub.add_parser("calibrate", help="record the device's reachable box as a scenario's workspace")
     family_args(cal)
     cal.add_argument("--scenario", required=True, help="a scenario whose device is !Lcm")
