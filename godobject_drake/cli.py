@@ -535,8 +535,20 @@ class Terminated(KeyboardInterrupt):
 ENDING = (signal.SIGTERM, signal.SIGHUP)
 
 
-def _terminate(signum, frame):
-    raise Terminated(signum)
+class _Ending:
+    """SIGTERM's and SIGHUP's handler for one run: the first raises :class:`Terminated` (the loop
+    ends as with Ctrl-C); a later one, before ``hold`` takes over at the loop's end, is noted in
+    it instead of raised again into the loop's own ending."""
+
+    def __init__(self, hold: SignalsHeld):
+        self.hold, self.raised = hold, False
+
+    def __call__(self, signum, frame):
+        if self.raised:
+            self.hold.caught.append(signum)
+            return
+        self.raised = True
+        raise Terminated(signum)
 
 
 def _signal_name(e: BaseException) -> str:
@@ -637,8 +649,9 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     removed, a signal is held (:class:`~godobject_drake.outputs.SignalsHeld`): the outputs are
     written whole, then the exit says so."""
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = {signum: signal.signal(signum, _terminate) for signum in ENDING} if main_thread else {}
     hold = SignalsHeld()
+    ending = _Ending(hold)
+    previous = {signum: signal.signal(signum, ending) for signum in ENDING} if main_thread else {}
     try:
         with OutputLock() as locks:
             return _run_locked(args, parser, locks, hold)
@@ -681,7 +694,8 @@ def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
     late = [signal.Signals(n).name for n in dict.fromkeys(hold.caught)]
     if late:
         logger.warning(
-            "%s while the outputs were written: held until they were whole (said above)", ", ".join(late)
+            "%s came while the run ended and its outputs were written: held until they were whole",
+            ", ".join(late),
         )
     if interrupted is not None:
         by = _signal_name(interrupted)
