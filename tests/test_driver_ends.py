@@ -168,7 +168,7 @@ def test_a_crash_of_the_driver_leaves_its_traceback(tmp_path):
     assert "Fatal Python error: Segmentation fault" in err and "godobject_drake/driver/process.py" in err
 
 
-# -- the driver's outputs, guarded before the device is opened -----------------------------------------------
+# -- the driver's outputs, guarded before the device is opened --------------------------------------------
 
 
 def run_driver(tmp_path, *extra, timeout_s: float = 30.0, **popen):
@@ -249,3 +249,44 @@ def test_a_write_error_on_the_log_stops_the_driver_with_zero_and_says_why(tmp_pa
     summary = json.loads((tmp_path / "driver.json").read_text())
     assert "File too large" in summary["output_error"] and summary["counts"]["loops"] < 5000
     assert np.any(np.isclose(forces(drv.read_log(log)), PUSH_N))  # it was pushing when the log filled
+
+
+# -- the device's own watchdog, where the vendor's SDK has one ----------------------------------------------
+
+
+@pytest.fixture
+def dhd(monkeypatch):
+    """Force Dimension's wrapper, the stand-in (tests/stand_ins/README.md)."""
+    import importlib
+
+    from test_driver import STAND_INS
+
+    monkeypatch.syspath_prepend(str(STAND_INS))
+    for name in [n for n in sys.modules if n.split(".")[0] == "forcedimension_core"]:
+        monkeypatch.delitem(sys.modules, name)
+    return importlib.import_module("forcedimension_core.dhd")
+
+
+def test_the_force_dimension_watchdog_is_armed_at_the_start(dhd):
+    """Its SDK's expert ``setWatchdog`` (125 µs units): 25 ms without a command and the firmware turns
+    the forces off, which covers what the driver cannot (SIGKILL, a crash). It was never armed."""
+    device = drv.FAMILIES["forcedimension"]()
+    try:
+        assert dhd.state["watchdog"] == 200 and not dhd.state["expert"]  # expert mode left as found
+        assert device.watchdog == "device watchdog armed: forces off 25 ms after the last command"
+    finally:
+        device.close()
+
+
+def test_a_force_dimension_model_without_a_watchdog_says_so_and_runs(dhd, monkeypatch):
+    monkeypatch.setitem(dhd.state, "has_watchdog", False)
+    device = drv.FAMILIES["forcedimension"]()
+    try:
+        assert device.watchdog.startswith("device watchdog NOT armed (no error (stand-in))")
+    finally:
+        device.close()
+
+
+@pytest.mark.parametrize("family", ["emulated", "haply", "openhaptics"])
+def test_the_families_without_a_device_watchdog_say_so(family):
+    assert drv.FAMILIES[family].watchdog.startswith("no device watchdog")

@@ -58,7 +58,8 @@ log's ``exit`` row and closes the device before it returns. SIGTSTP (Ctrl-Z) ren
 rated-rate ramp starts from the zero rendered, and what the scene sent while it was stopped is as
 old as the stop (the watchdog's rule), so nothing is rendered until the scene speaks again. What
 no process can do for itself (SIGKILL, SIGSTOP sent by another, a crash of the interpreter) is
-covered only outside it, where at all (docs/haptic_devices.md, "What is guarded");
+covered only outside it, where at all: by the device's own watchdog where its SDK has one (armed at
+the start: :attr:`~godobject_drake.driver.families.HapticIO.watchdog`; docs/haptic_devices.md);
 ``faulthandler`` prints the traceback of a crash.
 
 ``--log FILE.csv`` keeps every period (times on ``time.monotonic``, the clock every process on the
@@ -635,7 +636,7 @@ def _run(args) -> int:
         f"godobject-driver {args.family}: {rated.model}, {args.rate:g} Hz, "
         f"force ≤ {limits['max_force_n']:g} N "
         f"(rated {rated.max_force_n:g} N: {rated.source}), change ≤ {limits['max_force_rate_n_s']:g} N/s, "
-        f"watchdog {driver.watchdog_s * 1e3:g} ms; {link}",
+        f"watchdog {driver.watchdog_s * 1e3:g} ms, {device.watchdog}; {link}",
         file=sys.stderr,
         flush=True,
     )
