@@ -708,7 +708,11 @@ def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
     if not written or "recording_error" in metrics:
         return 1
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
-        input("Meshcat is still serving the scene; press Enter to exit.")
+        hold.end(act=False)  # the outputs are written: Ctrl-C ends the wait as Enter does
+        try:
+            input("Meshcat is still serving the scene; press Enter (or Ctrl-C) to exit.")
+        except (KeyboardInterrupt, EOFError):
+            pass
     return 1 if metrics["diverged"] or "metrics_error" in metrics else 0
 
 

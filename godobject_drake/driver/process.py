@@ -302,7 +302,10 @@ class Driver:
         self._row((time.monotonic(), *(math.nan,) * 3, *zero, *zero, math.nan, "paused", 0,
                    *(0.0,) * 3, self.local.energy_in))  # fmt: skip
         if self.log_file is not None:
-            self.log_file.flush()
+            try:
+                self.log_file.flush()
+            except OSError as e:
+                self._log_failed(e)  # the stop is still taken: the loop ends on SIGCONT
         self.pauses += 1
         os.kill(os.getpid(), signal.SIGSTOP)
 
