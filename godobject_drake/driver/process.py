@@ -669,9 +669,8 @@ def _loop(driver: Driver, args) -> int:
     def on_tstp(signum, frame):
         driver.pause_requested = True
 
-    for signum in ENDING_SIGNALS:
-        signal.signal(signum, on_signal)
-    signal.signal(signal.SIGTSTP, on_tstp)
+    previous = {signum: signal.signal(signum, on_signal) for signum in ENDING_SIGNALS}
+    previous[signal.SIGTSTP] = signal.signal(signal.SIGTSTP, on_tstp)
     failed = []
     try:
         driver.run(args.duration)
@@ -687,6 +686,8 @@ def _loop(driver: Driver, args) -> int:
             _say(f"godobject-driver: ended by {driver.ended_by}: zero force commanded, the device closed")
         for message in ([driver.output_error] if driver.output_error else []) + failed:
             _say(f"godobject-driver: {message}")
+        for signum, handler in previous.items():  # as they were: main() may run inside another program
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
     return 1 if failed or driver.output_error else 0
 
 
