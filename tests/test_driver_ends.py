@@ -290,3 +290,19 @@ def test_a_force_dimension_model_without_a_watchdog_says_so_and_runs(dhd, monkey
 @pytest.mark.parametrize("family", ["emulated", "haply", "openhaptics"])
 def test_the_families_without_a_device_watchdog_say_so(family):
     assert drv.FAMILIES[family].watchdog.startswith("no device watchdog")
+
+
+def test_calibrate_refuses_an_out_folder_before_the_sweep(tmp_path, capsys):
+    """``calibrate --out`` naming a folder: nothing looked at it before the whole sweep had run (its
+    --seconds; here a still hand, so it then complained of the handle, never of the folder; a hand
+    that moved would have met ``Path.write_text``'s IsADirectoryError, which nothing caught). Now
+    exit 2 at once, before the device is opened, naming the value and the fix."""
+    from test_driver import LEGO_DRIVER
+
+    started = time.monotonic()
+    rc = drv.main(["calibrate", "emulated", "--scenario", str(LEGO_DRIVER), "--out", str(tmp_path),
+                   "--seconds", "3"])  # fmt: skip
+    assert rc == 2 and time.monotonic() - started < 3.0
+    assert f"--out: {tmp_path} is a folder; give a file name, e.g. {tmp_path / 'calibrated.yaml'}" in (
+        capsys.readouterr().err
+    )

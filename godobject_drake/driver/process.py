@@ -741,6 +741,10 @@ def _calibrate(args) -> int:
             f"--scenario {args.scenario}: its device is !{type(s.device).__name__}; calibrate a "
             "scenario whose device is !Lcm (a driver's)"
         )
+    try:  # before the device: a folder or a missing folder is said now, not after the sweep
+        check_output(args.out, "--out", example="calibrated.yaml")
+    except OutputRefused as e:
+        raise BadInput(str(e)) from None
     device, _ = open_device(args.family, args)
     print(f"calibrate: move the handle to every limit of its reach for {args.seconds:g} s", file=sys.stderr)
     lower, upper = calibrate(device, args.seconds)
@@ -751,11 +755,16 @@ def _calibrate(args) -> int:
         )
     frame = s.device.device_to_world
     s.workspace.lower_m, s.workspace.upper_m = world_box(lower, upper, frame.transform(), frame.scale)
-    Path(args.out).write_text(
+    text = (
         f"# {args.scenario} with the workspace calibrated by godobject-driver calibrate {args.family}:\n"
         f"# the device reached {np.round(lower, 5).tolist()} to {np.round(upper, 5).tolist()} m (its frame)\n"
         + sc.scenario_to_yaml(s)
     )
+    try:
+        write_atomically(args.out, text)  # whole, or the previous file kept
+    except OutputError as e:
+        print(f"calibrate: {e}", file=sys.stderr)
+        return 1
     print(
         f"calibrate: workspace {np.round(s.workspace.lower_m, 5).tolist()} to "
         f"{np.round(s.workspace.upper_m, 5).tolist()} m (world) written to {args.out}",
