@@ -306,3 +306,43 @@ def test_calibrate_refuses_an_out_folder_before_the_sweep(tmp_path, capsys):
     assert f"--out: {tmp_path} is a folder; give a file name, e.g. {tmp_path / 'calibrated.yaml'}" in (
         capsys.readouterr().err
     )
+
+
+# -- the scene's side: a closed terminal ends the run as SIGTERM does --------------------------------------
+
+
+@pytest.mark.slow
+def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path):
+    """The scene (``godobject run``, the quick start's !Lcm scene) and a real driver
+    (``--exit-on-stop``) as processes; once the run is under way the scene gets SIGHUP (its
+    terminal closed). Before, it died by the signal: no metrics, no STOP (the driver ran on with
+    the last model until its fade). Now it ends as for SIGTERM: the device's STOP (the driver
+    counts it, renders zero and exits 0), the metrics written marked interrupted, exit 129."""
+    from test_driver import free_port, lcm_scenario, start_driver
+
+    from godobject_drake.config import scenario as sc
+
+    url = f"udp://127.0.0.1:{free_port()}"
+    scenario = tmp_path / "scene.yaml"
+    s = sc.replace(lcm_scenario(url, 120.0), **{"metrics.checkpoint_period_s": 0.3})
+    scenario.write_text(sc.scenario_to_yaml(s))
+    scene = subprocess.Popen([sys.executable, "-m", "godobject_drake", "run", str(scenario), "--no-progress",
+                              "--metrics", str(tmp_path / "m.json")], cwd=tmp_path,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
+    try:
+        wait_until("the run is under way", lambda: (tmp_path / "m.json").exists(), timeout_s=240)
+        scene.send_signal(signal.SIGHUP)
+        scene_err = scene.communicate(timeout=120)[1]
+        driver_rc = driver.wait(timeout=60)
+    finally:
+        scene.kill(), driver.kill()
+    assert scene.returncode == 128 + signal.SIGHUP, scene_err[-3000:]
+    assert "interrupted (SIGHUP) at t = " in scene_err and "metrics written to" in scene_err
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["interrupted"] is True and m["partial"] is True
+    assert driver_rc == 0
+    summary = json.loads((tmp_path / "driver.json").read_text())
+    log = drv.read_log(tmp_path / "driver.csv")
+    assert summary["counts"]["scene_stops"] == 1 and log["state"][-2] == "stopped"
+    assert np.all(forces(log)[np.flatnonzero(log["state"] == "stopped")[0] :] == 0.0)
