@@ -651,7 +651,15 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     main_thread = threading.current_thread() is threading.main_thread()
     hold = SignalsHeld()
     ending = _Ending(hold)
-    previous = {signum: signal.signal(signum, ending) for signum in ENDING} if main_thread else {}
+    previous = (  # a signal ignored when the run began (nohup's SIGHUP) stays ignored
+        {
+            signum: signal.signal(signum, ending)
+            for signum in ENDING
+            if signal.getsignal(signum) != signal.SIG_IGN
+        }
+        if main_thread
+        else {}
+    )
     try:
         with OutputLock() as locks:
             return _run_locked(args, parser, locks, hold)

@@ -45,7 +45,8 @@ class SignalsHeld:
     comes is noted (:attr:`caught`) instead of handled; :meth:`end` puts the handlers back and, with
     ``act``, handles each noted signal once as its handler would have (Ctrl-C's KeyboardInterrupt is
     raised then, a default action is taken then). Holds nest: an inner one hands what it caught to
-    the outer one. Outside the main thread (where Python handles no signal) it holds nothing."""
+    the outer one. A signal this process ignores (``nohup``'s SIGHUP) stays ignored; outside the
+    main thread (where Python handles no signal) it holds nothing."""
 
     def __init__(self, signums=HELD_SIGNALS):
         self.signums = tuple(signums)
@@ -59,7 +60,11 @@ class SignalsHeld:
     def start(self) -> "SignalsHeld":
         """Hold the signals from now (again: nothing changes)."""
         if self._previous is None and threading.current_thread() is threading.main_thread():
-            self._previous = {signum: signal.signal(signum, self._note) for signum in self.signums}
+            self._previous = {
+                signum: signal.signal(signum, self._note)
+                for signum in self.signums
+                if signal.getsignal(signum) != signal.SIG_IGN
+            }
         return self
 
     def _note(self, signum, frame) -> None:

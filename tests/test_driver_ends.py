@@ -349,3 +349,29 @@ def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path):
     log = drv.read_log(tmp_path / "driver.csv")
     assert summary["counts"]["scene_stops"] == 1 and log["state"][-2] == "stopped"
     assert np.all(forces(log)[np.flatnonzero(log["state"] == "stopped")[0] :] == 0.0)
+
+
+@pytest.mark.slow
+def test_a_driver_started_under_nohup_keeps_running_through_sighup(tmp_path):
+    """``nohup`` starts a process with SIGHUP ignored, asking it to outlive its terminal: the driver
+    keeps it ignored (renders on), and SIGTERM still ends it with zero."""
+    scene = PushingScene()
+    command = [sys.executable, "-m", "godobject_drake.driver.process", "run", "emulated", "--scene",
+               scene.url, "--no-local-model", "--grasp", "always", "--log", str(tmp_path / "driver.csv"),
+               "--summary", str(tmp_path / "driver.json")]  # fmt: skip
+    driver = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True,
+                              preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))  # fmt: skip
+    try:
+        wait_until("the driver renders the push", lambda: pushing(tmp_path))
+        driver.send_signal(signal.SIGHUP)
+        rows = len(log_of(tmp_path)["t"])
+        wait_until("the driver renders on", lambda: pushing(tmp_path, n=rows + 300))
+        assert driver.poll() is None
+        driver.send_signal(signal.SIGTERM)
+        err = driver.communicate(timeout=60)[1]
+    finally:
+        driver.kill()
+        scene.close()
+    assert driver.returncode == 0, err[-3000:]
+    assert json.loads((tmp_path / "driver.json").read_text())["ended_by"] == "SIGTERM"
+    assert log_of(tmp_path)["state"][-1] == "exit"

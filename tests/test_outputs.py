@@ -255,3 +255,18 @@ def test_whatever_ends_a_write_leaves_no_temporary_file(tmp_path, monkeypatch):
     with pytest.raises(MemoryError):
         write_atomically(path, "new")
     assert path.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
+
+
+def test_a_signal_the_process_ignores_stays_ignored_while_writing(tmp_path):
+    """``nohup`` starts a run with SIGHUP ignored: a hold must not take it (it would note it and end
+    the run after the write); the write goes on and SIGHUP stays ignored."""
+    from godobject_drake.outputs import SignalsHeld
+
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with SignalsHeld() as held:
+            signal.raise_signal(signal.SIGHUP)
+            write_atomically(tmp_path / "m.json", "{}")
+        assert held.caught == [] and signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)

@@ -669,8 +669,12 @@ def _loop(driver: Driver, args) -> int:
     def on_tstp(signum, frame):
         driver.pause_requested = True
 
-    previous = {signum: signal.signal(signum, on_signal) for signum in ENDING_SIGNALS}
-    previous[signal.SIGTSTP] = signal.signal(signal.SIGTSTP, on_tstp)
+    handlers = {**dict.fromkeys(ENDING_SIGNALS, on_signal), signal.SIGTSTP: on_tstp}
+    previous = {  # a signal ignored when the driver began (nohup's SIGHUP) stays ignored
+        signum: signal.signal(signum, handler)
+        for signum, handler in handlers.items()
+        if signal.getsignal(signum) != signal.SIG_IGN
+    }
     failed = []
     try:
         driver.run(args.duration)
