@@ -53,7 +53,8 @@ Each device period the loop:
 
 On its own exit and on every signal that ends a process and can be caught (SIGTERM, SIGINT,
 SIGHUP: a closed terminal or a dropped SSH session, SIGQUIT) the driver renders zero, writes the
-log's ``exit`` row and closes the device before it returns. SIGTSTP (Ctrl-Z) renders zero, writes a
+log's ``exit`` row and closes the device before it returns (a signal ignored when it starts, as
+``nohup`` ignores SIGHUP, stays ignored). SIGTSTP (Ctrl-Z) renders zero, writes a
 ``paused`` row and only then stops the process (SIGSTOP); on SIGCONT the loop goes on from zero: the
 rated-rate ramp starts from the zero rendered, and what the scene sent while it was stopped is as
 old as the stop (the watchdog's rule), so nothing is rendered until the scene speaks again. What
