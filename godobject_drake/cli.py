@@ -28,7 +28,7 @@ from godobject_drake.config.gains import CouplingGainError
 from godobject_drake.config.tools import TOOL_CONFIGS, ShellSpecError
 from godobject_drake.link.logs import StderrHandler
 from godobject_drake.metrics import PenetrationBudgetWarning, format_table, write_metrics
-from godobject_drake.outputs import OutputError, OutputLock, check_output, is_stream
+from godobject_drake.outputs import OutputError, OutputLock, SignalsHeld, check_output, is_stream
 from godobject_drake.safeguards import WiringError
 from godobject_drake.simulation import DeviceNotHeardError, RunInterrupted, simulate
 from godobject_drake.station.build import build_station
@@ -459,11 +459,14 @@ def _rpy(X):
     return RollPitchYaw(X.rotation()).vector()
 
 
-def run_scenario(scenario: sc.Scenario, progress: bool = True, records: dict | None = None):
+def run_scenario(
+    scenario: sc.Scenario, progress: bool = True, records: dict | None = None, hold: SignalsHeld | None = None
+):
     """Build (:func:`~godobject_drake.station.build.build_station`; ``records``: the scenario's,
     checked by :func:`scenario_of`) and simulate in bounded memory (no logs kept); with a metrics
     file, the metrics so far are written to it every ``metrics.checkpoint_period_s`` of wall time,
-    marked ``partial``, so a killed run leaves its last ones."""
+    marked ``partial``, so a killed run leaves its last ones. ``hold``: :func:`simulate`'s (the
+    signals held from the loop's end, left on for the caller)."""
 
     for field, output in outputs(scenario):
         check_output(output, field)  # a folder, a missing folder: refused now, not after the run
@@ -486,7 +489,7 @@ def run_scenario(scenario: sc.Scenario, progress: bool = True, records: dict | N
 
     return simulate(
         station, progress=progress, keep_logs=False, checkpoint=checkpoint if path else None,
-        checkpoint_period_s=scenario.metrics.checkpoint_period_s,
+        checkpoint_period_s=scenario.metrics.checkpoint_period_s, hold=hold,
     )  # fmt: skip
 
 
@@ -526,11 +529,40 @@ def refuse_input(parser: argparse.ArgumentParser, error: Exception):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM: the command line ends the run as Ctrl-C does (partial metrics, a whole recording)."""
+    """SIGTERM or SIGHUP (a closed terminal, a dropped SSH session): the command line ends the run as
+    Ctrl-C does (partial metrics, a whole recording, the device's STOP)."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
-def _terminate(signum, frame):
-    raise Terminated()
+# The signals the command line ends a run with, as Ctrl-C: a stop, a closed terminal.
+ENDING = (signal.SIGTERM, signal.SIGHUP)
+
+
+class _Ending:
+    """SIGTERM's and SIGHUP's handler for one run: the first raises :class:`Terminated` (the loop
+    ends as with Ctrl-C); a later one, before ``hold`` takes over at the loop's end, is noted in
+    it instead of raised again into the loop's own ending."""
+
+    def __init__(self, hold: SignalsHeld):
+        self.hold, self.raised = hold, False
+
+    def __call__(self, signum, frame):
+        if self.raised:
+            self.hold.caught.append(signum)
+            return
+        self.raised = True
+        raise Terminated(signum)
+
+
+def _signal_name(e: BaseException) -> str:
+    return signal.Signals(e.signum).name if isinstance(e, Terminated) else "Ctrl-C"
+
+
+def _exit_code(signum: int) -> int:
+    return 128 + signum  # as a shell reports a process a signal ended: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
 
 
 USER_ERRORS = (
@@ -622,51 +654,83 @@ def scene_main(scenario: str | Path, argv=None, *, prog: str, description: str |
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``run``: build, simulate, print the metrics table, write what was asked; the output files
-    locked from before the build to after the last write (:class:`~godobject_drake.outputs.OutputLock`)."""
-    with OutputLock() as locks:
-        return _run_locked(args, parser, locks)
-
-
-def _run_locked(args: argparse.Namespace, parser: argparse.ArgumentParser, locks: OutputLock) -> int:
-    path = args.scenario
-    interrupted = None
-    previous = (
-        signal.signal(signal.SIGTERM, _terminate)
-        if threading.current_thread() is threading.main_thread()
-        else None
+    locked from before the build to after the last write (:class:`~godobject_drake.outputs.OutputLock`).
+    SIGTERM and SIGHUP end the run as Ctrl-C does; from the end of its loop to the lock files
+    removed, a signal is held (:class:`~godobject_drake.outputs.SignalsHeld`): the outputs are
+    written whole, then the exit says so."""
+    main_thread = threading.current_thread() is threading.main_thread()
+    hold = SignalsHeld()
+    ending = _Ending(hold)
+    previous = (  # a signal ignored when the run began (nohup's SIGHUP) stays ignored
+        {
+            signum: signal.signal(signum, ending)
+            for signum in ENDING
+            if signal.getsignal(signum) != signal.SIG_IGN
+        }
+        if main_thread
+        else {}
     )
+    try:
+        with OutputLock() as locks:
+            return _run_locked(args, parser, locks, hold)
+    finally:
+        hold.end(act=False)  # what it caught is said by _run_locked; the locks are gone
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _run_locked(
+    args: argparse.Namespace, parser: argparse.ArgumentParser, locks: OutputLock, hold: SignalsHeld
+) -> int:
+    interrupted = None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PenetrationBudgetWarning)
-            s, records = scenario_of(path, args)
+            s, records = scenario_of(args.scenario, args)
             claim_outputs(s, locks)
-            result = run_scenario(s, progress=not args.no_progress, records=records)
+            result = run_scenario(s, progress=not args.no_progress, records=records, hold=hold)
     except USER_ERRORS as e:
         refuse_input(parser, e)
-    except RunInterrupted as e:  # Ctrl-C or SIGTERM: what the run produced is written, marked partial
+    except RunInterrupted as e:  # Ctrl-C, SIGTERM, SIGHUP: what the run produced is written, marked partial
         result, interrupted = e.result, e.__cause__ or e
-    except KeyboardInterrupt as e:  # before the run started: nothing to write
-        logger.warning("interrupted before the run started")
-        return 143 if isinstance(e, Terminated) else 130
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+    except KeyboardInterrupt as e:  # before the run's loop ended (simulate holds signals from there)
+        logger.warning("interrupted (%s) before the run started", _signal_name(e))
+        return _exit_code(e.signum) if isinstance(e, Terminated) else 130
+    hold.start()  # (simulate started it at the loop's end): the outputs written whole
+    return _outputs(s, result, interrupted, hold)
+
+
+def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
+    """Write and say what the run produced; the exit code (a signal's 128 + N when one ended the
+    run or came while its outputs were written, which it then says)."""
     metrics = result.metrics
     written = report([metrics], s.metrics.file or None)
     if s.recording.file and "recording_error" not in metrics:
         logger.info("recording written to %s", s.recording.file)
     elif "recording_error" in metrics:  # on stderr too, not only a row of the table
         logger.error("recording not written: %s", metrics["recording_error"])
+    late = [signal.Signals(n).name for n in dict.fromkeys(hold.caught)]
+    if late:
+        logger.warning(
+            "%s came while the run ended and its outputs were written: held until they were whole",
+            ", ".join(late),
+        )
     if interrupted is not None:
-        by = "SIGTERM" if isinstance(interrupted, Terminated) else "Ctrl-C"
+        by = _signal_name(interrupted)
         logger.warning(
             "interrupted (%s) at t = %.3f s: the metrics above are partial", by, metrics["sim_time_s"]
         )
-        return 143 if by == "SIGTERM" else 130
+        return _exit_code(interrupted.signum) if isinstance(interrupted, Terminated) else 130
+    if late:
+        return 128 + hold.caught[0]
     if not written or "recording_error" in metrics:
         return 1
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
-        input("Meshcat is still serving the scene; press Enter to exit.")
+        hold.end(act=False)  # the outputs are written: Ctrl-C ends the wait as Enter does
+        try:
+            input("Meshcat is still serving the scene; press Enter (or Ctrl-C) to exit.")
+        except (KeyboardInterrupt, EOFError):
+            pass
     return 1 if metrics["diverged"] or "metrics_error" in metrics else 0
 
 

@@ -17,6 +17,12 @@ run, :func:`check_output` refuses a folder, a missing folder or a link it would 
 :class:`OutputLock` holds an advisory lock (``fcntl.flock`` on ``.NAME.lock`` beside the file) for the
 whole run, so a second run given the same file is refused before it starts instead of overwriting
 the first one's finished metrics with its partial checkpoints.
+
+**Signals while writing** (:class:`SignalsHeld`): Ctrl-C, SIGTERM or SIGHUP during a write is held
+until the file is whole (or the previous one kept), then acted on as its handler would have; a
+temporary file is removed whatever ends the write, and a lock file whatever ends the run but
+SIGKILL. A run holds them from the end of its loop to its last write, so a signal there cannot lose
+the outputs the run already has.
 """
 
 import errno
@@ -24,9 +30,65 @@ import fcntl
 import json
 import math
 import os
+import signal
 import stat
 import tempfile
+import threading
 from pathlib import Path
+
+# The signals that end a run (Ctrl-C, a stop, a closed terminal): held while an output is written.
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class SignalsHeld:
+    """Signals held while outputs are written: from :meth:`start` each signal of ``signums`` that
+    comes is noted (:attr:`caught`) instead of handled; :meth:`end` puts the handlers back and, with
+    ``act``, handles each noted signal once as its handler would have (Ctrl-C's KeyboardInterrupt is
+    raised then, a default action is taken then). Holds nest: an inner one hands what it caught to
+    the outer one. A signal this process ignores (``nohup``'s SIGHUP) stays ignored; outside the
+    main thread (where Python handles no signal) it holds nothing."""
+
+    def __init__(self, signums=HELD_SIGNALS):
+        self.signums = tuple(signums)
+        self.caught: list[int] = []
+        self._previous: dict | None = None
+
+    @property
+    def holding(self) -> bool:
+        return self._previous is not None
+
+    def start(self) -> "SignalsHeld":
+        """Hold the signals from now (again: nothing changes)."""
+        if self._previous is None and threading.current_thread() is threading.main_thread():
+            self._previous = {
+                signum: signal.signal(signum, self._note)
+                for signum in self.signums
+                if signal.getsignal(signum) != signal.SIG_IGN
+            }
+        return self
+
+    def _note(self, signum, frame) -> None:
+        self.caught.append(signum)
+
+    def end(self, act: bool = True) -> None:
+        """Put the handlers back; with ``act``, handle each signal caught, once, in order."""
+        previous, self._previous = self._previous, None
+        if previous is None:
+            return
+        for signum, handler in previous.items():
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+        for signum in dict.fromkeys(self.caught) if act else ():
+            handler = previous[signum]
+            if callable(handler):
+                handler(signum, None)
+            elif handler != signal.SIG_IGN:  # the default action (None: a handler set outside Python)
+                signal.raise_signal(signum)
+
+    def __enter__(self) -> "SignalsHeld":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.end()
 
 
 class OutputError(OSError):
@@ -101,15 +163,16 @@ def is_stream(path: str | Path) -> bool:
     return st is not None and not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode)
 
 
-def check_output(path: str | Path, field: str) -> None:
+def check_output(path: str | Path, field: str, example: str = "") -> None:
     """Refuse, before a run, an output ``path`` it could only fail to write at its end: a folder,
     a missing folder, a symlink loop or a link not to follow, something not writable (raises
-    :class:`OutputRefused` naming ``field``, the path and the fix)."""
+    :class:`OutputRefused` naming ``field``, the path and the fix; ``example``: a file name the fix
+    gives for a folder)."""
     path = Path(path)
     try:
         st = _stat(path)
         if st is not None and stat.S_ISDIR(st.st_mode):
-            example = "metrics.json" if field.startswith("metrics") else "recording.html"
+            example = example or ("metrics.json" if field.startswith("metrics") else "recording.html")
             raise OutputRefused(f"{path} is a folder; give a file name, e.g. {path / example}")
         if st is not None and not stat.S_ISREG(st.st_mode):
             if not os.access(path, os.W_OK):
@@ -151,8 +214,21 @@ def write_atomically(path: str | Path, text: str) -> int:
 
     A regular file (or a new one) is written to a temporary file beside it and renamed over it,
     keeping its mode (and owner, for root); through a symlink, the link's target is. A FIFO, a pipe
-    or a device is written through as it is."""
-    path = Path(path)
+    or a device is written through as it is. A signal that comes meanwhile is handled once the
+    file is whole (:class:`SignalsHeld`)."""
+    with SignalsHeld():
+        return _write_atomically(Path(path), text)
+
+
+def _remove(tmp: str | None) -> None:
+    if tmp is not None:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+
+
+def _write_atomically(path: Path, text: str) -> int:
     data = text.encode()
     tmp = None
     try:
@@ -181,17 +257,16 @@ def write_atomically(path: str | Path, text: str) -> int:
     except OutputRefused as e:
         raise OutputError(errno.EINVAL, f"could not write {path}: {e}") from None
     except OSError as e:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
+        _remove(tmp)
         kept = "the previous version is kept" if os.path.lexists(path) else "nothing was written"
         space = e.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
         fix = "Free space on that disk or write elsewhere" if space else "Write elsewhere"
         raise OutputError(
             e.errno, f"could not write {path} ({len(data)} bytes): {e.strerror or e}; {kept}. {fix}"
         ) from None
+    except BaseException:  # whatever else ends the write (a MemoryError): no temporary file left
+        _remove(tmp)
+        raise
     return len(data)
 
 
@@ -238,6 +313,10 @@ class OutputLock:
         self._held.append((fd, lock))
 
     def release(self) -> None:
+        with SignalsHeld():  # each lock file removed, whatever signal comes
+            self._release()
+
+    def _release(self) -> None:
         for fd, lock in reversed(self._held):
             try:
                 os.unlink(lock)  # while still locked: a waiter that opened it retries on the new one

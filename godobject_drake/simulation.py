@@ -25,6 +25,7 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from godobject_drake.metrics import SceneMetrics, configuration, scene_configuration, verdict, worst_of
+from godobject_drake.outputs import SignalsHeld
 from godobject_drake.realtime import RealtimeLag
 from godobject_drake.safeguards import (
     FALL_WATCH_S,
@@ -131,6 +132,7 @@ def simulate(
     checkpoint=None,
     checkpoint_period_s: float = 10.0,
     observe=None,
+    hold: SignalsHeld | None = None,
 ) -> RunResult:
     """Run ``station`` and measure it, in memory that does not grow with the run's length.
 
@@ -164,6 +166,11 @@ def simulate(
         checks and the tools' own hooks at that step: the context the plant steps from, for an
         analysis to read through public ports and attributes (analysis/step_floor.py). It makes
         the safeguards a monitor called at every step; the run is the same bit for bit.
+    hold : SignalsHeld | None
+        Ctrl-C, SIGTERM and SIGHUP are held from the end of the loop (:meth:`SignalsHeld.start`):
+        a signal while the recording is saved and the metrics made cannot lose them. Given, the
+        hold is left on for the caller to end once it has written its outputs (the command line);
+        else it ends here, acting on a signal it caught (unless the run was already interrupted).
 
     Notes
     -----
@@ -172,8 +179,23 @@ def simulate(
     carrying the result.
     """
     run = _Run(station, duration_s, record, realtime_rate, keep_logs, observe)
-    run.loop(progress, checkpoint, checkpoint_period_s)
-    return run.finish()
+    own = hold is None
+    run.hold = hold = hold or SignalsHeld()
+    try:
+        run.loop(progress, checkpoint, checkpoint_period_s)
+    except BaseException:  # not the loop's own ends (it keeps those): nothing to finish
+        if own:
+            hold.end(act=False)
+        raise
+    try:
+        result = run.finish()
+    except RunInterrupted:  # a signal while it finished only asked for what it already does
+        if own:
+            hold.end(act=False)
+        raise
+    if own:
+        hold.end()
+    return result
 
 
 class _Run:
@@ -256,6 +278,7 @@ class _Run:
             0.0  # cpu: the process's CPU time in the loop (load moves it less)
         )
         self.diagnosis, self.interrupted, self.zeroed = None, None, False
+        self.hold = SignalsHeld()  # simulate's
 
     def real_time_fold_every(self, cost_s: float) -> int:
         """Steps between folds at real time after a fold that took ``cost_s`` of wall time: every
@@ -348,6 +371,7 @@ class _Run:
         except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM through the command line's handler
             self.interrupted = e
         finally:
+            self.hold.start()  # from here to the outputs written, a signal is held (simulate)
             bar.close()
             self.zeroed = self.god.zero_feedback(root.get_time())  # never left pushing
 

@@ -534,9 +534,9 @@ def test_the_driver_keeps_bounded_memory_without_a_log():
 
 
 def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_package():
-    """A driver process imports godobject_drake.link, the quantiles of its timing and its own
-    driver/ modules, nothing of the scene's: no pydrake.systems (a fresh interpreter, so nothing
-    else imported it first)."""
+    """A driver process imports godobject_drake.link, the quantiles of its timing, the outputs'
+    guards and its own driver/ modules, nothing of the scene's: no pydrake.systems (a fresh
+    interpreter, so nothing else imported it first)."""
     code = (
         "import json, sys, godobject_drake.driver.process\n"
         "loaded = [m for m in sys.modules if m.startswith(('pydrake.systems', 'godobject_drake'))]\n"
@@ -556,6 +556,7 @@ def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_packa
         "godobject_drake.link.logs",
         "godobject_drake.link.messages",
         "godobject_drake.link.transport",
+        "godobject_drake.outputs",  # its outputs guarded as the scene's are (the standard library only)
         "godobject_drake.quantiles",
     ]
 

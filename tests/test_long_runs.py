@@ -174,3 +174,37 @@ def test_a_killed_run_leaves_its_last_checkpoint(tmp_path):
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["partial"] is True and 0.0 < m["sim_time_s"] < 60.0
     assert math.isfinite(m["max_penetration_m"])
+
+
+def _litter(tmp_path) -> list[str]:
+    return sorted(p.name for p in tmp_path.iterdir() if p.name not in ("lego.yaml", "m.json", "r.html"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
+                         ids=lambda s: signal.Signals(s).name)  # fmt: skip
+def test_a_signal_at_any_moment_of_the_end_leaves_whole_outputs_and_says_what_was_written(tmp_path, signum):
+    """The signal every 10 ms from inside the run to the process's end: the first ends the run,
+    the rest land while the recording is saved, the metrics made and written, the locks removed.
+    Before, a second Ctrl-C while the recording was saved said "interrupted before the run started"
+    and wrote neither output (a .tmp left); SIGTERM while the metrics were written left .tmp and
+    .lock files; SIGHUP ended the scene with no metrics and no STOP. Now: no temporary or lock
+    file, the metrics and the recording whole, and stderr says each was written and that the run
+    was interrupted; the exit is the signal's (128 + N; or the signal itself, after the last word)."""
+    proc = cli(tmp_path, "--record", "r.html")
+    wait_for(tmp_path / "m.json", timeout_s=60.0)
+    sent = 0
+    while proc.poll() is None and sent < 3000:
+        proc.send_signal(signum)
+        sent += 1
+        time.sleep(0.01)
+    err = proc.communicate(timeout=120)[1]
+    name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+    assert proc.returncode in (128 + signum, -signum), (proc.returncode, err[-3000:])
+    assert _litter(tmp_path) == [], _litter(tmp_path)
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["partial"] is True and m["interrupted"] is True, err[-3000:]
+    assert (tmp_path / "r.html").read_text().rstrip().endswith("</html>")
+    assert "recording written to" in err and f"metrics written to {tmp_path / 'm.json'}" in err
+    assert f"interrupted ({name}) at t = " in err and "before the run started" not in err
+    print(f"{sent} signals sent; rc {proc.returncode}")

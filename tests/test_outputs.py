@@ -5,6 +5,7 @@ given a file another run is writing is refused before it starts; a file's mode i
 import errno
 import json
 import os
+import signal
 import stat
 import subprocess
 import sys
@@ -209,3 +210,63 @@ def test_a_recording_that_cannot_be_written_is_said_on_stderr(tmp_path, capsys):
     assert f"recording not written: [Errno 6] could not write {fifo}" in err
     assert "no process has the FIFO open for reading; start its reader first" in err
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+
+
+class Stopped(Exception):
+    """What this test's SIGTERM handler raises (the command line's raises ``Terminated``)."""
+
+
+def test_a_signal_during_a_write_is_handled_once_the_file_is_whole(tmp_path, monkeypatch):
+    """SIGTERM arrives while the data is being synced to disk: the handler raised there, the
+    temporary file was left beside the target and the target kept its old text. Now the file is
+    written whole first, then the handler runs (its exception raised), and no temporary file is left."""
+    path = tmp_path / "m.json"
+    path.write_text("old")
+    real_fsync = os.fsync
+
+    def fsync_with_a_signal(fd):
+        signal.raise_signal(signal.SIGTERM)
+        real_fsync(fd)
+
+    def stop(signum, frame):
+        raise Stopped()
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        monkeypatch.setattr(os, "fsync", fsync_with_a_signal)
+        with pytest.raises(Stopped):
+            write_atomically(path, "new")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert path.read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
+    assert signal.getsignal(signal.SIGTERM) is previous
+
+
+def test_whatever_ends_a_write_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """Not an OSError (a MemoryError here): the temporary file was left; now it is removed and the
+    previous file kept."""
+    path = tmp_path / "m.json"
+    path.write_text("old")
+
+    def fail(fd):
+        raise MemoryError()
+
+    monkeypatch.setattr(os, "fsync", fail)
+    with pytest.raises(MemoryError):
+        write_atomically(path, "new")
+    assert path.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
+
+
+def test_a_signal_the_process_ignores_stays_ignored_while_writing(tmp_path):
+    """``nohup`` starts a run with SIGHUP ignored: a hold must not take it (it would note it and end
+    the run after the write); the write goes on and SIGHUP stays ignored."""
+    from godobject_drake.outputs import SignalsHeld
+
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with SignalsHeld() as held:
+            signal.raise_signal(signal.SIGHUP)
+            write_atomically(tmp_path / "m.json", "{}")
+        assert held.caught == [] and signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)

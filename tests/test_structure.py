@@ -21,6 +21,7 @@ LAYERS = (
     ("godobject_drake.spatial", 0),
     ("godobject_drake.limits", 0),
     ("godobject_drake.quantiles", 0),
+    ("godobject_drake.outputs", 0),  # the standard library only: the scene's outputs and the driver's
     ("godobject_drake.config", 1),
     # the link: what a scene and a driver share; its scene half (a Drake system) is the scene's
     ("godobject_drake.link.scene_model", 2),
@@ -31,14 +32,14 @@ LAYERS = (
     ("godobject_drake.safeguards", 2),
     ("godobject_drake.realtime", 2),
     ("godobject_drake.sleeping", 2),
-    ("godobject_drake.outputs", 2),
     ("godobject_drake.station", 3),
     ("godobject_drake.simulation", 4),
     ("godobject_drake.cli", 5),
     ("godobject_drake.studies", 5),
     ("godobject_drake.__main__", 5),
 )
-# The driver's process stands beside the layers: it may use the link and the plain config only.
+# The driver's process stands beside the layers: it may use the link, the plain config and the
+# outputs' guards only.
 DRIVER = "godobject_drake.driver"
 # (the link but its scene half: godobject_drake.link.scene_model loads pydrake.systems)
 DRIVER_MAY_IMPORT = (
@@ -49,6 +50,7 @@ DRIVER_MAY_IMPORT = (
     "godobject_drake.link.logs",
     "godobject_drake.config",
     "godobject_drake.quantiles",
+    "godobject_drake.outputs",
 )
 MAX_INNER_IMPORTS = 5
 MAX_FUNCTION_LINES = 100

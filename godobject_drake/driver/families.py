@@ -8,7 +8,9 @@ A family's device is opened, read and commanded from the driver's loop
   quaternion) in the device's own frame, and the pressed buttons (a tuple of bools; button 0 is
   the grasp, button 1 the clutch by default);
 - ``render(f)``: command the force ``f`` (N, the device's frame) until the next call;
-- ``close()``: zero the force and release the device.
+- ``close()``: zero the force and release the device;
+- ``watchdog``: what guards the device when the driver cannot (SIGKILL, a crash): the device's own
+  watchdog, armed where the vendor's SDK has one, or why there is none (said at the start).
 
 The vendor wrappers are imported when their family is opened, never by the library: none is a
 dependency. What each call is, and where it was checked, is in docs/haptic_devices.md; the
@@ -87,6 +89,7 @@ class HapticIO:
     """One opened device (module docstring)."""
 
     buttons = 2
+    watchdog = "no device watchdog"
 
     def read(self) -> tuple[np.ndarray, np.ndarray, tuple[bool, ...]]:
         raise NotImplementedError
@@ -244,6 +247,7 @@ class HaplyInverse3(HapticIO):
     """
 
     buttons = 0
+    watchdog = "no device watchdog: HaplyHardwareAPI's calls (as read here) offer none"
 
     def __init__(self, port: str = ""):
         try:
@@ -302,6 +306,26 @@ class ForceDimension(HapticIO):
             raise ValueError(f"forcedimension: no device opened ({dhd.errorGetLastStr()}); plug it in")
         self._check(dhd.enableForce(True, ID=self.id), "enableForce")
         self._pos = [0.0, 0.0, 0.0]
+        self.watchdog = self._arm_watchdog()
+
+    WATCHDOG_S = 0.025  # the firmware's watchdog: 200 × 125 µs (at most 255 × 125 µs = 31.9 ms)
+
+    def _arm_watchdog(self) -> str:
+        """Arm the device's own watchdog (the SDK's expert ``dhdSetWatchdog``, in units of 125 µs):
+        when no force command reaches the device for :attr:`WATCHDOG_S` (the driver killed, crashed or
+        hung), its firmware turns the forces off. The driver commands every period (1 ms), so only a
+        loop held up that long trips it. Said at the start; a model without one runs on, said so."""
+        try:
+            from forcedimension_core.dhd import expert
+        except ImportError as e:
+            return f"device watchdog NOT armed (the wrapper has no dhd.expert: {e})"
+        units = round(self.WATCHDOG_S / 125e-6)
+        armed = expert.enableExpertMode() == 0 and expert.setWatchdog(units, ID=self.id) == 0
+        why = "" if armed else self.dhd.errorGetLastStr()
+        expert.disableExpertMode()  # the watchdog is the firmware's; the SDK back to its normal mode
+        if not armed:
+            return f"device watchdog NOT armed ({why}): this model may have none"
+        return f"device watchdog armed: forces off {self.WATCHDOG_S * 1e3:g} ms after the last command"
 
     def _check(self, code: int, call: str) -> None:
         if code == -1:
@@ -334,6 +358,11 @@ class OpenHaptics(HapticIO):
     The driver's loop exchanges the newest pose and force with that callback; ``device.close()``
     stops the scheduler.
     """
+
+    watchdog = (
+        "no device watchdog: OpenHaptics' HD calls offer none (its servo thread dies with the driver: "
+        "what the Touch then renders is its own driver's, not checked here)"
+    )
 
     def __init__(self, device_name: str = "Default Device"):
         try:

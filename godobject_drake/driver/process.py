@@ -51,25 +51,39 @@ Each device period the loop:
 4. publishes its counts (``GODOBJECT_DRIVER_STATUS``) ten times a second and at exit, which the
    scene puts in its metrics as ``driver_*``.
 
-On its own exit, SIGTERM or SIGINT the driver renders zero and closes the device before it
-returns. ``--log FILE.csv`` keeps every period (times on ``time.monotonic``, the clock every
-process on the machine shares); ``--summary FILE.json`` the counts, the link's counts, the
+On its own exit and on every signal that ends a process and can be caught (SIGTERM, SIGINT,
+SIGHUP: a closed terminal or a dropped SSH session, SIGQUIT) the driver renders zero, writes the
+log's ``exit`` row and closes the device before it returns (a signal ignored when it starts, as
+``nohup`` ignores SIGHUP, stays ignored). SIGTSTP (Ctrl-Z) renders zero, writes a
+``paused`` row and only then stops the process (SIGSTOP); on SIGCONT the loop goes on from zero: the
+rated-rate ramp starts from the zero rendered, and what the scene sent while it was stopped is as
+old as the stop (the watchdog's rule), so nothing is rendered until the scene speaks again. What
+no process can do for itself (SIGKILL, SIGSTOP sent by another, a crash of the interpreter) is
+covered only outside it, where at all: by the device's own watchdog where its SDK has one (armed at
+the start: :attr:`~godobject_drake.driver.families.HapticIO.watchdog`; docs/haptic_devices.md);
+``faulthandler`` prints the traceback of a crash.
+
+``--log FILE.csv`` keeps every period (times on ``time.monotonic``, the clock every process on the
+machine shares); ``--summary FILE.json`` the counts, the link's counts, the
 limits that applied and the loop's timing. Without a log the driver keeps only its last
 :attr:`Driver.ROWS_KEPT` periods, and its timing as histograms: its memory does not grow with
 the time it runs.
 
-Exit codes: 0 done, 1 the device failed, 2 bad input (a message naming the value, the limit and
-the fix).
+Exit codes: 0 done, 1 the device or an output failed (the log or the summary could not be
+written: said why), 2 bad input (a message naming the value, the limit and the fix), refused before
+the device is opened where it is an option's.
 """
 
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 import math
 import os
 import signal
+import stat
 import sys
 import time
 from collections import deque
@@ -98,6 +112,7 @@ from godobject_drake.link.messages import (
     status_message,
 )
 from godobject_drake.link.transport import LINK_REJECTED, driver_lcm, is_udp_url
+from godobject_drake.outputs import OutputError, OutputRefused, check_output, is_stream, write_atomically
 from godobject_drake.quantiles import Quantiles
 
 __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "ForceSafety", "HandPath",
@@ -106,6 +121,9 @@ __all__ = ["FAMILIES", "RATED", "Driver", "EmulatedDevice", "FeedbackGate", "For
 DEFAULT_URL = "udp://127.0.0.1:7667"
 TIMING_BINS = (1e-6, 0.01)  # the timing figures' bins: 1 µs wide up to 100 µs, 1 % wide above
 DEFAULT_WATCHDOG_PERIODS = 10
+# The signals that end the driver (each: zero force, the exit row, the device closed, exit 0):
+# the terminal's hang-up and quit keys as well as a stop (SIGTERM) and Ctrl-C.
+ENDING_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGQUIT)
 
 
 class Driver:
@@ -153,9 +171,14 @@ class Driver:
         self.held = None  # the pose sent while the clutch is held
         self.rows: deque = deque(maxlen=self.ROWS_KEPT)  # kept when there is no log file
         self.log_file = None
+        self.log_path = None
+        self.output_error: str | None = None  # why an output failed (the loop then stops)
         self.late = Quantiles(*TIMING_BINS)  # how late each period started
         self.gaps = Quantiles(*TIMING_BINS)  # between two feedback messages
         self.stop_requested = False
+        self.pause_requested = False  # SIGTSTP: zero, then stop (:meth:`_pause`)
+        self.pauses = 0
+        self.ended_by = None  # the signal's name that ended the run, if one did
         self.local = LocalRenderer()  # the scene's local model, once it sends one
         # the last POSES_KEPT poses sent and their utimes, a ring allocated once (bounded memory)
         self._sent_utimes = np.full(self.POSES_KEPT, -1, np.int64)
@@ -259,6 +282,9 @@ class Driver:
         previous_poll = start
         try:
             while not self.stop_requested:
+                if self.pause_requested:
+                    self._pause()
+                    continue  # the stop may have been asked for while stopped
                 now = time.monotonic()
                 if now - start >= duration_s:
                     break
@@ -275,6 +301,25 @@ class Driver:
                     time.sleep(wait)
         finally:
             self.shutdown()
+
+    def _pause(self) -> None:
+        """SIGTSTP (Ctrl-Z): zero rendered and logged, then the process stopped (SIGSTOP); it goes on
+        here on SIGCONT. The safety's output is zero too, so its rated-rate ramp starts from zero; the
+        poll's clock is not moved on, so what the scene sent while this process was stopped is as old
+        as the stop and rendered only after fresh word (module docstring)."""
+        self.pause_requested = False
+        zero = np.zeros(3)
+        self.safety.step(zero, False)
+        self.device.render(zero)
+        self._row((time.monotonic(), *(math.nan,) * 3, *zero, *zero, math.nan, "paused", 0,
+                   *(0.0,) * 3, self.local.energy_in))  # fmt: skip
+        if self.log_file is not None:
+            try:
+                self.log_file.flush()
+            except OSError as e:
+                self._log_failed(e)  # the stop is still taken: the loop ends on SIGCONT
+        self.pauses += 1
+        os.kill(os.getpid(), signal.SIGSTOP)
 
     def _count_period(self, now: float, next_tick: float) -> float:
         """Count the period and how late it started; the tick it runs from (``now`` after an
@@ -355,7 +400,10 @@ class Driver:
         if self.counts["loops"] % 100 == 0:
             self.publish_status(now)
             if self.log_file is not None:
-                self.log_file.flush()
+                try:
+                    self.log_file.flush()
+                except OSError as e:
+                    self._log_failed(e)
 
     def shutdown(self) -> None:
         """Zero force, close the device, tell the scene the last counts. Safe to call twice."""
@@ -371,7 +419,10 @@ class Driver:
         row = (now, *(math.nan,) * 3, *zero, *zero, math.nan, "exit", 0, *(0.0,) * 3, self.local.energy_in)
         self._row(row)
         if self.log_file is not None:
-            self.log_file.close()
+            try:
+                self.log_file.close()
+            except OSError as e:
+                self._log_failed(e)
         try:
             self.publish_status(now)
         except OSError:
@@ -391,6 +442,9 @@ class Driver:
                 "period_s": self.period,
             },
             "rt_priority": getattr(self, "rt_priority", 0),
+            "ended_by": self.ended_by,
+            "output_error": self.output_error,
+            "pauses": self.pauses,
             "loop_lateness": self.late.summary(),
             "feedback_gap": self.gaps.summary(),
             "local_model": {
@@ -412,16 +466,41 @@ class Driver:
     # the work the hand has done on the device (J) (driver/local_model.py)
     LOG_HEADER = "t,x,y,z,fx_req,fy_req,fz_req,fx,fy,fz,t_scene,state,buzz,weight,beta,damping,energy_in"
 
-    def open_log(self, path: str | Path) -> None:
-        """Write every period to ``path`` as it runs (flushed every 100 periods, closed at exit)."""
-        self.log_file = open(path, "w")
-        self.log_file.write(self.LOG_HEADER + "\n")
+    def open_log(self, path: str | Path, file=None) -> None:
+        """Write every period to ``path`` as it runs (flushed every 100 periods, closed at exit);
+        ``file``: ``path`` already opened (:func:`open_log_file`)."""
+        self.log_path = path
+        self.log_file = open(path, "w") if file is None else file
+        try:
+            self.log_file.write(self.LOG_HEADER + "\n")
+        except OSError as e:
+            self._log_failed(e)
 
     def _row(self, row: tuple) -> None:
         if self.log_file is None:
             self.rows.append(row)
-        else:
+            return
+        try:
             self.log_file.write(",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n")
+        except OSError as e:
+            self._log_failed(e)
+            self.rows.append(row)
+
+    def _log_failed(self, error: OSError) -> None:
+        """A write to the log failed (a full disk, a file-size limit): the loop stops before its
+        next period (zero force, the exit row kept in memory, the device closed) and says why,
+        rather than die at the flush or run on unlogged (:attr:`output_error`)."""
+        if self.output_error is None:
+            self.output_error = (
+                f"--log {self.log_path}: could not write ({error.strerror or error}); the force was zeroed "
+                "and the driver stopped. Free space on that disk, or give --log another place"
+            )
+        self.stop_requested = True
+        file, self.log_file = self.log_file, None
+        try:
+            file.close()  # the file is closed even when its last flush fails
+        except OSError:
+            pass
 
 
 def read_log(path: str | Path) -> dict:
@@ -442,6 +521,42 @@ def read_log(path: str | Path) -> dict:
 
 class BadInput(ValueError):
     pass
+
+
+def open_log_file(path: str):
+    """``--log``, opened before the device is: a regular file, new or emptied. Refused (naming the
+    fix): a folder, a missing folder, a link not to follow, a place not writable
+    (:func:`~godobject_drake.outputs.check_output`) and anything but a regular file: the loop writes
+    to it every period and must never wait on a reader (a FIFO nobody reads blocked the driver's
+    start, deaf to SIGTERM). Opened without blocking, and checked again once open."""
+    refused = (
+        f"--log {path} is not a regular file (a FIFO, a pipe or a device): the device's loop writes to it "
+        "every period and must never wait on a reader; give a file, e.g. driver.csv"
+    )
+    try:
+        check_output(path, "--log", example="driver.csv")
+        if is_stream(path):
+            raise BadInput(refused)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
+        fd = os.open(path, flags, 0o666)
+    except OutputRefused as e:
+        raise BadInput(str(e)) from None
+    except OSError as e:  # ENXIO: a FIFO put there since the check, nobody reading it
+        raise BadInput(f"--log {path}: {e.strerror or e}; give a regular file you can write") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise BadInput(refused)
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "w")
+
+
+def check_summary(path: str) -> None:
+    """``--summary``, before the device is opened: a folder, a missing folder, a link not to follow or
+    a place not writable is refused naming the fix, not found at the end of the run."""
+    try:
+        check_output(path, "--summary", example="driver.json")
+    except OutputRefused as e:
+        raise BadInput(str(e)) from None
 
 
 def open_device(family: str, args) -> tuple:
@@ -511,7 +626,16 @@ def _run(args) -> int:
         link = f"scene {args.scene}, key {lcm.key_file} (fingerprint {key_fingerprint(lcm.end.key)})"
     else:
         link = f"scene {args.scene or 'udpm:// (Drake default)'} UNAUTHENTICATED (--allow-unauthenticated)"
-    device, rated = open_device(args.family, args)
+    # the outputs before the device: a bad one is refused before anything can push
+    log_file = open_log_file(args.log) if args.log else None
+    if args.summary:
+        check_summary(args.summary)
+    try:
+        device, rated = open_device(args.family, args)
+    except BaseException:
+        if log_file is not None:
+            log_file.close()
+        raise
     driver = Driver(
         device,
         lcm,
@@ -528,7 +652,7 @@ def _run(args) -> int:
         f"godobject-driver {args.family}: {rated.model}, {args.rate:g} Hz, "
         f"force ≤ {limits['max_force_n']:g} N "
         f"(rated {rated.max_force_n:g} N: {rated.source}), change ≤ {limits['max_force_rate_n_s']:g} N/s, "
-        f"watchdog {driver.watchdog_s * 1e3:g} ms; {link}",
+        f"watchdog {driver.watchdog_s * 1e3:g} ms, {device.watchdog}; {link}",
         file=sys.stderr,
         flush=True,
     )
@@ -542,21 +666,54 @@ def _run(args) -> int:
             print(f"godobject-driver: --rt-priority {args.rt_priority} not applied ({e}); "
                   "running on the normal scheduler", file=sys.stderr)  # fmt: skip
 
+    if log_file is not None:
+        driver.open_log(args.log, log_file)
+    return _loop(driver, args)
+
+
+def _loop(driver: Driver, args) -> int:
+    """Run the driver with its signals handled (module docstring); the summary written whole
+    (:func:`~godobject_drake.outputs.write_atomically`). 0, or 1 if an output failed (said why)."""
+
     def on_signal(signum, frame):
         driver.stop_requested = True
+        driver.ended_by = signal.Signals(signum).name
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    if args.log:
-        driver.open_log(args.log)
+    def on_tstp(signum, frame):
+        driver.pause_requested = True
+
+    handlers = {**dict.fromkeys(ENDING_SIGNALS, on_signal), signal.SIGTSTP: on_tstp}
+    previous = {  # a signal ignored when the driver began (nohup's SIGHUP) stays ignored
+        signum: signal.signal(signum, handler)
+        for signum, handler in handlers.items()
+        if signal.getsignal(signum) != signal.SIG_IGN
+    }
+    failed = []
     try:
         driver.run(args.duration)
     finally:
         summary = driver.summary()
         if args.summary:
-            Path(args.summary).write_text(json.dumps(summary, indent=1))
-        print(f"godobject-driver: {json.dumps(summary['counts'])}", file=sys.stderr, flush=True)
-    return 0
+            try:
+                write_atomically(args.summary, json.dumps(summary, indent=1))
+            except OutputError as e:
+                failed.append(f"--summary: {e}")
+        _say(f"godobject-driver: {json.dumps(summary['counts'])}")
+        if driver.ended_by:
+            _say(f"godobject-driver: ended by {driver.ended_by}: zero force commanded, the device closed")
+        for message in ([driver.output_error] if driver.output_error else []) + failed:
+            _say(f"godobject-driver: {message}")
+        for signum, handler in previous.items():  # as they were: main() may run inside another program
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+    return 1 if failed or driver.output_error else 0
+
+
+def _say(text: str) -> None:
+    """A line on stderr, if there is still one: after SIGHUP the terminal may be gone (EIO)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except OSError:
+        pass
 
 
 def calibrate(
@@ -601,6 +758,10 @@ def _calibrate(args) -> int:
             f"--scenario {args.scenario}: its device is !{type(s.device).__name__}; calibrate a "
             "scenario whose device is !Lcm (a driver's)"
         )
+    try:  # before the device: a folder or a missing folder is said now, not after the sweep
+        check_output(args.out, "--out", example="calibrated.yaml")
+    except OutputRefused as e:
+        raise BadInput(str(e)) from None
     device, _ = open_device(args.family, args)
     print(f"calibrate: move the handle to every limit of its reach for {args.seconds:g} s", file=sys.stderr)
     lower, upper = calibrate(device, args.seconds)
@@ -611,11 +772,16 @@ def _calibrate(args) -> int:
         )
     frame = s.device.device_to_world
     s.workspace.lower_m, s.workspace.upper_m = world_box(lower, upper, frame.transform(), frame.scale)
-    Path(args.out).write_text(
+    text = (
         f"# {args.scenario} with the workspace calibrated by godobject-driver calibrate {args.family}:\n"
         f"# the device reached {np.round(lower, 5).tolist()} to {np.round(upper, 5).tolist()} m (its frame)\n"
         + sc.scenario_to_yaml(s)
     )
+    try:
+        write_atomically(args.out, text)  # whole, or the previous file kept
+    except OutputError as e:
+        print(f"calibrate: {e}", file=sys.stderr)
+        return 1
     print(
         f"calibrate: workspace {np.round(s.workspace.lower_m, 5).tolist()} to "
         f"{np.round(s.workspace.upper_m, 5).tolist()} m (world) written to {args.out}",
@@ -688,9 +854,14 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--log",
         default="",
-        help="write every period to FILE.csv as the loop runs (flushed every 100 periods; closed at exit)",
+        help="write every period to FILE.csv as the loop runs (a regular file, checked first; flushed every "
+        "100 periods, closed at exit)",
     )
-    run.add_argument("--summary", default="", help="write the counts, limits and timing to FILE.json at exit")
+    run.add_argument(
+        "--summary",
+        default="",
+        help="write the counts, limits and timing to FILE.json at exit (checked first)",
+    )
     cal = sub.add_parser("calibrate", help="record the device's reachable box as a scenario's workspace")
     family_args(cal)
     cal.add_argument("--scenario", required=True, help="a scenario whose device is !Lcm")
@@ -701,6 +872,8 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    if not faulthandler.is_enabled():  # a crash of the interpreter at least leaves its traceback
+        faulthandler.enable()
     try:
         return _run(args) if args.command == "run" else _calibrate(args)
     except BadInput as e:
