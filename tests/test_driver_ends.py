@@ -1,7 +1,7 @@
 """Every way the driver process ends, or is stopped, while it pushes: the device is commanded zero
 first; its outputs (``--log``, ``--summary``, ``calibrate --out``) checked before the device is
 opened and a failed write ending it cleanly; the device's own watchdog armed where the SDK has one;
-and the scene's side of a closed terminal (docs/haptic_devices.md, "What is guarded").
+and the scene's side of a closed terminal (the table of what is guarded in docs/haptic_devices.md).
 
 A real driver process (the emulated device, ``--no-local-model``: the scene's newest wrench, held)
 paired with a scene end of this test's own that sends 6 N of feedback every millisecond, so the
