@@ -140,7 +140,7 @@ COMMON_FLAGS = (
          "any web page open on this machine can drive it (Drake's Meshcat checks no Origin): refused "
          "without this", action="store_true"),
     Flag("--force-cue", "visualization.force_cue",
-         "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
+         "rigid: the ghost and spring turn from faint to solid magenta as the stretch reaches the force cap",
          choices=("on", "off"), value=on_off),
     Flag("--tether", "device.tether_m", "relative and live devices: re-index the target after each sample "
          "to stay within this distance (m) of the god-object; inf: off", type=float),
