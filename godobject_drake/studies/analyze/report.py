@@ -110,7 +110,8 @@ def _margins_figure(summary: dict, path: Path) -> bool:
     ax.barh(range(len(rows)), ratios, color=[colors.get(c["verdict"], "grey") for c in rows])
     ax.axvline(1.0, color="k", lw=1)
     ax.axvline(WARN_FRACTION, color="k", lw=0.5, ls="--")
-    ax.set_yticks(range(len(rows)), [f"{c['name']} [{c['subject']}]"[:64] for c in rows], fontsize=8)
+    labels = [f"{c['subject']}: {c['name']}" for c in rows]  # the subject first: a long name is cut
+    ax.set_yticks(range(len(rows)), [x if len(x) <= 70 else x[:69] + "…" for x in labels], fontsize=8)
     ax.invert_yaxis()
     ax.set_xlabel("value / limit (past 1: fails; past 0.8: warns)")
     ax.set_title(f"{summary['scene']}: how close each check is to its limit")
