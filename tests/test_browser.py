@@ -3,8 +3,8 @@ opens at its first frame, plays and frames the scene; the live page grasps, lift
 
 Marked ``browser``. Without Chromium they skip, saying how to install it; with
 ``GODOBJECT_REQUIRE_BROWSER=1`` (CI) a missing browser fails instead. ``CHROMIUM=/path``
-picks the browser; ``GODOBJECT_SCREENSHOTS=DIR`` keeps the screenshots (the README's come
-from here: ``GODOBJECT_SCREENSHOTS=docs pytest -m browser``).
+picks the browser; ``GODOBJECT_SCREENSHOTS=DIR`` keeps the screenshots (the docs' pictures come
+from analysis/recording_pictures.py).
 """
 
 import io
@@ -65,7 +65,7 @@ def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def open_and_play(browser, scene, tmp_path):
     """The scene's 5 s recording opened in a page, read twice 1.5 s apart: the page and the
     readings (viewer clock at each, page time between them, the end). The screenshots taken
-    meanwhile are kept with GODOBJECT_SCREENSHOTS (the docs' pictures)."""
+    meanwhile are kept with GODOBJECT_SCREENSHOTS."""
     html = tmp_path / f"{scene}.html"
     run_scene(scene, "--duration", "5", "--record", str(html))
     page = browser.new_page(viewport=VIEW)
@@ -370,7 +370,7 @@ def test_bimanual_recording_shows_both_tools_and_the_organ_dented_and_lifted(bro
     the left grasper has lifted the uterus's edge and the right one presses its top. With only
     the organ shown, its pink area at 5 s differs from the first frame's by hundreds of pixels,
     and the highest vertex the page draws is up by the lift (the docs' pictures:
-    GODOBJECT_SCREENSHOTS=docs)."""
+    GODOBJECT_SCREENSHOTS=DIR keeps them)."""
     html = tmp_path / "bimanual.html"
     run_scene("laparoscopy_bimanual", "--duration", "5.2", "--record", str(html))
     page = browser.new_page(viewport=VIEW)

@@ -1,15 +1,20 @@
 """The recordings match their legend's words, checked without a browser (each shipped scene built
 with a Meshcat on a free port, its legend and its drawing read back): one drawn surface per soft
 body, a force cue no model's colour can be taken for, the device point and a sleeping body told
-apart by shape, the tools listed left to right as the scene's camera sees them. What the page
-shows in Chromium is tests/test_browser.py's."""
+apart by shape, the tools listed left to right as the scene's camera sees them; and the docs'
+browser pictures made by one script (analysis/recording_pictures.py) from today's scenes and
+legend. What the page shows in Chromium is tests/test_browser.py's."""
 
+import argparse
+import json
 import re
 
 import numpy as np
 import pytest
+from conftest import REPO, load_script
 from pydrake.geometry import Role
 
+from godobject_drake import cli
 from godobject_drake.config import scenario as sc
 from godobject_drake.station.build import build_station
 from godobject_drake.systems.drawing import CUE_CAP_RGBA, start_meshcat
@@ -132,3 +137,38 @@ def test_the_legend_lists_the_tools_as_the_camera_sees_them():
     x = screen_x(station.scenario, np.array([tool_point(station, name) for name in names]))
     assert list(np.argsort(x)) == [0, 1], dict(zip(names, x, strict=True))
     assert names == ["left", "right"]
+
+
+PICTURES = load_script("analysis/recording_pictures.py")
+
+
+def embedded_pictures() -> set[str]:
+    """Every ``browser_*.png`` README.md and docs/ embed (by name, without .png)."""
+    pages = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+    return {name for page in pages for name in re.findall(r"\b(browser_\w+)\.png", page.read_text())}
+
+
+def test_one_script_makes_every_browser_picture_the_docs_embed():
+    listed = {p.name for p in PICTURES.PICTURES}
+    assert embedded_pictures() <= listed, embedded_pictures() - listed
+
+
+@pytest.mark.parametrize("picture", PICTURES.PICTURES, ids=lambda p: p.name)
+def test_each_picture_is_of_todays_scene_and_legend(picture, monkeypatch):
+    """The picture's PNG says which scene file it was recorded from (its SHA-256: today's) and
+    what its legend said (today's scene, built with the picture's flags, says the same), so a
+    picture left from before a change of the scene or of the drawing's words fails here:
+    regenerate it with ``python analysis/recording_pictures.py --only NAME``."""
+    from PIL import Image
+
+    text = Image.open(REPO / "docs" / f"{picture.name}.png").text
+    assert text.get("godobject:scene_sha256") == PICTURES.scene_sha256(picture.scene), picture.name
+    if picture.live:
+        return  # the live page draws no legend
+    monkeypatch.chdir(REPO)  # the flags' files are the clone's, relative to it
+    parser = argparse.ArgumentParser()
+    cli.add_arguments(parser)
+    s, _ = cli.scenario_of(PICTURES.scene_file(picture.scene), parser.parse_args(list(picture.flags)))
+    meshcat = start_meshcat(port=0)
+    build_station(s, meshcat)
+    assert json.loads(text["godobject:legend"]) == [line for _, line in page_of(meshcat).legend.values()]
