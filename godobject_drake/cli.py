@@ -587,8 +587,8 @@ def main(argv=None, *, prog: str = "python -m godobject_drake") -> int:
     analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
     analyze.add_argument(
         "--out", type=Path,
-        help="the folder for report.md, summary.json and margins.png (default: analysis_SCENE in the "
-        "current folder)",
+        help="the folder for report.md, summary.json and margins.png (drawn when a row has a value and an "
+        "upper limit; default: analysis_SCENE in the current folder)",
     )  # fmt: skip
     analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
     analyze.add_argument(
