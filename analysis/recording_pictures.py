@@ -12,8 +12,9 @@ picture runs the brick scene live (``--device meshcat``), grasps, lifts and stop
 
 Each PNG carries what it was made from, as text chunks: ``godobject:scene_sha256`` (the scene
 file's SHA-256), ``godobject:flags`` and ``godobject:legend`` (the legend's lines the recording
-drew). tests/test_legend.py checks that every ``browser_*.png`` the docs embed is listed here and
-that each one's scene file and legend are today's.
+drew, each with its swatches' styles: their colours and shapes). tests/test_legend.py checks that
+every ``browser_*.png`` the docs embed is listed here and that each one's scene file and legend
+are today's.
 """
 
 import argparse
@@ -34,6 +35,10 @@ CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 VIEW = {"width": 1280, "height": 800}
 PUSH_LOG = "models/lego/push_and_return.csv"
+# The legend as the page draws it: each line's text and its swatches' styles (their colours and shapes).
+ROWS = "#godobject-legend .row"
+LEGEND_JS = """(rows) => rows.map((r) => [r.innerText.trim(),
+    Array.from(r.querySelectorAll('.swatch')).map((s) => s.getAttribute('style'))])"""
 PRESS = ("--set", "organs.model=fem", "--set", "organs.cells=6",
          "--set", "device.path=models/laparoscopy/deep_press_path.yaml")  # fmt: skip
 
@@ -82,9 +87,9 @@ def record(picture: Picture, folder: Path) -> Path:
     return html
 
 
-def screenshots(browser, html: Path, times) -> tuple[list[bytes], list[str]]:
+def screenshots(browser, html: Path, times) -> tuple[list[bytes], list]:
     """The recording at each of ``times`` (paused, sought; the deforming surfaces' script
-    ready), and the legend's lines."""
+    ready), and the legend's lines: each ``[text, [swatch style, ...]]``."""
     page = browser.new_page(viewport=VIEW)
     page.goto(html.as_uri())
     page.wait_for_function("() => viewer.animator.duration > 0", timeout=60_000)
@@ -96,13 +101,9 @@ def screenshots(browser, html: Path, times) -> tuple[list[bytes], list[str]]:
         page.wait_for_function("() => !window.godobjectSurfaces || window.godobjectSurfaces.ready")
         time.sleep(0.8)
         shots.append(page.screenshot())
-    legend = (
-        page.inner_text("#godobject-legend").splitlines()[1:]
-        if page.query_selector("#godobject-legend")
-        else []
-    )
+    legend = page.eval_on_selector_all(ROWS, LEGEND_JS)
     page.close()
-    return shots, [line.strip() for line in legend if line.strip()]
+    return shots, legend
 
 
 def live_screenshot(browser, picture: Picture) -> bytes:
@@ -152,7 +153,7 @@ def side_by_side(pngs: list[bytes]):
     return out
 
 
-def save(image, path: Path, picture: Picture, legend: list[str]) -> None:
+def save(image, path: Path, picture: Picture, legend: list) -> None:
     """Write the PNG with what it was made from (module docstring)."""
     from PIL.PngImagePlugin import PngInfo
 

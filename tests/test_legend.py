@@ -156,8 +156,9 @@ def test_one_script_makes_every_browser_picture_the_docs_embed():
 @pytest.mark.parametrize("picture", PICTURES.PICTURES, ids=lambda p: p.name)
 def test_each_picture_is_of_todays_scene_and_legend(picture, monkeypatch):
     """The picture's PNG says which scene file it was recorded from (its SHA-256: today's) and
-    what its legend said (today's scene, built with the picture's flags, says the same), so a
-    picture left from before a change of the scene or of the drawing's words fails here:
+    what its legend said, line by line with each swatch's colour and shape (today's scene, built
+    with the picture's flags, says the same), so a picture left from before a change of the scene
+    or of the drawing's words or colours fails here:
     regenerate it with ``python analysis/recording_pictures.py --only NAME``."""
     from PIL import Image
 
@@ -171,4 +172,6 @@ def test_each_picture_is_of_todays_scene_and_legend(picture, monkeypatch):
     s, _ = cli.scenario_of(PICTURES.scene_file(picture.scene), parser.parse_args(list(picture.flags)))
     meshcat = start_meshcat(port=0)
     build_station(s, meshcat)
-    assert json.loads(text["godobject:legend"]) == [line for _, line in page_of(meshcat).legend.values()]
+    today = [[line, [re.search(r'style="([^"]*)"', s.css()).group(1) for s in swatches]]
+             for swatches, line in page_of(meshcat).legend.values()]  # fmt: skip
+    assert json.loads(text["godobject:legend"]) == today
