@@ -140,7 +140,7 @@ COMMON_FLAGS = (
          "any web page open on this machine can drive it (Drake's Meshcat checks no Origin): refused "
          "without this", action="store_true"),
     Flag("--force-cue", "visualization.force_cue",
-         "rigid: the ghost and spring turn from faint to solid red as the stretch reaches the force cap",
+         "rigid: the ghost and spring turn from faint to solid magenta as the stretch reaches the force cap",
          choices=("on", "off"), value=on_off),
     Flag("--tether", "device.tether_m", "relative and live devices: re-index the target after each sample "
          "to stay within this distance (m) of the god-object; inf: off", type=float),
@@ -622,8 +622,8 @@ def main(argv=None, *, prog: str = "python -m godobject_drake") -> int:
     analyze.add_argument("scenario", type=scenario_path, help=SCENARIO_HELP)
     analyze.add_argument(
         "--out", type=Path,
-        help="the folder for report.md, summary.json and margins.png (default: analysis_SCENE in the "
-        "current folder)",
+        help="the folder for report.md, summary.json and margins.png (drawn when a row has a value and an "
+        "upper limit; default: analysis_SCENE in the current folder)",
     )  # fmt: skip
     analyze.add_argument("--quick", action="store_true", help="coarser bisections (seconds, not minutes)")
     analyze.add_argument(

@@ -204,7 +204,7 @@ class SleepManager:
             logger.info("sleeping bodies: locked only, still in the geometry query (sleep.deactivate: false)")
         if meshcat is not None:
             if self.bodies:
-                why = "blue dot: a body asleep (at rest, out of the simulation until touched)"
+                why = "blue ball: a body asleep (at rest, out of the simulation until touched)"
                 page_of(meshcat).add("sleep", swatch(SLEEP_RGBA, "dot"), why)
             for b in self.bodies:
                 meshcat.SetObject(f"/godobject/sleep/{b.name}", Sphere(0.0025), _rgba(SLEEP_RGBA))

@@ -68,7 +68,7 @@ def test_laparoscopy_joint_space_limit_matches_drake():
     assert abs(v["relative_error"]) < 0.02 + v["bisection_tolerance"]
     # No force cap on an articulated coupling: nothing to predict, said so, not a silent pass.
     (contact,) = rows(s, "contact")
-    assert contact["verdict"] == "info" and "no force cap" in contact["fix"]
+    assert contact["verdict"] == "info" and "no force cap" in contact["why"] and not contact["fix"]
 
 
 @pytest.mark.slow
@@ -81,7 +81,8 @@ def test_deformable_limit_lies_between_its_two_models():
     row = min((r for r in s["explicit"] if r["axis"] == v["binding_axis"]), key=lambda r: r["margin"])
     assert row["margin_alone"] < v["simulated_scale"] < row["margin"]
     (check,) = rows(s, "verify", "explicit limit")
-    assert check["verdict"] == "warn" and check["fix"].startswith("trust Drake's boundary")
+    assert check["verdict"] == "warn" and check["why"].startswith("trust Drake's boundary")
+    assert check["fix"].startswith("omega_n ≤")  # what to change, Drake's boundary
 
 
 @pytest.fixture
@@ -310,3 +311,50 @@ def test_the_body_the_device_grasps_is_checked_and_the_body_it_pushes_too(tmp_pa
     with pytest.warns(PenetrationBudgetWarning) as said:
         build_station(scenario, meshcat=None)
     assert str(said[0].message).endswith("Fix: " + grasped["fix"])
+
+
+# A fix names what to change: a scenario field, a flag's field or the coupling to choose.
+FIELD = re.compile(
+    r"\b(omega_n(_rot)?|time_step|kd|max_stretch_m|device_damping|point_contact_stiffness|coupling"
+    r"|gains|(organs|plant|haptic)\.\w+)\b"
+)
+
+
+@pytest.mark.parametrize("scene", ["laparoscopy_bimanual", "laparoscopy"])
+def test_articulated_and_fem_rows_carry_their_numbers_and_fix_says_only_what_to_change(scene, tmp_path):
+    """An articulated tool on FEM tissue (the bimanual scene; the laparoscopy scene's rigid organs,
+    and its FEM organ): every row that judges has its value and its limit (the bimanual report's
+    rows were all `ok` or `info` with neither: SAP's joint PD is implicit, so its rows are the
+    decay rate at the fastest joint-space mode and SAP's near-rigid regime); an `info` row says
+    why it judges nothing in `why`; a `fix` is empty or names what to change, with no
+    explanation in it (those moved to `why`)."""
+    for overrides in [None, "organs: {model: fem, cells: 4}"] if scene == "laparoscopy" else [None]:
+        summary = analyze(sc.shipped_scenario(scene, overrides), quick=True)
+        kinds = {c["section"] for c in summary["checks"]}
+        assert "simulation" in kinds, kinds
+        for row in summary["checks"]:
+            if row["verdict"] == "info":
+                assert row["why"], row
+            else:
+                assert row["value"] is not None and row["limit"] is not None, row
+            assert not row["fix"] or (FIELD.search(row["fix"]) and ":" not in row["fix"]), row
+    implicit = [c for c in summary["checks"] if c["name"].startswith("implicit step response")]
+    assert implicit or scene == "laparoscopy"  # laparoscopy's one tool has an explicit joint PD
+
+
+def test_the_report_explains_its_header_and_draws_no_empty_figure(tmp_path):
+    """The bimanual report: its header says what h, the quick analysis, the Drake check and the
+    seconds are; margins.png draws the rows with a value and an upper limit (the bimanual one
+    was an empty frame); a report with no such row writes none, removes an older one, and says so."""
+    summary = analyze(sc.shipped_scenario("laparoscopy_bimanual"), quick=True)
+    report = write_report(summary, tmp_path).read_text()
+    for words in ("the plant's time step", "quick analysis (`--quick`)", "not checked in Drake",
+                  "the wall time the analysis took", "`why`"):  # fmt: skip
+        assert words in report, words
+    assert f"h = {summary['time_step_s']:g} s" in report
+    assert "![how close each row is to its limit](margins.png)" in report
+    assert (tmp_path / "margins.png").stat().st_size > 10_000
+    nothing = dict(summary, checks=[c for c in summary["checks"] if c["verdict"] == "info"])
+    report = write_report(nothing, tmp_path).read_text()
+    assert not (tmp_path / "margins.png").exists()
+    assert "there is no `margins.png`" in report and "](margins.png)" not in report

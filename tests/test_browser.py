@@ -3,8 +3,8 @@ opens at its first frame, plays and frames the scene; the live page grasps, lift
 
 Marked ``browser``. Without Chromium they skip, saying how to install it; with
 ``GODOBJECT_REQUIRE_BROWSER=1`` (CI) a missing browser fails instead. ``CHROMIUM=/path``
-picks the browser; ``GODOBJECT_SCREENSHOTS=DIR`` keeps the screenshots (the README's come
-from here: ``GODOBJECT_SCREENSHOTS=docs pytest -m browser``).
+picks the browser; ``GODOBJECT_SCREENSHOTS=DIR`` keeps the screenshots (the docs' pictures come
+from analysis/recording_pictures.py).
 """
 
 import io
@@ -65,7 +65,7 @@ def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def open_and_play(browser, scene, tmp_path):
     """The scene's 5 s recording opened in a page, read twice 1.5 s apart: the page and the
     readings (viewer clock at each, page time between them, the end). The screenshots taken
-    meanwhile are kept with GODOBJECT_SCREENSHOTS (the docs' pictures)."""
+    meanwhile are kept with GODOBJECT_SCREENSHOTS."""
     html = tmp_path / f"{scene}.html"
     run_scene(scene, "--duration", "5", "--record", str(html))
     page = browser.new_page(viewport=VIEW)
@@ -184,11 +184,18 @@ def test_live_page_grasps_lifts_and_stops_the_run(browser, tmp_path):
     assert m["free_space_samples"] > 0  # the held brick was ≥ 2 mm from every other shape
 
 
-def test_force_cue_turns_the_ghost_red_at_the_wall(browser, tmp_path):
+def magenta(image: np.ndarray) -> int:
+    """How many pixels show the force cue's solid magenta (CUE_CAP_RGBA, lit and shaded): red and
+    blue high, green low. No shipped model is of this colour (the bricks are red: blue under 70)."""
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    return int(np.sum((r > 150) & (b > 150) & (g < 90)))
+
+
+def test_force_cue_turns_the_ghost_magenta_at_the_wall(browser, tmp_path):
     """The whole brick path, its release at 7.5 s included: at 1 s the brick tracks its target
     (faint ghost); at 3.1 s the target is through the wall, the stretch at the cap, and the
-    ghost and spring are drawn solid red: the red area grows by the ghost's (the bricks are red
-    too, in both frames). The release must not hide the ghost before it (issue 30, case 9: the
+    ghost and spring are drawn solid magenta: the magenta area grows by the ghost's (no brick is
+    magenta: they are red). The release must not hide the ghost before it (issue 30, case 9: the
     drawing's t = 0 keyframes were lost, and the release's "hidden" held from the start): the
     frames before it are the same pixels as a recording cut at 4 s, before any release."""
     images = {}
@@ -204,23 +211,19 @@ def test_force_cue_turns_the_ghost_red_at_the_wall(browser, tmp_path):
             time.sleep(0.3)
             images[duration, t] = shot(page, name if duration == "8.5" else f"{name}_cut")
         page.close()
-    red = {
-        t: int(np.sum((image[..., 0] > 180) & (image[..., 1] < 70) & (image[..., 2] < 70)))
-        for (duration, t), image in images.items()
-        if duration == "8.5"
-    }
-    assert red[3.1] > red[1.0] + 500, red
+    shown = {t: magenta(image) for (duration, t), image in images.items() if duration == "8.5"}
+    assert shown[3.1] > shown[1.0] + 500, shown
     for t in (1.0, 3.1):
         assert int(np.sum(changed(images["8.5", t], images["4", t]))) == 0, t
 
 
 def test_tether_keeps_the_ghost_at_the_wall(browser, tmp_path):
     """A mouse pushes the brick 12 cm through the wall (models/lego/push_and_return.csv). At 2 s,
-    untethered, the ghost is solid red far inside the wall; with a 2 mm tether it sits by the
-    brick, faint (its stretch is a hundredth of the cap: level 0.1): the red area shrinks by
+    untethered, the ghost is solid magenta far inside the wall; with a 2 mm tether it sits by the
+    brick, faint (its stretch is a hundredth of the cap: level 0.1): the magenta area shrinks by
     the ghost's."""
     log = str(REPO / "models/lego/push_and_return.csv")
-    red = {}
+    shown = {}
     for name, flags in (("mouse_untethered", ()), ("mouse_tethered", ("--tether", "0.002"))):
         html = tmp_path / f"{name}.html"
         run_scene("lego", "--device", "relative", "--device-log", log, "--duration", "2.2", "--record",
@@ -231,9 +234,9 @@ def test_tether_keeps_the_ghost_at_the_wall(browser, tmp_path):
         page.evaluate("() => { viewer.animator.pause(); viewer.animator.seek(2.0); viewer.set_dirty(); }")
         time.sleep(0.3)
         image = shot(page, f"browser_{name}")
-        red[name] = int(np.sum((image[..., 0] > 180) & (image[..., 1] < 70) & (image[..., 2] < 70)))
+        shown[name] = magenta(image)
         page.close()
-    assert red["mouse_untethered"] > red["mouse_tethered"] + 500, red
+    assert shown["mouse_untethered"] > shown["mouse_tethered"] + 500, shown
 
 
 def pink(image: np.ndarray) -> np.ndarray:
@@ -338,7 +341,7 @@ def held_brick_pixels(page, t: float, name: str) -> int:
 
 def test_the_recording_explains_itself_and_keeps_the_held_brick_in_view(browser, tmp_path):
     """The brick scene's recording: a legend in the page says what each mark means (the solid
-    tool, the ghost, the spring and its red, the device ball, the sleeping bricks' blue dots); no
+    tool, the ghost, the spring and its magenta, the device cross, the sleeping bricks' blue balls); no
     grid (its far lines crossed the sky) and no axes (0.5 m lines through a scene of centimetres);
     and the held brick is seen whole in the first frame and at the wall (1.8 s): with the camera
     on the wall's other side (before) only its top showed over the wall, 339 pixels at 1.8 s (889
@@ -349,8 +352,8 @@ def test_the_recording_explains_itself_and_keeps_the_held_brick_in_view(browser,
     page.goto(html.as_uri())
     page.wait_for_function("() => viewer.animator.duration > 0", timeout=30_000)
     legend = page.inner_text("#godobject-legend")
-    for words in ("solid: the simulated tool", "faint ghost", "coupling spring", "turning red", "small ball",
-                  "blue dot"):  # fmt: skip
+    for words in ("solid: the simulated tool", "faint ghost", "coupling spring", "turning magenta",
+                  "small cross", "blue ball"):  # fmt: skip
         assert words in legend, legend
     grid, axes = page.evaluate(
         "() => [['Grid'], ['Axes']].map((p) => viewer.scene_tree.find(p).object.visible)"
@@ -367,7 +370,7 @@ def test_bimanual_recording_shows_both_tools_and_the_organ_dented_and_lifted(bro
     the left grasper has lifted the uterus's edge and the right one presses its top. With only
     the organ shown, its pink area at 5 s differs from the first frame's by hundreds of pixels,
     and the highest vertex the page draws is up by the lift (the docs' pictures:
-    GODOBJECT_SCREENSHOTS=docs)."""
+    GODOBJECT_SCREENSHOTS=DIR keeps them)."""
     html = tmp_path / "bimanual.html"
     run_scene("laparoscopy_bimanual", "--duration", "5.2", "--record", str(html))
     page = browser.new_page(viewport=VIEW)

@@ -1,5 +1,5 @@
 """The force cue (pseudo-haptics for a non-haptic device): the target ghost and the spring show
-the coupling's stretch against its force cap, faint while tracking, solid red at the cap."""
+the coupling's stretch against its force cap, faint while tracking, solid magenta at the cap."""
 
 import math
 
@@ -14,7 +14,7 @@ FPS = 64
 MAX_STRETCH = 0.2  # the brick scene's force cap, as a stretch (m)
 
 
-def test_cue_level_and_colour_are_monotone_and_end_at_solid_red():
+def test_cue_level_and_colour_are_monotone_and_end_at_solid_magenta():
     ratios = np.linspace(-0.5, 2.0, 101)
     levels = [cue_level(r) for r in ratios]
     assert levels[0] == 0.0 and levels[-1] == 1.0 and np.all(np.diff(levels) >= 0)

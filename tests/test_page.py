@@ -102,7 +102,8 @@ def test_a_scene_of_two_tools_names_each_tools_colours_in_the_legend(meshcat):
     s = sc.shipped_scenario("lego_two_hands")
     build_station(s, meshcat)
     legend = legend_html(page_of(meshcat))
-    for words in ("faint ghost", "coupling spring", "small ball", "turning red", "tool left", "tool right"):
+    once = ("faint ghost", "coupling spring", "small cross", "turning magenta", "tool left", "tool right")
+    for words in once:
         assert legend.count(words) == 1, words
     rows = {row.split("<span>")[-1].split("<")[0]: row for row in legend.split('<div class="row">')[1:]}
     assert "rgba(76, 153, 255, 0.35)" in rows["tool left"]  # PALETTE[0]'s ghost, 35 % opaque

@@ -126,7 +126,7 @@ class RelativeAids:
       that carries T further from G is divided by ``CD(s) = 1 + (R − 1)(s − s₀)/(s_cap − s₀)``
       for a stretch ``s = |p_T − p_G|`` past ``s₀ = cd_onset_m`` (1 below it), ``s_cap`` the
       coupling's force-cap stretch: the ratio grows linearly from 1 at the onset to R at the
-      force cap, where the force cue turns solid red. The target visibly resists being pushed
+      force cap, where the force cue turns solid magenta. The target visibly resists being pushed
       into an obstacle. ``R = 1``: off. Rotation increments are not scaled.
 
     With the god-object held still, pushing the device a distance X past the onset leaves the

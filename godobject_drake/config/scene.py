@@ -231,7 +231,7 @@ class Visualization:
     camera : Camera | None
         The view to open on; None: Meshcat's default.
     force_cue : bool
-        Rigid god-objects: the target ghost and the spring turn from faint to solid red as the
+        Rigid god-objects: the target ghost and the spring turn from faint to solid magenta as the
         coupling's stretch reaches its force cap (pseudo-haptics for a non-haptic device).
     trust_local_pages : bool
         The opt-in to serve the live page with a haptic device (``haptic.mode`` impedance or

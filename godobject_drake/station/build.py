@@ -34,6 +34,7 @@ from godobject_drake.systems.drawing import (
     Drawing,
     TissueVisualizer,
     add_meshcat_visualization,
+    draw_soft_body_here,
     start_meshcat,
 )
 from godobject_drake.systems.page import set_view
@@ -216,6 +217,7 @@ def add_visualization(
     if scene.tissue is not None and observers:  # the organ once, whichever tool's observer reads it
         period = scenario.visualization.publish_period_s
         drawing = builder.AddNamedSystem("tissue_visualizer", TissueVisualizer(meshcat, scene.tissue, period))
+        draw_soft_body_here(scene.plant, scene.scene_graph, scene.tissue.geometry_id)
         builder.Connect(
             observers[0].GetOutputPort("surface_positions"), drawing.GetInputPort("surface_positions")
         )

@@ -17,7 +17,7 @@ from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import DeviceSource, first_pose
 from godobject_drake.metrics import ShellMetrics
 from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
-from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ShellVisualizer
+from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ShellVisualizer, draw_soft_body_here
 from godobject_drake.systems.shell import add_deformable_god_object, obstacle_geometries
 
 if TYPE_CHECKING:
@@ -78,6 +78,9 @@ class DeformableGodObject(RigidGodObject):
         )
         builder.Connect(self.observer.GetOutputPort("pose_WC"), shell.GetInputPort("pose_WC"))
         builder.Connect(self.coupling.GetOutputPort("pose_WT"), shell.GetInputPort("pose_WT"))
+        geometry = getattr(self.shell, "geometry_id", None)  # the FEM shell's (a mass-spring one has none)
+        if geometry is not None:
+            draw_soft_body_here(scene.plant, scene.scene_graph, geometry)
 
     def new_metrics(self, station):
         return _ShellFold(station, self)

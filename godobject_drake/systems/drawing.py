@@ -8,12 +8,14 @@ same recording (``time_in_recording``):
 - ``/godobject/ghost/<body>``: a semi-transparent copy of the held body at
   its target pose (shown only while that body is held);
 - ``/godobject/spring``: a thin cylinder from Go to the target;
-- ``/godobject/device``: a small sphere at the device target when nothing
-  is held.
+- ``/godobject/device``: a small cross (three short bars along the target's axes) at the device
+  target when nothing is held: a cross, so that it is not taken for a sleeping body's ball
+  (:mod:`godobject_drake.sleeping`).
 
 With ``max_stretch_m`` (the coupling's force cap, as a stretch) the ghost and the spring carry
-a force cue: faint blue and faint yellow while the body tracks its target, turning solid red as
-the stretch reaches the cap (:func:`cue_level`), live and as animated colours in recordings.
+a force cue: faint blue and faint yellow while the body tracks its target, turning solid magenta
+(a colour no shipped model has: the bricks are red) as the stretch reaches the cap
+(:func:`cue_level`), live and as animated colours in recordings.
 
 For an articulated tool, :class:`ToolGhostVisualizer` draws the device's
 tool (its kinematic copy) as a wireframe under ``/godobject/device_tool``.
@@ -52,11 +54,15 @@ from godobject_drake.systems.page import DeformingSurface, page_of, swatch
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
 DEFAULT_FPS = 64.0
-# The force cue (pseudo-haptics): ghost and spring go from these, while tracking, to solid red
-# at the force cap, by cue_level(stretch / max_stretch).
+# The force cue (pseudo-haptics): ghost and spring go from these, while tracking, to solid
+# magenta at the force cap, by cue_level(stretch / max_stretch). Magenta is no shipped model's colour
+# (the bricks are red, the organs pink and yellow; tests/test_legend.py checks each scene's), so the
+# cue cannot be taken for a model.
 CUE_GHOST_RGBA = (0.3, 0.6, 1.0, 0.15)
 CUE_SPRING_RGBA = (1.0, 0.8, 0.1, 0.5)
-CUE_CAP_RGBA = (1.0, 0.0, 0.0, 1.0)
+CUE_CAP_RGBA = (1.0, 0.0, 1.0, 1.0)
+# The device point: a cross of three bars this long (m) and this thick (radius, m).
+DEVICE_CROSS_M = (0.008, 0.0006)
 # Meshcat animates a node's transform and visibility but not its material's colour, so the cue
 # is drawn as CUE_LEVELS copies, each in its colour, one visible at a time.
 CUE_LEVELS = 8
@@ -66,9 +72,9 @@ CUE_LEVELS = 8
 # stays the one above): the first as a scene of one tool does.
 PALETTE = (
     ((0.3, 0.6, 1.0), (1.0, 0.8, 0.1)),  # blue ghost, yellow spring
-    ((0.2, 0.8, 0.35), (0.95, 0.35, 0.85)),  # green ghost, magenta spring
+    ((0.2, 0.8, 0.35), (1.0, 0.55, 0.0)),  # green ghost, orange spring (magenta is the force cue's)
     ((0.7, 0.45, 1.0), (0.2, 0.9, 0.9)),  # violet ghost, cyan spring
-    ((1.0, 0.55, 0.2), (0.55, 0.9, 0.2)),  # orange ghost, lime spring
+    ((0.9, 0.9, 0.9), (0.55, 0.9, 0.2)),  # white ghost, lime spring
 )
 
 
@@ -104,7 +110,8 @@ def cue_level(ratio: float) -> float:
 
 
 def cue_rgba(level: float, base) -> list[float]:
-    """``base`` blended toward solid red by ``level`` in [0, 1] (colour and opacity alike)."""
+    """``base`` blended toward solid magenta (:data:`CUE_CAP_RGBA`) by ``level`` in [0, 1] (colour
+    and opacity alike)."""
     return [b + level * (c - b) for b, c in zip(base, CUE_CAP_RGBA, strict=True)]
 
 
@@ -128,12 +135,12 @@ def add_legend(meshcat: Meshcat, tool: str = "", *, ghost=None, spring=None, dot
             spring,
             "line: the coupling spring, from the body to its target; its stretch is the force",
         )
-        page.add("dot", dot, "small ball: the device point, while nothing is held")
+        page.add("dot", dot, "small cross: the device point, while nothing is held")
     if wire is not None:
         page.add("wire", wire, "wireframe: where the device puts the tool (the target)")
     if cue:
-        page.add("cue", swatch(CUE_CAP_RGBA), "turning red: the pull nears the force cap (the device is "
-                 "where the tool cannot go)")  # fmt: skip
+        page.add("cue", swatch(CUE_CAP_RGBA), "turning magenta: the pull nears the force cap (the device "
+                 "is where the tool cannot go)")  # fmt: skip
     if tool:
         marks = [m for m in (ghost, spring, wire) if m is not None]
         page.add(f"tool {tool}", marks, f"tool {tool}")
@@ -171,7 +178,7 @@ class GodObjectVisualizer(LeafSystem):
         self._prefix = prefix
         ghost = Rgba(*ghost_rgb, GHOST_RGBA.a())
         add_legend(meshcat, tool, ghost=swatch(ghost, "ghost"), spring=swatch(spring_rgb, "line"),
-                   dot=swatch(ghost_rgb, "dot"), cue=max_stretch_m is not None)  # fmt: skip
+                   dot=swatch(ghost_rgb, "cross"), cue=max_stretch_m is not None)  # fmt: skip
         cue_ghost, cue_spring = (*ghost_rgb, CUE_GHOST_RGBA[3]), (*spring_rgb, CUE_SPRING_RGBA[3])
         # The force cue: None (off) or the stretch at the coupling's force cap (m).
         self._cue_stretch = max_stretch_m if max_stretch_m and np.isfinite(max_stretch_m) else None
@@ -209,7 +216,7 @@ class GodObjectVisualizer(LeafSystem):
                 rgba = Rgba(*cue_rgba(k / (CUE_LEVELS - 1), cue_spring))
                 meshcat.SetObject(f"{prefix}/spring/cylinder/cue_{k}", Cylinder(0.0006, 1.0), rgba)
                 meshcat.SetProperty(f"{prefix}/spring/cylinder/cue_{k}", "visible", k == 0)
-        meshcat.SetObject(f"{prefix}/device", Sphere(0.003), ghost)
+        add_cross(meshcat, f"{prefix}/device", Rgba(*ghost_rgb, 1.0))
         self._shown: int | None = None
 
     def _publish(self, context):
@@ -244,6 +251,16 @@ class GodObjectVisualizer(LeafSystem):
                         mc.SetProperty(f"{path}/cue_{k}", "visible", k == step, t)
                         mc.SetProperty(f"{pre}/spring/cylinder/cue_{k}", "visible", k == step, t)
                 self._cue_step = step
+
+
+def add_cross(meshcat: Meshcat, path: str, rgba: Rgba) -> None:
+    """A small cross at ``path``: three bars (:data:`DEVICE_CROSS_M`) along its frame's axes."""
+    length, radius = DEVICE_CROSS_M
+    turns = {"x": RotationMatrix.MakeYRotation(np.pi / 2), "y": RotationMatrix.MakeXRotation(np.pi / 2),
+             "z": RotationMatrix()}  # fmt: skip
+    for axis, R in turns.items():
+        meshcat.SetObject(f"{path}/{axis}", Cylinder(radius, length), rgba)
+        meshcat.SetTransform(f"{path}/{axis}", RigidTransform(R, np.zeros(3)))
 
 
 def wire_mesh(shape, n: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -476,6 +493,17 @@ def start_meshcat(host: str = "localhost", port: int | None = None) -> Meshcat:
             flush=True,
         )
     return meshcat
+
+
+def draw_soft_body_here(plant: MultibodyPlant, scene_graph: SceneGraph, geometry_id) -> None:
+    """Leave a deformable body's drawing to this package: Drake's ``RegisterDeformableBody`` gives
+    the body an illustration role of its own (no colour: white), which ``MeshcatVisualizer`` draws
+    as a faceted mesh, and in a recording that mesh stays where the last live frame left it
+    (recordings replay no moving vertices: Drake issue #23206), so it z-fights the surface drawn
+    here (:class:`TissueVisualizer`, :class:`ShellVisualizer`). Removing that role leaves one
+    drawn surface per soft body: the one that deforms in recordings too."""
+    if scene_graph.model_inspector().GetProperties(geometry_id, Role.kIllustration) is not None:
+        scene_graph.RemoveRole(plant.get_source_id(), geometry_id, Role.kIllustration)
 
 
 def add_meshcat_visualization(

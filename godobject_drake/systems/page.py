@@ -38,7 +38,7 @@ SURFACES_ID = "godobject-surfaces"
 @dataclasses.dataclass(frozen=True)
 class Swatch:
     """A legend entry's sample: ``rgba`` drawn as ``shape``: ``solid`` (a filled box), ``ghost``
-    (a faint box), ``wire`` (an outline), ``line`` (a bar), ``dot`` (a disc)."""
+    (a faint box), ``wire`` (an outline), ``line`` (a bar), ``dot`` (a disc), ``cross`` (a plus sign)."""
 
     rgba: tuple[float, float, float, float]
     shape: str = "solid"
@@ -53,6 +53,8 @@ class Swatch:
             "wire": f"outline: 1px dashed {opaque}; outline-offset: -1px",
             "line": f"background: {opaque}; height: 3px; margin-top: 5px",
             "dot": f"background: {opaque}; border-radius: 50%; width: 8px; height: 8px; margin: 3px",
+            "cross": f"background: linear-gradient({opaque}, {opaque}) center / 100% 2px no-repeat, "
+            f"linear-gradient({opaque}, {opaque}) center / 2px 100% no-repeat",
         }[self.shape]
         return f'<span class="swatch" style="{style}"></span>'
 

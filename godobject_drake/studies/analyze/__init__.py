@@ -4,14 +4,16 @@
 god-object body's mass and inertia, the plant's step, the coupling's gains and caps, the
 contact stiffness of every pair the held body can touch, the haptic device's rate, mass and
 damping and the feedback gains) and returns one :class:`Check` per question, each with a
-verdict (``ok``, ``warn``, ``fail`` or ``info``), its number, its limit and the change that fixes
-it. With ``verify`` it simulates each prediction in Drake on the user's own scene:
+verdict (``ok``, ``warn``, ``fail`` or ``info``), its number, its limit, the change that fixes
+it (``fix``) and what it rests on (``why``). With ``verify`` it simulates each prediction in
+Drake on the user's own scene:
 
 - the static penetration, by holding the target 5 cm inside the nearest fixed obstacle;
 - the explicit limit, by bisecting a scale on the coupling's gains until the held body's motion
   grows instead of decaying.
 
-:func:`write_report` writes ``report.md``, ``summary.json`` and ``margins.png``. The JSON
+:func:`write_report` writes ``report.md``, ``summary.json`` and ``margins.png`` (when a row has a
+value and an upper limit). The JSON
 keys are documented in docs/guide/stability.md, "Analysing your own scene". The theory is docs/theory.md.
 
 The checks, by concern, each a module of this package:

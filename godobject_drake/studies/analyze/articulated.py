@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from godobject_drake.studies.analyze.common import WARN_FRACTION, Check, _le, _verdict_below
+from godobject_drake.studies.analyze.implicit import implicit_joint_rows
 from godobject_drake.studies.stability import (
     bisect,
 )
@@ -18,14 +19,23 @@ def _articulated_checks(station, out: dict, duration_s: float, check_every: int)
     """The joint-space check the builder runs (every ``check_every``-th device sample), with its
     margin: the largest bandwidth scale and step that keep the worst configuration stable."""
     coupling, h = station.coupling, station.plant.time_step()
-    if coupling.coupling == "joint_pd_sap":
-        out["explicit"] = []
-        return [Check("simulation", "explicit limit (joint space)", "tool", "ok", None, None, "",
-                      "implicit (SAP's PD actuators): unconditionally stable")]  # fmt: skip
     device = station.device
     qs = device.samples(duration_s)[::check_every]
     tool, gains, mode = coupling.tool, coupling.gains, coupling.coupling
     loops = [joint_space_loop(tool, mode, gains, np.asarray(q, float), h) for q in qs]
+    if mode == "joint_pd_sap":
+        out["explicit"] = []
+        fastest = max(lp.omega_max for lp in loops)
+        out["implicit"] = [{"configurations": len(loops), "fastest_mode_rad_s": fastest}]
+        beta = station.scenario.plant.sap_near_rigid_threshold
+        return implicit_joint_rows(
+            fastest,
+            gains.zeta,
+            h,
+            1.0 if beta is None else beta,
+            f"joint space ({len(loops)} configurations)",
+            lambda w: f"omega_n ≤ {_le(gains.omega_n * w / fastest)} rad/s",
+        )
     i = int(np.argmax([lp.radius for lp in loops]))
     q_worst, worst = np.asarray(qs[i], float), loops[i]
 

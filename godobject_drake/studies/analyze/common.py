@@ -25,8 +25,11 @@ VERDICTS = ("ok", "warn", "fail", "info")
 class Check:
     """One row of the verdict table.
 
-    ``value`` and ``limit`` are in ``unit``; ``verdict`` is ``ok``, ``warn`` (within 25 % of
-    the limit), ``fail`` (past it) or ``info`` (nothing to judge: a reason in ``fix``).
+    ``value`` and ``limit`` are in ``unit`` (None where the row has none: an ``info`` row, or a
+    loop with no limit); ``verdict`` is ``ok``, ``warn`` (within 25 % of the limit), ``fail``
+    (past it) or ``info`` (nothing to judge). ``fix`` says only what to change for the row to
+    pass (empty when nothing needs changing); ``why`` what the row rests on: the model's terms,
+    the reason an ``info`` row judges nothing, how the verification compares.
     ``predicted`` and ``simulated`` are the verification's pair, when it ran.
     """
 
@@ -41,6 +44,7 @@ class Check:
     predicted: float | None = None
     simulated: float | None = None
     bound: str = "upper"  # "upper": passes with value below limit; "lower": at or above it
+    why: str = ""
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -42,7 +42,7 @@ def _contact_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     out["contact_pairs"] = [dict(dataclasses.asdict(p), depth_m=p.depth_m) for p in pairs]
     out["pushed_pairs"] = [dict(dataclasses.asdict(p), depth_m=p.depth_m, pushed_by=by) for p, by in pushed]
     if reason:
-        return [Check("contact", "static penetration", kind, "info", None, budget, "m", reason)]
+        return [Check("contact", "static penetration", kind, "info", None, budget, "m", "", why=reason)]
     gains, max_stretch = station.coupling.gains, station.coupling.max_stretch_m
     deepest = max(pairs, key=lambda p: p.depth_m)
     rows = [Check(
@@ -111,7 +111,7 @@ def _between_tools(station, s: sc.Scenario) -> list[Check]:
                 reason = "no point contact between their held bodies to predict from"
             if reason:
                 rows.append(Check("contact", "static penetration between two tools' held bodies",
-                                  subject, "info", None, budget, "m", reason))  # fmt: skip
+                                  subject, "info", None, budget, "m", "", why=reason))  # fmt: skip
                 continue
             force, k, body_a, body_b = max(pairs, key=lambda p: p[0] / p[1])
             depth = force / k

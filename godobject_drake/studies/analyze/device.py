@@ -45,7 +45,7 @@ def _device_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
             if haptic.mode == "admittance"
             else "feedback gains are zero: the device feels nothing"
         )
-        return [Check("device", "haptic loop", "device", "info", None, None, "", why)]
+        return [Check("device", "haptic loop", "device", "info", None, None, "", "", why=why)]
     h, T = station.plant.time_step(), 1.0 / haptic.rate_hz
     coupling = station.coupling
     body = _held_body(station)

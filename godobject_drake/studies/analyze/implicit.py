@@ -57,8 +57,8 @@ def _implicit_pose_checks(station, out: dict) -> list[Check]:
     h_acc = x_floor / w_max
     out["h_max_s"] = math.inf
     out["h_accurate_s"] = h_acc
-    rows = [Check("simulation", "explicit limit", "all bodies", "ok", None, None, "",
-                  "none: SAP integrates the implicit coupling's springs, stable at any ω·h")]  # fmt: skip
+    rows = [Check("simulation", "explicit limit", "all bodies", "ok", None, None, "", "",
+                  why="none: SAP integrates the implicit coupling's springs, stable at any ω·h")]  # fmt: skip
     for axis in ("translation", "rotation"):
         of_axis = [r for r in per_body if r["axis"].startswith(axis)]
         worst = min(of_axis, key=lambda r: r["rate_fraction"])
@@ -68,8 +68,9 @@ def _implicit_pose_checks(station, out: dict) -> list[Check]:
             "simulation", f"implicit step response, {axis}: decay rate / ωn (backward Euler)",
             f"{worst['body']} ({_bodies(len({r['body'] for r in of_axis}))} the device grasps)",
             "ok" if rate >= IMPLICIT_RATE_FLOOR else "warn", rate, IMPLICIT_RATE_FLOOR, "",
-            f"time_step ≤ {_le(x_floor / worst['omega_rad_s'])} s or {name} ≤ {_le(x_floor / h)} rad/s "
-            "for a response within 20 % of Eq. 3's rate (slower past it, never unstable)", bound="lower",
+            f"time_step ≤ {_le(x_floor / worst['omega_rad_s'])} s or {name} ≤ {_le(x_floor / h)} rad/s",
+            bound="lower", why="a response within 20 % of Eq. 3's rate passes (slower past it, never "
+            "unstable)",
         ))  # fmt: skip
         near = max(of_axis, key=lambda r: r["near_rigid_value"] / r["near_rigid_limit"])
         rows.append(Check(
@@ -77,6 +78,34 @@ def _implicit_pose_checks(station, out: dict) -> list[Check]:
             near["body"], _verdict_below(near["near_rigid_value"], near["near_rigid_limit"]),
             near["near_rigid_value"], near["near_rigid_limit"], "",
             f"{name} ≤ {_le(2 * math.pi / (beta * h))} rad/s about, or a smaller time_step, or a lower "
-            "plant.sap_near_rigid_threshold (SAP softens a near-rigid spring to its own time scale)",
+            "plant.sap_near_rigid_threshold", why="SAP softens a near-rigid spring to its own time scale",
         ))  # fmt: skip
     return rows
+
+
+def implicit_joint_rows(omega: float, zeta: float, h: float, beta: float, what: str, gain_fix) -> list[Check]:
+    """An implicit joint-space loop's rows (SAP's joint PD, ``joint_pd_sap``): stable at any ω·h, so
+    no explicit limit; what limits it instead, as for the implicit pose coupling (docs/theory.md
+    §7): the step response's decay rate under backward Euler at its fastest mode ``omega`` (rad/s)
+    against :data:`IMPLICIT_RATE_FLOOR`, and SAP's near-rigid regime ``(ω h)² + 2 ζ ω h`` against
+    ``(2π/β)²``. ``gain_fix(ω_max)``: the gain change that brings the fastest mode to ``ω_max``
+    ("" when no gain sets it alone)."""
+    x_floor = bisect(lambda x: implicit_rate(1.0, zeta, x) >= IMPLICIT_RATE_FLOOR, 1e-9, 1e3, 1e-6)
+    rate = implicit_rate(omega, zeta, h)
+    near = (omega * h) ** 2 + 2 * zeta * omega * h
+    near_limit = (2 * math.pi / beta) ** 2 if beta > 0 else math.inf
+    x_near = math.sqrt(zeta**2 + near_limit) - zeta  # the ω h where near reaches its limit
+    or_gain = lambda w: f" or {gain_fix(w)}" if gain_fix(w) else ""  # noqa: E731
+    return [
+        Check("simulation", f"implicit step response, {what}: decay rate / ω of the fastest mode "
+              f"({omega:.4g} rad/s, backward Euler)", "tool",
+              "ok" if rate >= IMPLICIT_RATE_FLOOR else "warn", rate, IMPLICIT_RATE_FLOOR, "",
+              f"time_step ≤ {_le(x_floor / omega)} s{or_gain(x_floor / h)}", bound="lower",
+              why="SAP's joint PD is implicit: stable at any ω·h, no explicit limit; a response within 20 % "
+              "of the spring's own rate passes (slower past it, never unstable)"),
+        Check("simulation", f"SAP near-rigid regime, {what}: (ωh)² + 2ζωh against (2π/β)², β = {beta:g}",
+              "tool", _verdict_below(near, near_limit), near, near_limit, "",
+              f"time_step ≤ {_le(x_near / omega)} s{or_gain(x_near / h)}, or a lower "
+              "plant.sap_near_rigid_threshold",
+              why="SAP softens a near-rigid joint spring to its own time scale"),
+    ]  # fmt: skip

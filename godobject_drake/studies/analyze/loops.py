@@ -42,8 +42,8 @@ def _gains_row(station, out: dict) -> None:
 
 
 def _no_haptic_device(station, scenario, out: dict) -> list[Check]:
-    return [Check("device", "haptic loop", "device", "info", None, None, "",
-                  "joint-space devices here are not haptic")]  # fmt: skip
+    return [Check("device", "haptic loop", "device", "info", None, None, "", "",
+                  why="joint-space devices here are not haptic: no device loop to judge")]  # fmt: skip
 
 
 def _verify_implicit(station, scenario, out: dict, rel_tol: float) -> Check | None:

@@ -12,6 +12,7 @@ from pydrake.multibody.tree import BodyIndex
 from godobject_drake.config import scenario as sc
 from godobject_drake.limits import semi_implicit_matrix
 from godobject_drake.studies.analyze.common import WARN_FRACTION, Check, _le, _verdict_below
+from godobject_drake.studies.analyze.implicit import implicit_joint_rows
 from godobject_drake.studies.stability import (
     bisect,
 )
@@ -114,8 +115,8 @@ def _tissue_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     out["_tissue_press"] = press
     if press is None:
         out["tissue"] = None
-        return [Check("tissue", "stiffness at the tool's contact", "organ", "info", None, None, "",
-                      "the tool's axis never points at the FEM organ on the device's path")]  # fmt: skip
+        return [Check("tissue", "stiffness at the tool's contact", "organ", "info", None, None, "", "",
+                      why="the tool's axis never points at the FEM organ on the device's path")]  # fmt: skip
     k, K = press["stiffness_n_m"], press["tool_stiffness_n_m"]
     push = press["push_m"]
     depth = K * push / (K + k)
@@ -125,24 +126,27 @@ def _tissue_checks(station, scenario: sc.Scenario, out: dict) -> list[Check]:
     rows = [
         Check("tissue", f"stiffness at the tool's contact (linear FEM of the {press['cells']}-cell mesh, "
               "point force)", press["organ"], "info", k, None, "N/m",
-              f"Hertz's tangent for the {press['tip_radius_m'] * 1e3:g} mm tip at 1 mm: "
+              f"organs.cells above {press['cells']}",
+              why=f"Hertz's tangent for the {press['tip_radius_m'] * 1e3:g} mm tip at 1 mm: "
               f"{press['hertz_tangent_1mm_n_m']:.4g} N/m; the mesh is stiffer than the continuum until its "
-              "surface triangles are smaller than the contact: raise organs.cells"),
+              "surface triangles are smaller than the contact"),
         Check("tissue", f"indentation under the device's deepest push ({push * 1e3:.3g} mm past the surface)",
-              press["organ"], "info", depth, None, "m",
-              f"k_tip (d − δ) = k δ: the coupling's stiffness at the tip along the tube, "
+              press["organ"], "info", depth, None, "m", "",
+              why=f"k_tip (d − δ) = k δ: the coupling's stiffness at the tip along the tube, "
               f"{K:.4g} N/m, against the tissue's {k:.4g} N/m; force {force:.3g} N"),
     ]  # fmt: skip
     coupling, h = station.coupling, station.plant.time_step()
-    if coupling.coupling == "joint_pd_sap":
-        why = "implicit (SAP's PD actuators): unconditionally stable"
-        rows.append(Check("simulation", "explicit limit, joint space, pressing the tissue", "tool", "ok",
-                          None, None, "", why))  # fmt: skip
-        out["tissue"] = tissue
-        return rows
-
     loop, Jd = press["loop"], press["Jd"]
     K_i = k * np.outer(Jd, Jd)
+    if coupling.coupling == "joint_pd_sap":  # implicit, the tissue's contact too: no explicit limit
+        modes = np.linalg.eigvals(np.linalg.solve(loop.M, loop.K + K_i)).real
+        fastest = float(np.sqrt(max(modes.max(), 0.0)))
+        tissue.update(fastest_mode_rad_s=fastest)
+        out["tissue"] = tissue
+        beta = station.scenario.plant.sap_near_rigid_threshold
+        what = f"pressing the tissue ({k:.4g} N/m at the tip)"
+        beta = 1.0 if beta is None else beta
+        return rows + implicit_joint_rows(fastest, coupling.gains.zeta, h, beta, what, lambda w: "")
     D_i = press["stiffness_damping_s"] * K_i  # the tissue's Rayleigh damping β K at the contact
 
     def radius(c: float) -> float:

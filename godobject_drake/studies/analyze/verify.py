@@ -177,10 +177,10 @@ def _verify_penetration(station, scenario, out: dict) -> Check | None:
     }  # fmt: skip
     err = abs(simulated / depth - 1.0)
     name = f"static penetration, target {PUSH_IN_M * 100:g} cm inside {obstacle} ({n} contacts)"
-    return Check("verify", name, body.name, "ok" if err <= 0.1 else "warn", err, 0.1, "relative error",
-                 "model and Drake agree" if err <= 0.1 else
+    return Check("verify", name, body.name, "ok" if err <= 0.1 else "warn", err, 0.1, "relative error", "",
+                 predicted=depth, simulated=simulated, why="model and Drake agree" if err <= 0.1 else
                  "the contact differs from SAP's linear point law (near-rigid regime?): trust Drake's depth",
-                 predicted=depth, simulated=simulated)  # fmt: skip
+                 )  # fmt: skip
 
 
 def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Check | None:
@@ -226,20 +226,20 @@ def _verify_explicit_limit(station, scenario, out: dict, rel_tol: float) -> Chec
     # What run accepts (CouplingGains.check): never advise past it, whatever Drake's boundary says.
     run_n, run_r = explicit_limit_omega_h(g.zeta) / h, explicit_limit_omega_h(g.zeta_r) / h
     beyond = math.isfinite(simulated) and simulated > predicted
-    fix = (
-        "model and Drake agree"
+    fix, why = (
+        ("", "model and Drake agree")
         if err <= 0.02
-        else f"trust Drake's boundary: omega_n ≤ {_le(g.omega_n * simulated)}, omega_n_rot ≤ "
-        f"{_le(g.omega_r * simulated)} rad/s (the one-body model misses how the scene moves with the body)"
+        else (f"omega_n ≤ {_le(g.omega_n * simulated)}, omega_n_rot ≤ {_le(g.omega_r * simulated)} rad/s",
+              "trust Drake's boundary: the one-body model misses how the scene moves with the body")
         if math.isfinite(simulated) and not beyond
-        else f"Drake's boundary is past the model's; run refuses past the model's explicit limit: omega_n < "
-        f"{run_n:.4g}, omega_n_rot < {run_r:.4g} rad/s at this time_step"
+        else (f"omega_n < {run_n:.4g}, omega_n_rot < {run_r:.4g} rad/s at this time_step",
+              "Drake's boundary is past the model's; run refuses past the model's explicit limit")
         if beyond
-        else "no boundary found in Drake: " + out.get("verify_explicit_limit_error", "")
-    )
+        else ("", "no boundary found in Drake: " + out.get("verify_explicit_limit_error", ""))
+    )  # fmt: skip
     return Check("verify", f"explicit limit: gain scale at the boundary ({binding})", body.name,
                  "ok" if err <= 0.02 else "warn", err, 0.02, "relative error", fix,
-                 predicted=predicted, simulated=simulated)  # fmt: skip
+                 predicted=predicted, simulated=simulated, why=why)  # fmt: skip
 
 
 def hold_is_stable(base: sc.Scenario, body: str, X0: RigidTransform, X1: RigidTransform,
@@ -404,7 +404,7 @@ def _verify_implicit_rate(station, scenario, out: dict) -> Check | None:
     err, ok = runs[worst]["relative_error"], runs[worst]["relative_error"] <= 0.1
     return Check("verify", f"implicit step response: time to fall to 10 %, worst of along and across the "
                  f"gravity raise ({worst})", body.name, "ok" if ok else "warn", err, 0.1, "relative error",
-                 "model and Drake agree" if ok else
+                 "", why="model and Drake agree" if ok else
                  "trust Drake's response: the implicit coupling is not the paper's damper in this "
                  "direction (docs/design.md, \"The implicit coupling\")",
                  predicted=runs[worst]["predicted_t10_s"],
@@ -473,7 +473,8 @@ def _verify_device_boundary(station, scenario, out: dict, rel_tol: float) -> Che
         "predicted_kd": predicted, "simulated_kd": simulated, "relative_error": simulated / predicted - 1.0,
         "bisection_tolerance": rel_tol, "runs": [{"kd": c, "stable": ok} for c, ok in sorted(runs.items())],
     }  # fmt: skip
-    fix = "model and Drake agree" if err <= 0.05 else f"trust Drake's boundary: kd ≤ {_le(simulated)} N/m"
+    fix = "" if err <= 0.05 else f"kd ≤ {_le(simulated)} N/m"
+    why = "model and Drake agree" if err <= 0.05 else "trust Drake's boundary: the model's differs"
     return Check("verify", f"device stiffness boundary kd, pushing {obstacle} (simulated hand)", body.name,
                  "ok" if err <= 0.05 else "warn", err, 0.05, "relative error", fix,
-                 predicted=predicted, simulated=simulated)  # fmt: skip
+                 predicted=predicted, simulated=simulated, why=why)  # fmt: skip
