@@ -30,13 +30,31 @@ from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.studies.benchmark import cpu_model, machine
 
-# name: (scene, overrides on top of its soft uterus); "ref" is the reference
-BASE = {"organs": {"model": "fem"}}
+# The reference of each scene: its soft uterus at 8 even cells and h = 1 ms, the tissue's settings
+# Drake's FEM organ has by default (organs: in docs/scenario.md), whatever the scene ships.
+REFERENCE_ORGAN = {"model": "fem", "cells": 8, "grading": 1.0, "relaxation_time_s": 0.01,
+                   "stiffness_damping_s": 0.01, "modulus_factor": 1.0}  # fmt: skip
+REFERENCE = {
+    "laparoscopy": {
+        "organs": REFERENCE_ORGAN,
+        "plant": {"time_step": 0.001},
+        "god_object": {"coupling": "cartesian"},
+    },
+    "laparoscopy_bimanual": {"organs": REFERENCE_ORGAN, "plant": {"time_step": 0.001}},
+}
+REFERENCE_LEVER = {"laparoscopy": "ref", "laparoscopy_bimanual": "bi_ref"}
 SAP = {"god_object": {"coupling": "joint_pd_sap"}}
 G15 = {"cells": 6, "grading": 1.5}
 RT = {"cells": 6, "grading": 1.7, "relaxation_time_s": 0.2, "stiffness_damping_s": 0.03}
+# the shipped real-time organ (diagrams/laparoscopy*.yaml): 4 even cells at h = 10 ms, the contact
+# relaxed over 30 steps, the modulus calibrated against the reference (--calibrate)
+RT4 = {"cells": 4, "relaxation_time_s": 0.3, "stiffness_damping_s": 0.03}
+# name: (scene, overrides on top of the scene's reference; None: the scene as shipped, organ soft)
 LEVERS = {
-    "ref": ("laparoscopy", {"organs": {"cells": 8}, "plant": {"time_step": 0.001}}),
+    "ref": ("laparoscopy", {}),
+    "bi_ref": ("laparoscopy_bimanual", {}),
+    "shipped": ("laparoscopy", None),
+    "bi_shipped": ("laparoscopy_bimanual", None),
     "cells6": ("laparoscopy", {"organs": {"cells": 6}}),
     "cells4": ("laparoscopy", {"organs": {"cells": 4}}),
     "h2": ("laparoscopy", {"plant": {"time_step": 0.002}}),
@@ -50,6 +68,8 @@ LEVERS = {
     "cells6_g15": ("laparoscopy", {"organs": G15}),
     "cells4_g2": ("laparoscopy", {"organs": {"cells": 4, "grading": 2.0}}),
     "cells6_g17_sap": ("laparoscopy", {"organs": {"cells": 6, "grading": 1.7}, **SAP}),
+    "tau02_h10": ("laparoscopy", {"organs": {"relaxation_time_s": 0.2}, "plant": {"time_step": 0.01}}),
+    "modulus04": ("laparoscopy", {"organs": {"modulus_factor": 0.4}}),
     # combinations, by --only
     "cells6_g15_h5_sap": (
         "laparoscopy",
@@ -59,8 +79,8 @@ LEVERS = {
         "laparoscopy",
         {"organs": {"cells": 6, "grading": 1.5}, "plant": {"time_step": 0.01}, **SAP},
     ),
-    # the real-time candidates: a graded 6-cell mesh at h = 10 to 20 ms, the tissue's contact relaxed
-    # over 20 h (a shorter one chatters at these steps), its stiffness damping raised to ~2.5 h
+    # the graded 6-cell mesh at h = 10 to 20 ms, the tissue's contact relaxed over 20 h (a shorter
+    # one chatters at these steps), its stiffness damping raised to ~2.5 h
     "rt_h10": ("laparoscopy", {"organs": RT, "plant": {"time_step": 0.01}, **SAP}),
     "rt_h15": (
         "laparoscopy",
@@ -78,14 +98,6 @@ LEVERS = {
             **SAP,
         },
     ),
-    "rt_h20_beta01": (
-        "laparoscopy",
-        {
-            "organs": {**RT, "relaxation_time_s": 0.4, "stiffness_damping_s": 0.01},
-            "plant": {"time_step": 0.02},
-            **SAP,
-        },
-    ),
     "rt_h10_threads2": ("laparoscopy", {"organs": {**RT, "threads": 2}, "plant": {"time_step": 0.01}, **SAP}),
     "rt_h5": (
         "laparoscopy",
@@ -99,6 +111,21 @@ LEVERS = {
     "cells4_h10_sap": ("laparoscopy", {"organs": {"cells": 4}, "plant": {"time_step": 0.01}, **SAP}),
     "cells6_h5_sap": ("laparoscopy", {"organs": {"cells": 6}, "plant": {"time_step": 0.005}, **SAP}),
     "cells6_h10_sap": ("laparoscopy", {"organs": {"cells": 6}, "plant": {"time_step": 0.01}, **SAP}),
+    # the 4-cell organ at h = 10 ms, its contact relaxed over 20 steps: uncalibrated, and each
+    # scene's shipped modulus factor
+    "rt4_h10": ("laparoscopy", {"organs": RT4, "plant": {"time_step": 0.01}}),
+    "rt4_h10_tau02": (
+        "laparoscopy",
+        {"organs": {**RT4, "relaxation_time_s": 0.2}, "plant": {"time_step": 0.01}},
+    ),
+    "bi_rt4_h10": ("laparoscopy_bimanual", {"organs": RT4, "plant": {"time_step": 0.01}}),
+    # the bimanual's grasp site glued to the 4-cell mesh's vertex there and its 3 neighbours (the
+    # 8-cell mesh's 12 mm cube holds 9 vertices, the 4-cell one's 1)
+    "bi_rt4_h10_glue20": (
+        "laparoscopy_bimanual",
+        {"organs": {**RT4, "glue_size_m": 0.02}, "plant": {"time_step": 0.01}},
+    ),
+    "bi_cells4_h2": ("laparoscopy_bimanual", {"organs": {"cells": 4}, "plant": {"time_step": 0.002}}),
 }
 
 
@@ -114,16 +141,43 @@ def merged(*parts: dict) -> dict:
     return out
 
 
-SINGLE = ("ref", "cells6", "cells4", "h2", "h5", "h10", "sap", "h10_sap", "linear", "corotated", "threads2")
-KEYS = ("max_tissue_contact_force_N", "tissue_max_displacement_m", "tool_tip_inside_tissue_steps",
-        "max_penetration_m", "max_trocar_offset_m", "tissue_vertices", "diverged")  # fmt: skip
+SINGLE = ("ref", "cells6", "cells4", "h2", "h5", "h10", "sap", "h10_sap", "linear", "corotated", "threads2",
+          "tau02_h10", "modulus04")  # fmt: skip
 
 
-def run(name: str, duration: float | None) -> dict:
-    """One lever's run over the scene's whole path (or ``duration`` s of it)."""
+def overrides_of(name: str, duration: float | None, modulus_factor: float | None = None) -> tuple[str, str]:
+    """The lever's scene and its overrides as one YAML flow mapping."""
     scene, lever = LEVERS[name]
-    overrides = merged(BASE, lever, {} if duration is None else {"simulation": {"duration_s": duration}})
-    text = yaml.safe_dump(overrides, default_flow_style=True).strip()
+    base = {"organs": {"model": "fem"}} if lever is None else merged(REFERENCE[scene], lever)
+    parts = [base]
+    if duration is not None:
+        parts.append({"simulation": {"duration_s": duration}})
+    if modulus_factor is not None:
+        parts.append({"organs": {"modulus_factor": modulus_factor}})
+    return scene, yaml.safe_dump(merged(*parts), default_flow_style=True).strip()
+
+
+def tissue_metrics(m: dict) -> dict:
+    """The run's tissue figures over its tools: the largest force, displacement, penetration and
+    trocar offset, the steps any tool was inside, and the left grasper's lift where it grasps."""
+    tools = list(m["tools"].values()) if m.get("tools") else [m]
+    out = {
+        "max_tissue_contact_force_N": max(t["max_tissue_contact_force_N"] for t in tools),
+        "tissue_max_displacement_m": max(t["tissue_max_displacement_m"] for t in tools),
+        "tool_tip_inside_tissue_steps": sum(t["tool_tip_inside_tissue_steps"] for t in tools),
+        "max_penetration_m": max(t["max_penetration_m"] for t in tools),
+        "max_trocar_offset_m": max(t["max_trocar_offset_m"] for t in tools),
+        "tissue_vertices": tools[0]["tissue_vertices"],
+        "diverged": m["diverged"],
+    }
+    rises = [t["grasped_max_rise_m"] for t in tools if t.get("grasped_max_rise_m") is not None]
+    out["grasped_max_rise_m"] = max(rises) if rises else None
+    return out
+
+
+def run(name: str, duration: float | None, modulus_factor: float | None = None) -> dict:
+    """One lever's run over the scene's whole path (or ``duration`` s of it)."""
+    scene, text = overrides_of(name, duration, modulus_factor)
     station = build_station(sc.shipped_scenario(scene, text))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
@@ -132,8 +186,9 @@ def run(name: str, duration: float | None) -> dict:
     sim = m["sim_time_s"]
     row = {"lever": name, "scene": scene, "overrides": text,
            "time_step_s": m["time_step_s"], "sim_s": sim, "wall_s_per_s": m["wall_time_s"] / sim,
-           "cpu_s_per_s": m["cpu_time_s"] / sim, "run_s": total, "load": load}  # fmt: skip
-    return {**row, **{k: m.get(k) for k in KEYS}}
+           "cpu_s_per_s": m["cpu_time_s"] / sim, "run_s": total, "load": load,
+           "modulus_factor": station.scenario.organs.modulus_factor}  # fmt: skip
+    return {**row, **tissue_metrics(m)}
 
 
 def against(row: dict, ref: dict) -> dict:
@@ -148,10 +203,16 @@ def against(row: dict, ref: dict) -> dict:
     return out
 
 
+def lift(row: dict) -> str:
+    """The grasped site's largest rise (mm), where a grasper holds one."""
+    rise = row.get("grasped_max_rise_m")
+    return "" if rise is None else f"{1e3 * rise:.3g}"
+
+
 def table(rows: list[dict]) -> str:
     head = ("| lever | h (ms) | vertices | wall s / s | CPU s / s | force (N) | err | displacement (mm) "
-            "| err | steps inside | penetration (mm) | trocar offset (m) |")  # fmt: skip
-    lines = [head, "|" + "---|" * 12]
+            "| err | steps inside | penetration (mm) | trocar offset (m) | lift (mm) |")  # fmt: skip
+    lines = [head, "|" + "---|" * 13]
     for r in rows:
         e = r.get("errors", {})
 
@@ -163,9 +224,34 @@ def table(rows: list[dict]) -> str:
             f"| {r['cpu_s_per_s']:.3g} | {r['max_tissue_contact_force_N']:.3g} | {pct(e.get('force_err'))} "
             f"| {1e3 * r['tissue_max_displacement_m']:.3g} | {pct(e.get('disp_err'))} "
             f"| {r['tool_tip_inside_tissue_steps']} | {1e3 * r['max_penetration_m']:.3g} "
-            f"| {r['max_trocar_offset_m']:.2g} |"
+            f"| {r['max_trocar_offset_m']:.2g} | {lift(r)} |"
         )
     return "\n".join(lines)
+
+
+def calibrate(
+    name: str, ref: dict, duration: float | None, tolerance: float = 0.02, rounds: int = 5
+) -> list[dict]:
+    """The lever's modulus factor that gives the reference's largest displacement: the
+    displacement under the same press goes about as 1/E, so each round scales the factor by the
+    displacement's ratio to the reference's, until within ``tolerance``. The rows of each round."""
+    factor = LEVERS[name][1].get("organs", {}).get("modulus_factor", 1.0) if LEVERS[name][1] else 1.0
+    rows = []
+    for _ in range(rounds):
+        row = run(name, duration, factor)
+        row["lever"] = f"{name} × {factor:.4g}"
+        row["errors"] = against(row, ref)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        if abs(row["errors"]["disp_err"]) <= tolerance:
+            break
+        factor = min(1.0, factor * row["tissue_max_displacement_m"] / ref["tissue_max_displacement_m"])
+    err = row["errors"]
+    print(
+        f"{name}: modulus_factor {row['modulus_factor']:.4g} (displacement {100 * err['disp_err']:+.1f} %, "
+        f"force {100 * err['force_err']:+.1f} % against the reference)"
+    )
+    return rows
 
 
 def main(argv=None) -> int:
@@ -176,29 +262,49 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--only", nargs="+", choices=sorted(LEVERS), help="these levers (default: each alone)"
     )
-    parser.add_argument("--reference", type=Path, help="an earlier rows.json whose reference row to reuse")
+    parser.add_argument("--reference", type=Path, help="an earlier rows.json whose reference rows to reuse")
     parser.add_argument("--duration", type=float, help="simulated seconds (default: the whole path)")
+    parser.add_argument(
+        "--calibrate",
+        choices=sorted(LEVERS),
+        help="find this lever's modulus_factor (its displacement the reference's)",
+    )
     args = parser.parse_args(argv)
     print(f"{machine()}, load average {os.getloadavg()[0]:.2f}", flush=True)
-    names = list(args.only or SINGLE)
-    ref = None
+    names = [args.calibrate] if args.calibrate else list(args.only or SINGLE)
+    refs = {}
     if args.reference is not None:
-        ref = next(r for r in json.loads(args.reference.read_text())["rows"] if r["lever"] == "ref")
-        names = [n for n in names if n != "ref"]
-    elif "ref" not in names:
-        names.insert(0, "ref")
-    rows = [] if ref is None else [ref]
+        refs = {
+            r["scene"]: r
+            for r in json.loads(args.reference.read_text())["rows"]
+            if r["lever"] in REFERENCE_LEVER.values()
+        }
+    needed = [REFERENCE_LEVER[LEVERS[n][0]] for n in names]
+    names = [
+        n
+        for n in dict.fromkeys(needed + names)
+        if not (n in REFERENCE_LEVER.values() and LEVERS[n][0] in refs)
+    ]
+    rows = list(refs.values())
     args.out.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        row = run(name, args.duration)
-        if name == "ref":
-            ref = row
-        row["errors"] = against(row, ref)
-        rows.append(row)
-        print(json.dumps(row), flush=True)
+
+    def save():
         meta = {"nproc": os.cpu_count(), "cpu": cpu_model(), "rows": rows}
         (args.out / "rows.json").write_text(json.dumps(meta, indent=1))  # after each run: none lost
         (args.out / "table.md").write_text(table(rows) + "\n")
+
+    for name in names:
+        if name == args.calibrate:
+            rows += calibrate(name, refs[LEVERS[name][0]], args.duration)
+            save()
+            continue
+        row = run(name, args.duration)
+        if name in REFERENCE_LEVER.values():
+            refs[row["scene"]] = row
+        row["errors"] = against(row, refs[row["scene"]])
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        save()
     print(table(rows))
     print(f"load average after {os.getloadavg()[0]:.2f}")
     return 0

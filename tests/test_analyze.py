@@ -61,7 +61,9 @@ def test_brick_scene_predictions_match_drake(lego):
 
 
 def test_laparoscopy_joint_space_limit_matches_drake():
-    s = analyze(sc.shipped_scenario("laparoscopy"), quick=True, verify=True)
+    # At h = 1 ms (the scene ships 10 ms, where Drake diverges 14 % above the predicted gain: the
+    # prediction is conservative there; docs/results.md); the explicit limit goes as 1/h.
+    s = analyze(sc.shipped_scenario("laparoscopy", "plant: {time_step: 0.001}"), quick=True, verify=True)
     (limit,) = rows(s, "simulation", "joint space")
     assert limit["verdict"] == "ok" and limit["limit"] > 10  # gains far inside their limit
     v = s["verify_explicit_limit"]

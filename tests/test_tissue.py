@@ -34,9 +34,17 @@ RADII = (0.045, 0.03, 0.025)  # the uterus's semi-axes (models/laparoscopy/organ
 DEEP_PATH = REPO / "models" / "laparoscopy" / "deep_press_path.yaml"
 
 
-def fem_scenario(cells=4, duration=1.0, path=None, **organs):
-    fields = {"model": "fem", "cells": cells, **organs}
-    text = f"organs: {fields}\nsimulation: {{duration_s: {duration}}}\n".replace("'", "")
+# The organ's settings of the reference (docs/guide/laparoscopy.md): the tissue's own modulus, its
+# contact relaxed over 10 ms, h = 1 ms; the shipped scene's real-time organ differs in each.
+REFERENCE_ORGAN = {"modulus_factor": 1.0, "relaxation_time_s": 0.01, "stiffness_damping_s": 0.01}
+
+
+def fem_scenario(cells=4, duration=1.0, path=None, time_step=0.001, **organs):
+    """The laparoscopy scene with its uterus as FEM tissue of ``cells``, at the reference's
+    settings unless given."""
+    fields = {"model": "fem", **REFERENCE_ORGAN, "cells": cells, **organs}
+    text = (f"organs: {fields}\nsimulation: {{duration_s: {duration}}}\n"
+            f"plant: {{time_step: {time_step}}}\n").replace("'", "")  # fmt: skip
     s = sc.shipped_scenario("laparoscopy", text)
     return s if path is None else sc.replace(s, **{"device.path": str(path)})
 

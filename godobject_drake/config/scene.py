@@ -382,6 +382,13 @@ class Organs:
     threads : int
         Threads Drake's FEM may use for the tissue (its deformable model's parallelism): 1 by
         default; more uses more CPU for a shorter step (docs/results.md, the FEM's levers).
+    modulus_factor : float
+        The mesh's Young's modulus as a fraction of ``youngs_modulus_pa`` (1: the material's). A
+        coarse mesh of linear tetrahedra is stiffer than the tissue it stands for (6 cells 43 %
+        and 4 cells 59 % less displacement than 8 under the same press): below 1, it answers as
+        a finer mesh does. ``python analysis/fem_levers.py --calibrate LEVER`` finds the factor
+        that gives a lever the reference's largest displacement on its path
+        (docs/guide/laparoscopy.md, "A real-time organ").
     """
 
     model: str = "rigid"
@@ -400,6 +407,12 @@ class Organs:
     grading: float = 1.0
     material: str = "linear_corotated"
     threads: int = 1
+    modulus_factor: float = 1.0
+
+    @property
+    def mesh_youngs_modulus_pa(self) -> float:
+        """The Young's modulus the FEM mesh is given (Pa): the material's times ``modulus_factor``."""
+        return self.youngs_modulus_pa * self.modulus_factor
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
@@ -431,6 +444,12 @@ class Organs:
             raise ValueError(
                 f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
                 "and steps far below real time)"
+            )
+        if not (isinstance(self.modulus_factor, int | float) and 0.05 <= self.modulus_factor <= 1.0):
+            raise ValueError(
+                f"modulus_factor: {self.modulus_factor!r} must be in [0.05, 1] (1: the material's modulus; "
+                "below 1 for a mesh coarser than the one it should answer as: python analysis/fem_levers.py "
+                "--calibrate finds it)"
             )
         if not (isinstance(self.grading, int | float) and 1.0 <= self.grading <= 3.0):
             raise ValueError(

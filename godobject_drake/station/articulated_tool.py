@@ -135,6 +135,7 @@ class ArticulatedGodObject(GodObject):
                 tissue_vertices=self.tissue.vertex_count,
                 tissue_tetrahedra=self.tissue.tet_count,
                 tissue_youngs_modulus_pa=organs.youngs_modulus_pa,
+                **({} if organs.modulus_factor == 1.0 else {"tissue_modulus_factor": organs.modulus_factor}),
                 tissue_poissons_ratio=organs.poissons_ratio,
             )
         return out

@@ -112,7 +112,7 @@ def contact_stiffness(organ: "FemOrgan", origin, direction) -> dict:
     K = getattr(organ, "_linear_K", None)
     if K is None:
         K = organ._linear_K = linear_stiffness_matrix(
-            organ.rest_W, organ_tets(organ), spec.youngs_modulus_pa, spec.poissons_ratio
+            organ.rest_W, organ_tets(organ), spec.mesh_youngs_modulus_pa, spec.poissons_ratio
         )
     fixed = organ.rest_W[:, 2] < organ.rest_W[:, 2].max() - spec.attached_below_m
     d = np.asarray(direction, float) / np.linalg.norm(direction)

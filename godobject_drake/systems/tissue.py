@@ -329,7 +329,7 @@ MATERIALS = {
 def body_config(organs: Organs) -> DeformableBodyConfig:
     """Drake's FEM material and Rayleigh damping of the organs' tissue."""
     config = DeformableBodyConfig()
-    config.set_youngs_modulus(organs.youngs_modulus_pa)
+    config.set_youngs_modulus(organs.mesh_youngs_modulus_pa)
     config.set_poissons_ratio(organs.poissons_ratio)
     config.set_mass_density(organs.density_kg_m3)
     config.set_mass_damping_coefficient(organs.mass_damping_per_s)
