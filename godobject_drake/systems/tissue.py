@@ -499,7 +499,25 @@ def max_tet_strain(organ: FemOrgan, p: np.ndarray) -> float:
     Ds = np.stack([p[T[:, k]] - p[T[:, 0]] for k in (1, 2, 3)], axis=2)
     F = Ds @ Dm_inv
     E = 0.5 * (np.swapaxes(F, 1, 2) @ F - np.eye(3))
-    return float(np.max(np.abs(np.linalg.eigvalsh(E))))
+    return float(np.max(symmetric_extreme_eigenvalues(E)))
+
+
+def symmetric_extreme_eigenvalues(A: np.ndarray) -> np.ndarray:
+    """``max(|λ_max|, |λ_min|)`` of each symmetric 3×3 matrix of ``A`` (m, 3, 3), in closed form
+    (the trigonometric solution of the characteristic cubic): what ``np.abs(eigvalsh(A)).max(-1)``
+    gives, a few times faster for the hundreds of small matrices a step of the tissue has."""
+    a00, a11, a22 = A[:, 0, 0], A[:, 1, 1], A[:, 2, 2]
+    a01, a02, a12 = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
+    q = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0)
+    safe = np.where(p > 0.0, p, 1.0)
+    det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    r = np.clip(det / (2.0 * safe**3), -1.0, 1.0)
+    phi = np.arccos(r) / 3.0
+    largest = q + 2.0 * p * np.cos(phi)
+    smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    return np.maximum(np.abs(largest), np.abs(smallest))
 
 
 def organ_tets(organ: FemOrgan) -> np.ndarray:
