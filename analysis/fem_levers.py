@@ -34,7 +34,7 @@ from godobject_drake.studies.benchmark import cpu_model, machine
 # The reference of each scene: its soft uterus at 8 even cells and h = 1 ms, the tissue's settings
 # Drake's FEM organ has by default (organs: in docs/scenario.md), whatever the scene ships.
 REFERENCE_ORGAN = {"model": "fem", "cells": 8, "grading": 1.0, "relaxation_time_s": 0.01,
-                   "stiffness_damping_s": 0.01, "modulus_factor": 1.0}  # fmt: skip
+                   "stiffness_damping_s": 0.01, "modulus_factor": 1.0, "glue_size_m": 0.012}  # fmt: skip
 REFERENCE = {
     "laparoscopy": {
         "organs": REFERENCE_ORGAN,
@@ -115,6 +115,14 @@ LEVERS = {
     # the 4-cell organ at h = 10 ms, its contact relaxed over 20 steps: uncalibrated, and each
     # scene's shipped modulus factor
     "rt4_h10": ("laparoscopy", {"organs": RT4, "plant": {"time_step": 0.01}}),
+    "rt4g2_h10": (
+        "laparoscopy",
+        {"organs": {**RT4, "grading": 2.0, "modulus_factor": 0.63}, "plant": {"time_step": 0.01}},
+    ),
+    "rt4g15_h10": (
+        "laparoscopy",
+        {"organs": {**RT4, "grading": 1.5, "modulus_factor": 0.6}, "plant": {"time_step": 0.01}},
+    ),
     "rt4_h10_tau02": (
         "laparoscopy",
         {"organs": {**RT4, "relaxation_time_s": 0.2}, "plant": {"time_step": 0.01}},
@@ -124,7 +132,7 @@ LEVERS = {
     # 8-cell mesh's 12 mm cube holds 9 vertices, the 4-cell one's 1)
     "bi_rt4_h10_glue20": (
         "laparoscopy_bimanual",
-        {"organs": {**RT4, "glue_size_m": 0.02}, "plant": {"time_step": 0.01}},
+        {"organs": {**RT4, "glue_size_m": 0.02, "modulus_factor": 0.69}, "plant": {"time_step": 0.01}},
     ),
     "bi_cells4_h2": ("laparoscopy_bimanual", {"organs": {"cells": 4}, "plant": {"time_step": 0.002}}),
 }

@@ -39,8 +39,7 @@ PUSH_LOG = "models/lego/push_and_return.csv"
 ROWS = "#godobject-legend .row"
 LEGEND_JS = """(rows) => rows.map((r) => [r.innerText.trim(),
     Array.from(r.querySelectorAll('.swatch')).map((s) => s.getAttribute('style'))])"""
-PRESS = ("--set", "organs.model=fem", "--set", "organs.cells=6",
-         "--set", "device.path=models/laparoscopy/deep_press_path.yaml")  # fmt: skip
+PRESS = ("--set", "organs.model=fem", "--set", "device.path=models/laparoscopy/deep_press_path.yaml")
 
 
 @dataclasses.dataclass(frozen=True)

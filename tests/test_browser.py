@@ -284,7 +284,7 @@ def test_fem_tissue_recording_shows_the_surface_pressed_where_the_tool_is(browse
     from godobject_drake.systems.page import page_of
 
     html = tmp_path / "tissue.html"
-    s = sc.shipped_scenario("laparoscopy", "organs: {model: fem, cells: 6}\nsimulation: {duration_s: 0.9}")
+    s = sc.shipped_scenario("laparoscopy", "organs: {model: fem}\nsimulation: {duration_s: 0.9}")
     s = sc.replace(s, **{"device.path": str(REPO / "models/laparoscopy/deep_press_path.yaml"),
                          "recording.file": str(html)})  # fmt: skip
     station = build_station(s, make_meshcat(s))

@@ -2,6 +2,7 @@
 kinematics to the instrument's joints, its button to the jaws, and the joints' feedback forces
 back to a force at the device. Checked against Drake's own kinematics (a second method)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -226,14 +227,16 @@ DOWN = [0.0, 0.0, 0.0314]  # the closed jaws 10.6 mm past the organ's top: about
 
 
 def fem_press(duration_s: float):
-    """The shipped scene's FEM uterus (8 cells) pressed straight down by the grasper's closed jaws
-    from a scripted pose device, with the feedback spring matched to the coupling's at the tip
-    (Eq. 8's kd times the bodies the insertion moves: ``analyze``'s ``tool_stiffness_n_m``); and
-    ``analyze``'s tissue stiffness at that point (the linear FEM's, a second method)."""
+    """The reference's FEM uterus (8 even cells, the tissue's own modulus, h = 1 ms) pressed
+    straight down by the grasper's closed jaws from a scripted pose device, with the feedback
+    spring matched to the coupling's at the tip (Eq. 8's kd times the bodies the insertion moves:
+    ``analyze``'s ``tool_stiffness_n_m``); and ``analyze``'s tissue stiffness at that point (the
+    linear FEM's, a second method)."""
     from godobject_drake.studies.analyze import analyze
 
-    s = scenario("laparoscopy", "--duration", str(duration_s))
-    s.organs.model = "fem"
+    s = scenario("laparoscopy", "--duration", str(duration_s), "--time-step", "0.001")
+    s.organs = dataclasses.replace(s.organs, model="fem", cells=8, grading=1.0, modulus_factor=1.0,
+                                   relaxation_time_s=0.01, stiffness_damping_s=0.01)  # fmt: skip
     s.device = dk.Scripted(waypoints=[
         Waypoint(t=0.0, xyz=[0.0, 0.0, 0.06], grasp="*"), Waypoint(t=0.1, xyz=DOWN, grasp="*"),
         Waypoint(t=max(duration_s, 0.2), xyz=DOWN, grasp="*"),

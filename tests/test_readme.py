@@ -150,8 +150,8 @@ NOT_RUN = {
     "godobject analyze laparoscopy --set organs.model=fem --verify": (
         "checks the FEM tissue in Drake: minutes"
     ),
-    "godobject analyze laparoscopy --out DIR --set organs.model=fem": (
-        "checks the FEM tissue in Drake: minutes"
+    "godobject analyze laparoscopy --set organs.model=fem --set organs.cells=8": (
+        "checks the reference's FEM tissue in Drake: minutes"
     ),
 }
 
