@@ -882,6 +882,10 @@ def main(argv=None) -> int:
     except ValueError as e:  # a device that would not open, a hand path that would not load
         print(f"godobject-driver: {e}", file=sys.stderr)
         return 2 if "--" in str(e) else 1
+    finally:  # run inside another program (a test, a scene), the driver leaves no log line format behind
+        logger = logging.getLogger("godobject_drake")
+        for handler in [h for h in logger.handlers if getattr(h, "driver_lines", False)]:
+            logger.removeHandler(handler)
 
 
 if __name__ == "__main__":
