@@ -27,6 +27,7 @@ DIAGRAMS = ROOT / "diagrams"
 MODELS = ROOT / "models"
 
 # name: (shipped scene, YAML overrides, simulated seconds or None for the scene's whole path)
+H1 = "plant: {time_step: 0.001}\n"
 VARIANTS = {
     "lego": ("lego", "", None),
     "lego_sleep_off": ("lego", "sleep: {enabled: false}", None),
@@ -49,15 +50,19 @@ VARIANTS = {
     "lego_h2ms": ("lego", "plant: {time_step: 0.002}", None),
     "lego_implicit": ("lego", "god_object: {coupling: implicit}", None),
     "lego_implicit_bricks_16": ("lego", "god_object: {coupling: implicit}\nbricks: 16", 3.0),
-    "laparoscopy": ("laparoscopy", "", None),
-    "laparoscopy_position": ("laparoscopy", "simulation: {mode: position}", None),
-    "laparoscopy_joint_pd": ("laparoscopy", "god_object: !Articulated {model: grasper, device_joints: "
+    # the laparoscopy at h = 1 ms (the rigid organs' step before the scene took 10 ms for its soft
+    # organ), then as shipped
+    "laparoscopy": ("laparoscopy", H1, None),
+    "laparoscopy_position": ("laparoscopy", H1 + "simulation: {mode: position}", None),
+    "laparoscopy_h10": ("laparoscopy", "", None),
+    "laparoscopy_fem": ("laparoscopy", "organs: {model: fem}", None),
+    "laparoscopy_joint_pd": ("laparoscopy", H1 + "god_object: !Articulated {model: grasper, device_joints: "
                              "[yaw, pitch, insertion, roll, jaw_upper, jaw_lower], coupling: joint_pd, "
                              "imposed_joints: [jaw_upper, jaw_lower], gains: {omega_n: 20.0, zeta: 1.0}, "
                              "tip_body: tube, pivot_body: port}", None),
-    "laparoscopy_joint_pd_sap": ("laparoscopy", "god_object: !Articulated {model: grasper, device_joints: "
-                                 "[yaw, pitch, insertion, roll, jaw_upper, jaw_lower], coupling: "
-                                 "joint_pd_sap, imposed_joints: [jaw_upper, jaw_lower], gains: "
+    "laparoscopy_joint_pd_sap": ("laparoscopy", H1 + "god_object: !Articulated {model: grasper, "
+                                 "device_joints: [yaw, pitch, insertion, roll, jaw_upper, jaw_lower], "
+                                 "coupling: joint_pd_sap, imposed_joints: [jaw_upper, jaw_lower], gains: "
                                  "{omega_n: 20.0, zeta: 1.0}, tip_body: tube, pivot_body: port}", None),
     "probe_fem": ("deformable_probe", "", None),
     "probe_mass_spring": ("deformable_probe", "god_object: !Deformable {name: probe, shell: mass_spring, "
