@@ -386,9 +386,9 @@ class Organs:
         The mesh's Young's modulus as a fraction of ``youngs_modulus_pa`` (1: the material's). A
         coarse mesh of linear tetrahedra is stiffer than the tissue it stands for (6 cells 43 %
         and 4 cells 59 % less displacement than 8 under the same press): below 1, it answers as
-        a finer mesh does. ``python analysis/fem_levers.py --out DIR --calibrate shipped`` finds the factor
-        that gives a lever the reference's largest displacement on its path
-        (docs/guide/laparoscopy.md, "A real-time organ").
+        a finer mesh does. ``python analysis/fem_levers.py --out DIR --calibrate shipped`` finds the
+        factor whose displacement follows the reference's over the scene's path (least squares):
+        it holds for that path (docs/guide/laparoscopy.md, "A real-time organ").
     """
 
     model: str = "rigid"
