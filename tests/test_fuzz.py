@@ -360,6 +360,7 @@ class Wire:
         self.address = {"scene": ("127.0.0.1", self.scene.port), "driver": ("127.0.0.1", self.driver.port)}
         self.read = {"scene": 0, "driver": 0}  # datagrams the wire read from each end
         self.sent = {"scene": 0, "driver": 0}  # datagrams sent to each end
+        self.unheard = 0  # sent to the driver from elsewhere: never queued on its socket
         self.captured: list[tuple[str, bytes]] = []  # (the end that sent it, the datagram)
         self.held: list[tuple[str, bytes]] = []
         self.answered_elsewhere: list[bytes] = []  # what the scene sent the stranger
@@ -378,6 +379,9 @@ class Wire:
 
     def send(self, to: str, datagram: bytes, via: str = "wire") -> None:
         self.sockets[to if via == "wire" else via].sendto(datagram, self.address[to])
+        if to == "driver" and via != "wire":  # the driver's socket is connected to the scene's
+            self.unheard += 1  # address (the wire's): the kernel drops another sender's datagram
+            return
         self.sent[to] += 1
         self.arrived[to].append((datagram, via))
 

@@ -8,6 +8,7 @@ and the mutation goal's tests for the link (pyproject ``[tool.mutmut]``)."""
 import hashlib
 import hmac
 import logging
+import math
 import os
 import socket
 import stat
@@ -733,6 +734,7 @@ def test_the_driver_sends_its_hello_from_the_poll_at_the_interval():
 
 def test_a_flood_is_read_at_most_MAX_PER_POLL_datagrams_a_poll():
     scene = scene_link()
+    scene.poll_budget_s = math.inf  # the count's bound alone (the time's: the test below)
     junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         n = transport.MAX_PER_POLL + 40
@@ -746,6 +748,55 @@ def test_a_flood_is_read_at_most_MAX_PER_POLL_datagrams_a_poll():
         assert accounted(scene.counts)
     finally:
         scene.close(), junk.close()
+
+
+def test_a_polls_reading_is_bounded_in_time_and_the_rest_read_by_the_next():
+    """At 2 to 4 µs a datagram in Python, 256 cost most of a 1 kHz period: a poll also stops
+    reading :data:`MAX_POLL_S` after its first datagram (here 0: one datagram a poll), the poll
+    counted ``udp_flooded``, what is left read by the next polls."""
+    assert transport.MAX_POLL_S <= 0.25e-3
+    scene = scene_link()
+    assert scene.poll_budget_s == transport.MAX_POLL_S
+    scene.poll_budget_s = 0.0
+    junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for i in range(3):
+            junk.sendto(b"junk %d" % i, ("127.0.0.1", scene.port))
+        time.sleep(0.05)
+        for polls in (1, 2):
+            scene.HandleSubscriptions(0)
+            assert scene.counts["udp_received"] == polls and scene.counts["udp_flooded"] == polls
+        scene.HandleSubscriptions(0)
+        scene.HandleSubscriptions(0)  # nothing left: not a flooded poll
+        assert scene.counts["udp_received"] == 3 and scene.counts["udp_flooded"] == 2
+        assert scene.counts["udp_malformed"] == 3 and accounted(scene.counts)
+    finally:
+        scene.close(), junk.close()
+
+
+def test_a_drivers_socket_takes_datagrams_from_its_scene_only():
+    """The driver's socket is connected to the scene's address: a stranger's datagrams (from its
+    own port, to the driver's port read from /proc/net/udp) are dropped by the kernel before they
+    are queued, so they cost the driver's loop nothing (not even a read, ``udp_foreign``), and
+    the scene's messages behind them arrive."""
+    scene = scene_link()
+    driver = driver_link(scene)
+    got = []
+    driver.Subscribe("FEEDBACK", got.append)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        pair(scene, driver)
+        before = driver.counts["udp_received"]
+        for i in range(1000):
+            stranger.sendto(b"junk %d" % i, ("127.0.0.1", driver.port))
+        scene.Publish("FEEDBACK", b"f")
+        pump(driver, until=lambda: got, what="the scene's message")
+        time.sleep(0.05)
+        driver.HandleSubscriptions(0)
+        assert got == [b"f"] and driver.counts["udp_received"] == before + 1
+        assert driver.counts["udp_foreign"] == driver.counts["udp_flooded"] == 0
+    finally:
+        scene.close(), driver.close(), stranger.close()
 
 
 def test_an_oversized_datagram_is_malformed_and_one_at_the_limit_is_read():
@@ -865,6 +916,7 @@ def test_a_poll_waits_for_the_first_datagram_only_as_long_as_asked():
 
 def test_floods_are_counted_each_time_a_poll_stops_at_its_limit():
     scene = scene_link()
+    scene.poll_budget_s = math.inf
     junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         for _ in range(2):

@@ -571,6 +571,23 @@ def test_a_deficit_is_paid_back_by_the_controllers_damper():
     assert r.damping == 0.0
 
 
+def test_a_hand_settling_by_steps_whose_square_underflows_gets_no_damper_and_no_error():
+    """A handle settling under a steady force (the emulated hand's spring, a few seconds) moves by
+    steps of 1e-164 m: its speed² is 1e-322 (subnormal), its speed² × T 0.0. The controller's
+    damper divided by that and the driver died of a ZeroDivisionError in its loop (exit 1); the
+    damper is now none, and a step whose product is above zero still gets the capped damper."""
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, kd=100.0)
+    r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    r.rendered(np.zeros(3))
+    r.energy_in = -2e-3  # a deficit: the controller would act
+    f = r.request((1e-164, 0.0, 0.0), now=T, period_s=T)
+    assert r.damping == 0.0 and np.all(np.isfinite(f))
+    r.rendered(np.zeros(3))
+    r.request((1e-150, 0.0, 0.0), now=2 * T, period_s=T)
+    assert r.damping == MAX_DAMPING
+
+
 def test_a_renderer_that_has_heard_nothing_renders_nothing_and_reports_its_idle_state():
     """Before any model the driver logs weight 0, β 1 (nothing scaled), no damper, no spring, no
     energy, no trip, no model; the scene's period is taken as the longest held (MAX_GAP_S), so a

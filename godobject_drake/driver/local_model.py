@@ -243,7 +243,9 @@ class LocalRenderer:
         if deficit > 0.0 and before is not None and period_s > 0.0:  # the controller
             v = (h - before) / period_s
             speed2 = float(v @ v)
-            if speed2 > 0.0:
+            # > 0 as a product: a hand settling on a steady force moves by steps whose square
+            # underflows (its speed² × T is 0.0 while its speed² is not): no damper, no division by 0
+            if speed2 * period_s > 0.0:
                 self.damping = min(MAX_DAMPING, deficit / (speed2 * period_s))
                 self._damper = -self.damping * v
                 f = f + self._damper

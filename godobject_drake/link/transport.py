@@ -56,15 +56,21 @@ Wire format (big-endian), each datagram at most :data:`MAX_DATAGRAM` bytes::
 
 What it does not do: it does not encrypt (whoever can capture the packets, root on either
 machine or on the wire between them, can read the poses and forces, though never forge or
-replay them), and it cannot stop a flood from costing CPU (each poll reads at most
-:data:`MAX_PER_POLL` datagrams, so neither end hangs; a flood can starve the link, which the
-driver's watchdog turns into zero force).
+replay them). **A flood**: the driver's socket is connected to the scene's address, so the
+kernel drops every other sender's datagram before it is queued, and a flood from another
+process (which cannot send from the scene's port while the scene holds it) neither costs the
+driver's loop nor crowds the scene's messages out of its buffer. Whatever does reach a socket
+(the scene's listening one takes any sender, as a driver must be able to find it) is read at
+most :data:`MAX_PER_POLL` datagrams and :data:`MAX_POLL_S` a poll, the rest left for the next
+(counted ``udp_flooded``), so neither end's loop is held; such a flood can still starve the
+scene's end of its driver's messages, which the driver's watchdog turns into zero force.
 
 URLs (``--lcm-url`` / ``device.url`` on the scene; ``--scene`` on the driver):
 
 - ``udp://HOST:PORT`` on the scene: listen on HOST:PORT; the feedback goes to the paired driver;
 - the driver binds an ephemeral port on its own address towards the scene (127.0.0.1 on one
-  machine) and sends to the scene's address, and takes datagrams from that address only.
+  machine), connected to the scene's address: it sends there, and the kernel gives it datagrams
+  from that address only.
 
 Use ``127.0.0.1`` on one machine: nothing leaves the host (tests use nothing else).
 :class:`UdpLcm` has the part of ``DrakeLcm``'s interface the devices use (``Subscribe``,
@@ -145,6 +151,8 @@ DATA_HEAD = HEAD + 2 * NONCE_BYTES + COUNTER.size
 MAX_DATAGRAM = 8192  # bytes: a driver's messages take ~300; a longer datagram is dropped unread
 RECV_BYTES = MAX_DATAGRAM + 1  # read one byte more: a longer datagram shows as too long
 MAX_PER_POLL = 256  # datagrams handled per poll: a flood cannot hold either end in one poll
+# a poll's reading stops after this long too (s): a quarter of a 1 kHz period, whatever a datagram costs
+MAX_POLL_S = 0.25e-3
 HELLO_INTERVAL_S = 0.1  # a driver without a scene says HELLO this often
 SILENT_S = 0.5  # a paired driver that heard nothing this long says HELLO again (a scene restarted)
 MAX_REFUSED = 64  # second drivers remembered (and logged) by a scene
@@ -164,7 +172,7 @@ LINK_COUNT_KEYS = (
     "udp_refused_drivers",  # a scene: second drivers refused
     "udp_pairings",  # sessions paired
     "udp_unpaired",  # messages not sent: no end paired yet
-    "udp_flooded",  # polls that stopped at MAX_PER_POLL datagrams
+    "udp_flooded",  # polls that stopped at MAX_PER_POLL datagrams or after MAX_POLL_S, the rest left waiting
     "udp_sent",
     "udp_send_errors",
 )
@@ -485,7 +493,21 @@ class UdpLcm:
                 f"LCM URL {url or bind}: cannot listen on {bind[0]}:{bind[1]} ({e.strerror}); "
                 "another scene or driver may hold the port: choose another PORT"
             ) from None
+        if peer is not None:
+            # a driver hears its scene only: connected, the socket takes datagrams from the scene's
+            # address and port alone, and the kernel drops any other sender's before they are
+            # queued, so a flood from another process costs the driver's loop nothing (a process
+            # cannot send from the scene's port while the scene holds it)
+            try:
+                self.sock.connect(peer)
+            except OSError as e:
+                self.sock.close()
+                raise ValueError(
+                    f"LCM URL {url or peer}: cannot reach {peer[0]}:{peer[1]} ({e.strerror}): give the "
+                    "scene's address as this machine reaches it"
+                ) from None
         self.sock.setblocking(False)
+        self.poll_budget_s = MAX_POLL_S  # how long a poll may read (tests that count a whole poll: inf)
         self.url = f"{SCHEME}://{bind[0]}:{self.port}"  # where it listens (the port picked, if 0)
         self._handlers: dict[str, list[Callable[[bytes], None]]] = {}
         self.key_file: Path | None = None
@@ -568,9 +590,11 @@ class UdpLcm:
             self.counts["udp_send_errors"] += 1
 
     def HandleSubscriptions(self, timeout_millis: int) -> int:
-        """Hand every authentic message waiting (at most :data:`MAX_PER_POLL` datagrams) to its
-        channel's handlers; waits up to ``timeout_millis`` for the first only if none is
-        waiting. A driver says HELLO first when it has to. Returns how many were handled."""
+        """Hand every authentic message waiting (at most :data:`MAX_PER_POLL` datagrams, read for
+        at most :attr:`poll_budget_s` after the first) to its channel's handlers; waits up to
+        ``timeout_millis`` for the first only if none is waiting. What is left waits for the next
+        poll (the poll is counted ``udp_flooded``). A driver says HELLO first when it has to.
+        Returns how many were handled."""
         if isinstance(self.end, DriverEnd):
             with self._lock:
                 hello = self.end.hello(self.clock())
@@ -578,14 +602,21 @@ class UdpLcm:
                     self._send(hello, self.end.peer)
         handled = 0
         self.sock.settimeout(max(timeout_millis, 0) * 1e-3)  # 0: do not wait
+        read_until = math.inf
         try:
             for _ in range(MAX_PER_POLL):
+                if time.perf_counter() > read_until:
+                    if self._waiting():
+                        self.counts["udp_flooded"] += 1
+                    break
                 try:
                     datagram, sender = self.sock.recvfrom(RECV_BYTES)
                 except (BlockingIOError, TimeoutError, ConnectionRefusedError):
                     break
                 finally:
                     self.sock.setblocking(False)
+                if read_until == math.inf:  # the budget runs from the first datagram, not the wait
+                    read_until = time.perf_counter() + self.poll_budget_s
                 with self._lock:
                     self.counts["udp_received"] += 1
                     if isinstance(self.end, DriverEnd):
@@ -604,6 +635,14 @@ class UdpLcm:
         finally:
             self.sock.setblocking(False)
         return handled
+
+    def _waiting(self) -> bool:
+        """Is a datagram waiting (looked at, not read)?"""
+        try:
+            self.sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT)
+        except OSError:  # none (EAGAIN), or an ICMP error queued (ECONNREFUSED)
+            return False
+        return True
 
     def close(self) -> None:
         self.sock.close()
