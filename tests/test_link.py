@@ -501,7 +501,9 @@ def test_only_a_newer_message_of_the_paired_driver_moves_it_to_another_address(c
         "an old message of the paired driver arrived from 127.0.0.1:40001, not 127.0.0.1:40000: a "
         "replay, dropped (counted in udp_foreign, said once)"
     ]
-    assert scene.receive(driver.seal("POSE", b"q"), ("127.0.0.1", 40001))[0] == ("POSE", b"q")
+    with caplog.at_level(logging.INFO, logger="godobject_drake.link"):
+        assert scene.receive(driver.seal("POSE", b"q"), ("127.0.0.1", 40001))[0] == ("POSE", b"q")
+    assert caplog.records[-1].getMessage() == "the paired driver moved to 127.0.0.1:40001"
     assert scene.peer == ("127.0.0.1", 40001) and scene.counts["udp_foreign"] == 2
     assert scene.counts["udp_taken"] == 3 and scene.counts["udp_pairings"] == 1
 
@@ -572,9 +574,26 @@ def test_the_same_hello_is_answered_at_most_every_HELLO_ANSWER_S_and_a_replay_is
     ]
 
 
-def test_a_restarted_driver_pairs_again_with_the_running_scene():
+def test_a_scene_remembers_at_most_MAX_REFUSED_hellos_it_answered(monkeypatch):
+    """The HELLOs answered are remembered up to MAX_REFUSED (then those older than HELLO_ANSWER_S
+    are forgotten); one not remembered is answered each time."""
+    monkeypatch.setattr(transport, "MAX_REFUSED", 4)
+    scene = SceneEnd(KEY, b"s" * 16)
+    hellos = [DriverEnd(KEY, SCENE_AT, bytes([i]) * 16).hello(0.0) for i in range(5)]
+    assert all(scene.receive(h, DRIVER_AT, 0.0)[1] is not None for h in hellos)
+    assert scene.receive(hellos[0], DRIVER_AT, 0.01)[1] is None  # remembered: too soon
+    assert scene.receive(hellos[4], DRIVER_AT, 0.01)[1] is not None  # the fifth: not remembered
+    assert scene.receive(hellos[4], DRIVER_AT, 1.0)[1] is not None  # the others forgotten, it kept
+    assert scene.receive(hellos[4], DRIVER_AT, 1.01)[1] is None
+    assert scene.receive(hellos[0], DRIVER_AT, 1.01)[1] is not None
+    assert scene.counts["udp_handshakes"] == 8 and scene.counts["udp_replayed"] == 2
+
+
+def test_a_restarted_driver_pairs_again_with_the_running_scene(monkeypatch):
     """Before: a driver killed and started again was refused until the scene ended (its tool frozen);
-    now it is taken once the first has been silent DRIVER_SILENT_S (over sockets, the real clock)."""
+    now it is taken once the first has been silent DRIVER_SILENT_S (over sockets, the real clock;
+    0.3 s here to keep the test, run per mutant, quick)."""
+    monkeypatch.setattr(transport, "DRIVER_SILENT_S", 0.3, raising=False)  # main's code had none
     scene, a, b = scene_link(), None, None
     try:
         a = driver_link(scene)
