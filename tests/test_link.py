@@ -434,7 +434,7 @@ def test_another_key_pairs_nothing_and_moves_nothing():
     assert scene.counts["udp_unauthenticated"] == 2 and scene.session == (b"s" * 16, b"d" * 16)
 
 
-def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pairs_again():
+def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pairs_again(caplog):
     """Scene A pairs with the driver, then a scene B (same key, a new nonce) starts on its
     address: the driver's messages of A's session are dropped as stale by B; the driver, not
     hearing A for SILENT_S, says HELLO with a new challenge and pairs with B; A's messages are
@@ -452,9 +452,20 @@ def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pair
     _, first = driver.receive(welcome, SCENE_AT, 0.6)
     assert b.receive(first, DRIVER_AT)[0] == (LINK_CHANNEL, b"")
     assert driver.session == (b"b" * 16, b"d" * 16) and driver.counts["udp_pairings"] == 2
-    assert driver.receive(a.seal("FEEDBACK", b"old"), SCENE_AT, 0.7) == (None, None)
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        assert driver.receive(a.seal("FEEDBACK", b"old"), SCENE_AT, 0.7) == (None, None)
+        assert driver.receive(a.seal("FEEDBACK", b"old"), SCENE_AT, 0.7) == (None, None)
     assert driver.receive(old_welcome, SCENE_AT, 0.7) == (None, None)
-    assert driver.counts["udp_stale"] == 2 and driver.session[0] == b"b" * 16
+    assert driver.counts["udp_stale"] == 3 and driver.session[0] == b"b" * 16
+    said = [r.getMessage() for r in caplog.records if r.name == "godobject_drake.link"]
+    assert said == [
+        "a message of another session arrived from 127.0.0.1:40000: a driver still paired with an earlier "
+        "scene; it finds this one by itself (it says HELLO after 0.5 s without its scene), or restart it "
+        "(counted in udp_stale, said once)",
+        "a message of another session arrived from the scene at 127.0.0.1:7667: an earlier scene's (it "
+        "restarted), or one that has not paired this driver; dropped, nothing rendered from it; this "
+        "driver pairs with the scene that answers its HELLO (counted in udp_stale, said once)",
+    ]
     assert driver.receive(b.seal("FEEDBACK", b"new"), SCENE_AT, 0.8)[0] == ("FEEDBACK", b"new")
 
 

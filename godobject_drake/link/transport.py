@@ -468,6 +468,7 @@ class DriverEnd(_End):
         self.answered = True  # the current challenge was answered: the next search asks a new one
         self.heard = -math.inf  # when the scene was last heard (authentic, this session)
         self._said_hello = -math.inf
+        self._said_stale = False
         self.refused_by: set[bytes] = set()
 
     def hello(self, now: float) -> bytes | None:
@@ -520,6 +521,14 @@ class DriverEnd(_End):
         session, counter, message = fields
         if session != self.session:
             self.counts["udp_stale"] += 1
+            if not self._said_stale:
+                self._said_stale = True
+                log.warning(
+                    f"a message of another session arrived from the scene at {self.peer[0]}:{self.peer[1]}: "
+                    "an earlier scene's (it restarted), or one that has not paired this driver; dropped, "
+                    "nothing rendered from it; this driver pairs with the scene that answers its HELLO "
+                    "(counted in udp_stale, said once)"
+                )
             return None
         message = self._newer(counter, message)
         if message is not None:
