@@ -434,7 +434,7 @@ def test_another_key_pairs_nothing_and_moves_nothing():
     assert scene.counts["udp_unauthenticated"] == 2 and scene.session == (b"s" * 16, b"d" * 16)
 
 
-def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pairs_again():
+def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pairs_again(caplog):
     """Scene A pairs with the driver, then a scene B (same key, a new nonce) starts on its
     address: the driver's messages of A's session are dropped as stale by B; the driver, not
     hearing A for SILENT_S, says HELLO with a new challenge and pairs with B; A's messages are
@@ -452,9 +452,20 @@ def test_a_message_of_an_earlier_scene_is_stale_for_the_next_and_the_driver_pair
     _, first = driver.receive(welcome, SCENE_AT, 0.6)
     assert b.receive(first, DRIVER_AT)[0] == (LINK_CHANNEL, b"")
     assert driver.session == (b"b" * 16, b"d" * 16) and driver.counts["udp_pairings"] == 2
-    assert driver.receive(a.seal("FEEDBACK", b"old"), SCENE_AT, 0.7) == (None, None)
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        assert driver.receive(a.seal("FEEDBACK", b"old"), SCENE_AT, 0.7) == (None, None)
+        assert driver.receive(a.seal("FEEDBACK", b"old"), SCENE_AT, 0.7) == (None, None)
     assert driver.receive(old_welcome, SCENE_AT, 0.7) == (None, None)
-    assert driver.counts["udp_stale"] == 2 and driver.session[0] == b"b" * 16
+    assert driver.counts["udp_stale"] == 3 and driver.session[0] == b"b" * 16
+    said = [r.getMessage() for r in caplog.records if r.name == "godobject_drake.link"]
+    assert said == [
+        "a message of another session arrived from 127.0.0.1:40000: a driver still paired with an earlier "
+        "scene; it finds this one by itself (it says HELLO after 0.5 s without its scene), or restart it "
+        "(counted in udp_stale, said once)",
+        "a message of another session arrived from the scene at 127.0.0.1:7667: an earlier scene's (it "
+        "restarted), or one that has not paired this driver; dropped, nothing rendered from it; this "
+        "driver pairs with the scene that answers its HELLO (counted in udp_stale, said once)",
+    ]
     assert driver.receive(b.seal("FEEDBACK", b"new"), SCENE_AT, 0.8)[0] == ("FEEDBACK", b"new")
 
 
@@ -486,12 +497,199 @@ def test_a_driver_hears_nothing_from_another_address():
     )
 
 
-def test_the_paired_drivers_messages_from_another_address_are_foreign():
+def test_only_a_newer_message_of_the_paired_driver_moves_it_to_another_address(caplog):
+    """A message of the session from another address is a replay (foreign, said once) unless it
+    is newer than every one taken: then it is the driver's own, and the scene answers it there."""
     scene, driver = ends()
     handshake(scene, driver)
-    assert scene.receive(driver.seal("POSE", b"p"), ("127.0.0.1", 40001)) == (None, None)
-    assert scene.counts["udp_foreign"] == 1
-    assert scene.receive(driver.seal("POSE", b"q"), DRIVER_AT)[0] == ("POSE", b"q")
+    old = driver.seal("POSE", b"p")
+    assert scene.receive(old, DRIVER_AT)[0] == ("POSE", b"p")
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        assert scene.receive(old, ("127.0.0.1", 40001)) == (None, None)
+        assert scene.receive(old, ("127.0.0.1", 40001)) == (None, None)
+    assert scene.counts["udp_foreign"] == 2 and scene.peer == DRIVER_AT
+    assert [r.getMessage() for r in caplog.records] == [
+        "an old message of the paired driver arrived from 127.0.0.1:40001, not 127.0.0.1:40000: a "
+        "replay, dropped (counted in udp_foreign, said once)"
+    ]
+    with caplog.at_level(logging.INFO, logger="godobject_drake.link"):
+        assert scene.receive(driver.seal("POSE", b"q"), ("127.0.0.1", 40001))[0] == ("POSE", b"q")
+    assert caplog.records[-1].getMessage() == "the paired driver moved to 127.0.0.1:40001"
+    assert scene.peer == ("127.0.0.1", 40001) and scene.counts["udp_foreign"] == 2
+    assert scene.counts["udp_taken"] == 3 and scene.counts["udp_pairings"] == 1
+
+
+def test_a_new_session_is_taken_only_after_the_paired_driver_has_been_silent(caplog):
+    """Driver A pairs at 0 s and is last heard at 0.5 s; B (the same key, a new session: A
+    restarted) is REFUSED until A has been silent over DRIVER_SILENT_S, then welcomed, and its
+    first message pairs the scene; A's messages are then a second driver's."""
+    scene, a = ends()
+    b = DriverEnd(KEY, SCENE_AT, b"b" * 16)
+    b_at = ("127.0.0.1", 40007)
+    _, first = a.receive(scene.receive(a.hello(0.0), DRIVER_AT, 0.0)[1], SCENE_AT, 0.0)
+    scene.receive(first, DRIVER_AT, 0.0)
+    assert scene.session == (b"s" * 16, b"d" * 16)
+    assert scene.receive(a.seal("POSE", b"a"), DRIVER_AT, 0.5)[0] == ("POSE", b"a") and scene.heard == 0.5
+    silent = 0.5 + transport.DRIVER_SILENT_S
+    refused = scene.receive(b.hello(silent), b_at, silent)[1]
+    assert refused[4:5] == transport.REFUSED  # silent exactly DRIVER_SILENT_S: not yet
+    assert b.receive(refused, SCENE_AT, silent) == (None, None) and b.session is None
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        welcome = scene.receive(b.hello(silent + 0.1), b_at, silent + 0.01)[1]
+        assert welcome[4:5] == transport.WELCOME
+        _, first = b.receive(welcome, SCENE_AT, 0.0)
+        assert scene.receive(first, b_at, silent + 0.02)[0] == (LINK_CHANNEL, b"")
+        assert scene.session == (b"s" * 16, b"b" * 16) and scene.peer == b_at and scene.heard == silent + 0.02
+        assert scene.receive(a.seal("POSE", b"late"), DRIVER_AT, silent + 0.03) == (None, None)
+    assert scene.counts["udp_pairings"] == 2 and scene.counts["udp_refused_drivers"] == 1
+    assert scene.counts["udp_refused"] == 2 and scene.counts["udp_handshakes"] == 2
+    assert [r.getMessage() for r in caplog.records] == [
+        "the scene at 127.0.0.1:7667 refused this driver: it is paired with another driver, which "
+        "still sends; nothing is rendered (stop the other driver: this one is taken once that one "
+        "has been silent 1.0 s)",
+        "paired with a new driver at 127.0.0.1:40007: the driver at 127.0.0.1:40000 had been silent over "
+        "1.0 s (a driver restarted)",
+        "refused a second driver (at 127.0.0.1:40000): this scene is paired with the driver at "
+        "127.0.0.1:40007, which still sends; stop one of them (a new driver is taken once the paired "
+        "one has been silent 1.0 s) (lcm_udp_refused_drivers in the metrics)",
+    ]
+    assert driver_sees(scene, b) == [("FEEDBACK", b"f")]
+
+
+def driver_sees(scene: SceneEnd, driver: DriverEnd) -> list:
+    message, _ = driver.receive(scene.seal("FEEDBACK", b"f"), SCENE_AT, 0.0)
+    return [message] if message is not None else []
+
+
+def test_the_same_hello_is_answered_at_most_every_HELLO_ANSWER_S_and_a_replay_is_no_second_driver(caplog):
+    """A HELLO replayed (the scene paired with another driver): answered REFUSED once per
+    HELLO_ANSWER_S, the rest counted replayed, and no "second driver" said or counted; a driver
+    that asks again with a new challenge after its REFUSED is one, said once."""
+    scene, first = ends()
+    _, welcome = first.receive(scene.receive(first.hello(0.0), DRIVER_AT, 0.0)[1], SCENE_AT, 0.0)
+    scene.receive(welcome, DRIVER_AT, 0.0)  # paired, heard at 0 s
+    other = DriverEnd(KEY, SCENE_AT, b"o" * 16)
+    hello = other.hello(0.0)
+    step = transport.HELLO_ANSWER_S
+    with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+        answers = [scene.receive(hello, ("127.0.0.1", 50000), t * step / 4)[1] for t in range(9)]
+        assert [t for t, answer in enumerate(answers) if answer is not None] == [0, 4, 8]
+        assert scene.counts["udp_replayed"] == 6 and scene.counts["udp_refused"] == 3
+        assert scene.counts["udp_refused_drivers"] == 0 and caplog.records == []
+        assert other.receive(answers[0], SCENE_AT, 0.0) == (None, None)  # REFUSED: it asks anew
+        assert scene.receive(other.hello(1.0), ("127.0.0.1", 50000), 0.5)[1][4:5] == transport.REFUSED
+    assert scene.counts["udp_refused_drivers"] == 1
+    assert [r.getMessage()[:40] for r in caplog.records] == [
+        "the scene at 127.0.0.1:7667 refused this",
+        "refused a second driver (at 127.0.0.1:50",
+    ]
+
+
+def test_a_scene_remembers_at_most_MAX_REFUSED_hellos_it_answered(monkeypatch):
+    """The HELLOs answered are remembered up to MAX_REFUSED (then those older than HELLO_ANSWER_S
+    are forgotten); one not remembered is answered each time."""
+    monkeypatch.setattr(transport, "MAX_REFUSED", 4)
+    scene = SceneEnd(KEY, b"s" * 16)
+    hellos = [DriverEnd(KEY, SCENE_AT, bytes([i]) * 16).hello(0.0) for i in range(5)]
+    assert all(scene.receive(h, DRIVER_AT, 0.0)[1] is not None for h in hellos)
+    assert scene.receive(hellos[0], DRIVER_AT, 0.01)[1] is None  # remembered: too soon
+    assert scene.receive(hellos[4], DRIVER_AT, 0.01)[1] is not None  # the fifth: not remembered
+    assert scene.receive(hellos[4], DRIVER_AT, 1.0)[1] is not None  # the others forgotten, it kept
+    assert scene.receive(hellos[4], DRIVER_AT, 1.01)[1] is None
+    assert scene.receive(hellos[0], DRIVER_AT, 1.01)[1] is not None
+    assert scene.counts["udp_handshakes"] == 8 and scene.counts["udp_replayed"] == 2
+
+
+def test_a_restarted_driver_pairs_again_with_the_running_scene(monkeypatch):
+    """Before: a driver killed and started again was refused until the scene ended (its tool frozen);
+    now it is taken once the first has been silent DRIVER_SILENT_S (over sockets, the real clock;
+    0.3 s here to keep the test, run per mutant, quick)."""
+    monkeypatch.setattr(transport, "DRIVER_SILENT_S", 0.3, raising=False)  # main's code had none
+    scene, a, b = scene_link(), None, None
+    try:
+        a = driver_link(scene)
+        started = time.monotonic()  # before A is last heard: the silence is measured from later
+        pair(scene, a)
+        a.close()  # the driver crashed
+        b = driver_link(scene)
+        pump(scene, b, until=lambda: b.paired and scene.end.session[1] == b.end.nonce, what="B paired")
+        assert time.monotonic() - started > transport.DRIVER_SILENT_S  # not before A was silent
+        b.Publish("POSE", b"b")
+        scene.Publish("FEEDBACK", b"to b")
+        got = []
+        b.Subscribe("FEEDBACK", got.append)
+        pump(scene, b, until=lambda: got, what="feedback to the new driver")
+        assert got == [b"to b"] and scene.counts["udp_pairings"] == 2
+    finally:
+        for link in (scene, a, b):
+            if link is not None:
+                link.close()
+
+
+def test_a_first_message_replayed_from_elsewhere_cannot_hold_the_scene():
+    """Before: a thief that sent the driver's first message before it arrived paired the scene
+    with itself for its whole life, the real driver's messages dropped as foreign; now the
+    driver's next (newer) message moves the scene back to it, and its feedback goes there."""
+    scene = scene_link()
+    real, thief = (socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2))
+    try:
+        for s in (real, thief):
+            s.bind(("127.0.0.1", 0))
+            s.settimeout(5.0)
+        at = ("127.0.0.1", scene.port)
+        end = DriverEnd(scene.end.key, at)
+        real.sendto(end.hello(0.0), at)
+        received(scene, 1)
+        _, first = end.receive(real.recv(65535), at, 0.0)
+        thief.sendto(first, at)  # the replay wins the race
+        received(scene, 2)
+        assert scene.paired and scene.end.peer == thief.getsockname()
+        real.sendto(first, at)
+        real.sendto(end.seal("POSE", b"p"), at)
+        received(scene, 4)
+        scene.Publish("FEEDBACK", b"f")
+        message, _ = end.receive(real.recv(65535), at, 0.0)
+        assert message == ("FEEDBACK", b"f") and scene.end.peer == real.getsockname()
+        assert scene.counts["udp_foreign"] == 1 and scene.counts["udp_taken"] == 2
+    finally:
+        for s in (scene, real, thief):
+            s.close()
+
+
+def test_a_flood_of_replayed_hellos_gets_few_answers_and_no_false_second_driver(caplog):
+    """Before: each of 1000 replayed HELLOs of an earlier driver was answered and the scene logged
+    "refused a second driver"; now the same HELLO is answered once per HELLO_ANSWER_S at most."""
+    scene, driver, thief = scene_link(), None, socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        driver = driver_link(scene)
+        pair(scene, driver)
+        thief.bind(("127.0.0.1", 0))
+        hello = DriverEnd(scene.end.key, ("127.0.0.1", scene.port)).hello(0.0)  # an earlier driver's
+        n = scene.counts["udp_received"]
+        started = time.monotonic()
+        with caplog.at_level(logging.WARNING, logger="godobject_drake.link"):
+            for _ in range(1000):
+                thief.sendto(hello, ("127.0.0.1", scene.port))
+            received(scene, n + 1000)
+        elapsed = time.monotonic() - started
+        answers = drain_socket(thief)
+        assert scene.counts["udp_refused_drivers"] == 0
+        assert not [r for r in caplog.records if "second driver" in r.getMessage()]
+        assert 1 <= len(answers) <= 1 + elapsed / transport.HELLO_ANSWER_S, (len(answers), elapsed)
+    finally:
+        for s in (scene, driver, thief):
+            if s is not None:
+                s.close()
+
+
+def drain_socket(s: socket.socket) -> list[bytes]:
+    s.settimeout(0.05)
+    out = []
+    try:
+        while True:
+            out.append(s.recv(65535))
+    except TimeoutError:
+        return out
 
 
 def test_a_scene_takes_one_driver_and_refuses_a_second_saying_so(caplog):
@@ -519,10 +717,11 @@ def test_a_scene_takes_one_driver_and_refuses_a_second_saying_so(caplog):
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert warnings == [
         "refused a second driver (at 127.0.0.1:40002): this scene is paired with the driver at "
-        "127.0.0.1:40000 until it ends; stop the other driver, or restart the scene to pair a new one "
-        "(lcm_udp_refused_drivers in the metrics)",
-        "the scene at 127.0.0.1:7667 refused this driver: it is paired with another driver until it "
-        "ends; nothing is rendered (stop the other driver and restart the scene)",
+        "127.0.0.1:40000, which still sends; stop one of them (a new driver is taken once the paired "
+        "one has been silent 1.0 s) (lcm_udp_refused_drivers in the metrics)",
+        "the scene at 127.0.0.1:7667 refused this driver: it is paired with another driver, which "
+        "still sends; nothing is rendered (stop the other driver: this one is taken once that one "
+        "has been silent 1.0 s)",
     ]
     _, welcome = scene.receive(first.hello(2.0), DRIVER_AT)  # the paired driver is welcomed again
     assert welcome[4:5] == transport.WELCOME and first.receive(welcome, SCENE_AT, 2.0) == (None, None)
@@ -535,8 +734,8 @@ def test_a_scene_remembers_at_most_MAX_REFUSED_second_drivers(monkeypatch):
     handshake(scene, first)
     for i in range(transport.MAX_REFUSED + 3):
         other = DriverEnd(KEY, SCENE_AT, i.to_bytes(16, "big"))
-        scene.receive(other.hello(0.0), ("127.0.0.1", 50000 + i))
-        scene.receive(other.hello(1.0), ("127.0.0.1", 50000 + i))
+        other.receive(scene.receive(other.hello(0.0), ("127.0.0.1", 50000 + i))[1], SCENE_AT, 0.0)
+        scene.receive(other.hello(1.0), ("127.0.0.1", 50000 + i))  # asked again: a driver, not a replay
     assert scene.counts["udp_refused_drivers"] == transport.MAX_REFUSED
     assert len(scene.refused) == transport.MAX_REFUSED and scene.counts["udp_refused"] == 2 * (
         transport.MAX_REFUSED + 3
@@ -667,8 +866,10 @@ def test_each_rejection_is_counted_each_time():
     older._pair((b"o" * 16, b"d" * 16))
     stale = DriverEnd(KEY, SCENE_AT, b"d" * 16)
     stale._pair((b"q" * 16, b"d" * 16))
+    taken = driver.seal("P", b"p")
+    scene.receive(taken, DRIVER_AT)
     for _ in range(2):
-        scene.receive(driver.seal("P", b"p"), ("127.0.0.1", 40009))
+        scene.receive(taken, ("127.0.0.1", 40009))  # not newer, from elsewhere: a replay
         scene.receive(stale.seal("P", b"p"), DRIVER_AT)
         driver.receive(older.seal("F", b"f"), SCENE_AT, 0.0)
         driver.receive(b"GOD1S" + bytes(40) + b"F\0" + bytes(32), SCENE_AT, 0.0)
@@ -717,7 +918,8 @@ def test_udp_links_pair_and_carry_messages_both_ways():
 
 def test_the_driver_sends_its_hello_from_the_poll_at_the_interval():
     now = [0.0]
-    scene = scene_link()
+    ticks = iter(range(10))
+    scene = scene_link(clock=lambda: float(next(ticks)))  # each datagram a second later: each HELLO answered
     driver = driver_link(scene, clock=lambda: now[0])
     try:
         driver.HandleSubscriptions(0)

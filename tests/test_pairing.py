@@ -377,6 +377,30 @@ def test_a_truncated_feedback_leaves_the_driver_process_running_and_its_summary_
     assert summary["link"]["udp_malformed"] + summary["link"]["udp_unauthenticated"] == 9
 
 
+def test_a_restarted_drivers_poses_move_the_scene_though_its_clock_starts_again(monkeypatch):
+    """A driver's ``utime`` counts from its own start: a restarted one's first poses are far below
+    the last of the driver it replaces. Before, the scene dropped each as stale (the tool frozen
+    for as long as the first had run); now a new pairing starts the scene's utime check anew."""
+    from godobject_drake.link import transport
+
+    monkeypatch.setattr(transport, "DRIVER_SILENT_S", 0.3)  # 1 s by default; the test is quicker
+    scene = Scene("udp://127.0.0.1:0")
+    url = f"udp://127.0.0.1:{scene.lcm.port}"
+    a = b = None
+    try:
+        a = driver_lcm(url)
+        deliver(scene, a, START + np.array([0.01, 0.0, 0.0]), utime=10**9)  # A ran 1000 s
+        a.close()  # and crashed
+        b = driver_lcm(url)
+        deliver(scene, b, START + np.array([0.0, 0.02, 0.0]), utime=1)  # B, restarted, from its first period
+        assert scene.lcm.counts["udp_pairings"] == 2
+    finally:
+        for link in (a, b):
+            if link is not None:
+                link.close()
+        scene.close()
+
+
 # -- Why 4: a second driver was accepted silently ----------------------------------------------------------
 
 

@@ -30,7 +30,8 @@ counted in the metrics (:data:`~godobject_drake.link.messages.LCM_STATUS_KEYS`):
 - no message yet: the device stays at its start pose, at rest;
 - none for ``timeout_periods`` samples (a driver unplugged): the sample is dropped, so the
   device source holds the last pose at rest (``device_dropped_samples``);
-- a ``utime`` going backwards or repeated: the message is dropped (``lcm_stale_messages``);
+- a ``utime`` going backwards or repeated: the message is dropped (``lcm_stale_messages``); a
+  ``udp://`` link's new pairing (a restarted driver, its clock from zero) starts the check anew;
 - several new messages in one period (a burst): the newest is used (``lcm_bursts``);
 - a message that does not decode as ``lcmt_robot_state``, names other entries, or grasps a
   body the coupling does not know: dropped (``lcm_bad_messages``);
@@ -124,11 +125,15 @@ class LcmReceiver:
         self.latest: tuple[np.ndarray, str | None] | None = None
         self._pending: list[bytes] = []
         self._last_utime: int | None = None
+        self._pairings: int | None = None  # a udp:// link's sessions paired: a new one, a new clock
         self._quiet = 0
         lcm.Subscribe(channel, self._pending.append)
 
     def poll(self) -> bool:
         self.lcm.HandleSubscriptions(0)
+        pairings = getattr(self.lcm, "counts", {}).get("udp_pairings")
+        if pairings != self._pairings:  # a driver restarted: its utime counts from its own start again
+            self._pairings, self._last_utime = pairings, None
         accepted = 0
         for raw in self._pending:
             self.counts["lcm_messages"] += 1

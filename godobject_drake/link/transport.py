@@ -34,13 +34,24 @@ is authenticated with a key only the user's own files hold:
 - every **message** is then ``DATA``: both session nonces, a counter that only grows, the
   channel and the LCM message, tagged HMAC-SHA256 with a key derived from the shared key and
   both nonces, one key per direction. A message of another session (an earlier scene, a
-  replay across runs), an old counter (a replay within the run), another address than the
-  paired one, or a tag that does not verify is dropped and counted, before any handler sees it;
-- a scene **takes one driver**: the first whose ``DATA`` verifies (a driver sends an empty one
-  on ``GODOBJECT_LINK`` as soon as it is welcomed). Another driver with the key
-  is refused (its ``HELLO`` is answered ``REFUSED``, its messages dropped), counted in
-  ``udp_refused_drivers`` and logged, until the scene ends. A driver sends nothing but
-  ``HELLO`` until it is paired, so nothing reaches its device before.
+  replay across runs), an old counter (a replay within the run, from any address), or a tag
+  that does not verify is dropped and counted, before any handler sees it. A scene's paired
+  driver is where its newest message came from: a newer one from another address moves the
+  scene's answers there (only the driver makes new ones), so a replay that arrived first cannot
+  hold the scene; the driver hears its scene's address alone;
+- a scene **takes one driver at a time**: the first whose ``DATA`` verifies (a driver sends an
+  empty one on ``GODOBJECT_LINK`` as soon as it is welcomed). While that driver is heard,
+  another with the key is refused (its ``HELLO`` answered ``REFUSED``, its messages dropped);
+  once the paired one has been silent :data:`DRIVER_SILENT_S` (crashed, killed, restarted: a new
+  process is a new session), the next driver's ``HELLO`` is welcomed and its first ``DATA``
+  pairs the scene again (a new driver renders from zero, its rated-rate ramp from there). The
+  same ``HELLO`` is answered at most every :data:`HELLO_ANSWER_S` (a replayed flood gets few
+  answers, the rest counted ``udp_replayed``), and a second driver is counted in
+  ``udp_refused_drivers`` and logged only once it is shown to run: its ``DATA`` of this scene,
+  or a ``HELLO`` with a new challenge after its ``REFUSED`` (one replayed ``HELLO`` can do
+  neither). Each end says once why it drops what it does (another key, another session, an old
+  message from elsewhere, a second driver), with the fix. A driver sends nothing but ``HELLO``
+  until it is paired, so nothing reaches its device before.
 
 Wire format (big-endian), each datagram at most :data:`MAX_DATAGRAM` bytes::
 
@@ -155,7 +166,14 @@ MAX_PER_POLL = 256  # datagrams handled per poll: a flood cannot hold either end
 MAX_POLL_S = 0.25e-3
 HELLO_INTERVAL_S = 0.1  # a driver without a scene says HELLO this often
 SILENT_S = 0.5  # a paired driver that heard nothing this long says HELLO again (a scene restarted)
-MAX_REFUSED = 64  # second drivers remembered (and logged) by a scene
+MAX_REFUSED = 64  # second drivers (a scene) or scenes (a driver) remembered and logged
+# a scene takes a new driver (a restarted one: the same key, a new session) once its paired driver has
+# been silent this long (s): twice the driver's SILENT_S, after which a live driver says HELLO again,
+# and a thousand of its periods, so a driver that still runs is never replaced
+DRIVER_SILENT_S = 1.0
+# a scene answers one HELLO (the same nonce and challenge) at most once this often (s): a driver repeats
+# its HELLO every HELLO_INTERVAL_S, so each live one is answered; a replayed flood gets 20 answers a second
+HELLO_ANSWER_S = HELLO_INTERVAL_S / 2
 LINK_CHANNEL = "GODOBJECT_LINK"  # a driver's first DATA (empty): the scene pairs with its sender
 
 # What each end of a link counts (UdpLcm.counts; a scene's metrics have them as lcm_<key>).
@@ -166,8 +184,8 @@ LINK_COUNT_KEYS = (
     "udp_malformed",  # not a datagram of this link, or of a kind this end does not take
     "udp_unauthenticated",  # the tag did not verify: another key, altered, forged
     "udp_stale",  # authentic but of another session: an earlier scene's, an answer to an old HELLO
-    "udp_replayed",  # authentic, this session, its counter not above the last one taken
-    "udp_foreign",  # from another address than the paired end's
+    "udp_replayed",  # authentic, this session, its counter not above the last; a HELLO answered just before
+    "udp_foreign",  # a driver: from another address than the scene's; a scene: an old message from elsewhere
     "udp_refused",  # a scene: messages of a second driver; a driver: REFUSED answers
     "udp_refused_drivers",  # a scene: second drivers refused
     "udp_pairings",  # sessions paired
@@ -311,63 +329,127 @@ class _End:
 
 class SceneEnd(_End):
     """The scene's checks (module docstring): answers HELLO, pairs with the first driver whose
-    DATA verifies, refuses any other. :meth:`receive` returns ``(message, reply)``: the
-    ``(channel, payload)`` to hand to the subscribers and a datagram to send back to the sender."""
+    DATA verifies, refuses any other while that one is heard, moves to the address its newest
+    DATA comes from. :meth:`receive` returns ``(message, reply)``: the ``(channel, payload)`` to
+    hand to the subscribers and a datagram to send back to the sender."""
 
     SEND, TAKE = SCENE_DATA, DRIVER_DATA
 
     def __init__(self, key: bytes, nonce: bytes | None = None):
         super().__init__(key, nonce)
         self.peer: tuple | None = None  # the paired driver's address
+        self.heard = -math.inf  # when the paired driver's newest DATA was taken
         self.refused: set[bytes] = set()
+        self._asked: dict[bytes, bytes] = {}  # a refused HELLO's driver nonce: its challenge
+        self._answered: dict[bytes, float] = {}  # a HELLO's nonce and challenge: when last answered
+        self._said: set[str] = set()
 
-    def receive(self, datagram: bytes, sender) -> tuple[tuple[str, bytes] | None, bytes | None]:
+    def _say_once(self, what: str, text: str) -> None:
+        if what not in self._said:
+            self._said.add(what)
+            log.warning(text)
+
+    def silent(self, now: float | None) -> bool:
+        """Has the paired driver been silent :data:`DRIVER_SILENT_S` (never without a clock)?"""
+        return self.session is not None and now is not None and now - self.heard > DRIVER_SILENT_S
+
+    def receive(
+        self, datagram: bytes, sender, now: float | None = None
+    ) -> tuple[tuple[str, bytes] | None, bytes | None]:
+        """``now``: the scene's clock (s); None: no clock (the paired driver is never silent and
+        every HELLO is answered)."""
         kind = split(datagram, (HELLO, DRIVER_DATA))
         if kind is None:
             self.counts["udp_malformed"] += 1
             return None, None
         if kind == HELLO:
-            return None, self._answer(datagram, sender)
+            return None, self._answer(datagram, sender, now)
         fields = self._verified(datagram, sender)
         if fields is None:
             return None, None
         session, counter, message = fields
         if session[0] != self.nonce:
             self.counts["udp_stale"] += 1
+            self._say_once(
+                "stale",
+                f"a message of another session arrived from {sender[0]}:{sender[1]}: a driver still "
+                "paired with an earlier scene; it finds this one by itself (it says HELLO after "
+                f"{SILENT_S} s without its scene), or restart it (counted in udp_stale, said once)",
+            )
             return None, None
-        if self.session is None:
+        if self.session is None or (session != self.session and self.silent(now)):
+            was = self.peer
             self._pair(session)
-            self.peer = sender
-            log.info(f"paired with the driver at {sender[0]}:{sender[1]}")
+            self.peer, self.heard = sender, now if now is not None else -math.inf
+            if was is None:
+                log.info(f"paired with the driver at {sender[0]}:{sender[1]}")
+            else:
+                log.warning(
+                    f"paired with a new driver at {sender[0]}:{sender[1]}: the driver at {was[0]}:{was[1]} "
+                    f"had been silent over {DRIVER_SILENT_S} s (a driver restarted)"
+                )
         elif session != self.session:
             self._refuse(session[1], sender)
             return None, None
-        elif sender != self.peer:
-            self.counts["udp_foreign"] += 1
+        if counter <= self._taken and sender != self.peer:
+            self.counts["udp_foreign"] += 1  # an old message from elsewhere: a replay
+            self._say_once(
+                "foreign",
+                f"an old message of the paired driver arrived from {sender[0]}:{sender[1]}, not "
+                f"{self.peer[0]}:{self.peer[1]}: a replay, dropped (counted in udp_foreign, said once)",
+            )
             return None, None
-        return self._newer(counter, message), None
+        taken = self._newer(counter, message)
+        if taken is not None:
+            if sender != self.peer:  # newer than any taken: the driver's own, from where it is now
+                log.info(f"the paired driver moved to {sender[0]}:{sender[1]}")
+                self.peer = sender
+            if now is not None:
+                self.heard = now
+        return taken, None
 
     def _refuse(self, driver_nonce: bytes, sender) -> None:
         """Count a second driver's message; log the driver once."""
         self.counts["udp_refused"] += 1
+        self._refused_driver(driver_nonce, sender)
+
+    def _refused_driver(self, driver_nonce: bytes, sender) -> None:
         if driver_nonce in self.refused or len(self.refused) >= MAX_REFUSED:
             return
         self.refused.add(driver_nonce)
         self.counts["udp_refused_drivers"] += 1
         log.warning(
             f"refused a second driver (at {sender[0]}:{sender[1]}): this scene is paired with the "
-            f"driver at {self.peer[0]}:{self.peer[1]} until it ends; stop the other driver, or "
-            "restart the scene to pair a new one (lcm_udp_refused_drivers in the metrics)"
+            f"driver at {self.peer[0]}:{self.peer[1]}, which still sends; stop one of them (a new "
+            f"driver is taken once the paired one has been silent {DRIVER_SILENT_S} s) "
+            "(lcm_udp_refused_drivers in the metrics)"
         )
 
-    def _answer(self, datagram: bytes, sender) -> bytes | None:
-        """WELCOME to a HELLO when no driver or this one is paired; REFUSED to another driver."""
+    def _answer(self, datagram: bytes, sender, now: float | None) -> bytes | None:
+        """WELCOME to a HELLO when no driver, this one, or any after a silence of the paired one;
+        REFUSED to another driver. The same HELLO is answered at most every
+        :data:`HELLO_ANSWER_S` (a replayed flood); a second driver is said to be there once it
+        asks again with a new challenge (a replay of one HELLO cannot)."""
         if not self._hello.verify(datagram):
             self._unauthenticated(sender)
             return None
         asked = datagram[HEAD:-TAG_BYTES]  # the driver's nonce and challenge
-        if self.session is not None and asked[:NONCE_BYTES] != self.session[1]:
-            self._refuse(asked[:NONCE_BYTES], sender)
+        if now is not None:
+            if now - self._answered.get(asked, -math.inf) < HELLO_ANSWER_S:
+                self.counts["udp_replayed"] += 1
+                return None
+            if len(self._answered) >= MAX_REFUSED:
+                self._answered = {a: t for a, t in self._answered.items() if now - t < HELLO_ANSWER_S}
+            if len(self._answered) < MAX_REFUSED:
+                self._answered[asked] = now
+        nonce, challenge = asked[:NONCE_BYTES], asked[NONCE_BYTES:]
+        if self.session is not None and nonce != self.session[1] and not self.silent(now):
+            self.counts["udp_refused"] += 1
+            first = self._asked.get(nonce)
+            if first is None and len(self._asked) < MAX_REFUSED:
+                self._asked[nonce] = challenge
+            elif first is not None and first != challenge:  # asked again after a REFUSED: it runs
+                self._refused_driver(nonce, sender)
             return self._hello.seal(MAGIC + REFUSED + self.nonce + asked)
         self.counts["udp_handshakes"] += 1
         return self._hello.seal(MAGIC + WELCOME + self.nonce + asked)
@@ -386,6 +468,7 @@ class DriverEnd(_End):
         self.answered = True  # the current challenge was answered: the next search asks a new one
         self.heard = -math.inf  # when the scene was last heard (authentic, this session)
         self._said_hello = -math.inf
+        self._said_stale = False
         self.refused_by: set[bytes] = set()
 
     def hello(self, now: float) -> bytes | None:
@@ -438,6 +521,14 @@ class DriverEnd(_End):
         session, counter, message = fields
         if session != self.session:
             self.counts["udp_stale"] += 1
+            if not self._said_stale:
+                self._said_stale = True
+                log.warning(
+                    f"a message of another session arrived from the scene at {self.peer[0]}:{self.peer[1]}: "
+                    "an earlier scene's (it restarted), or one that has not paired this driver; dropped, "
+                    "nothing rendered from it; this driver pairs with the scene that answers its HELLO "
+                    "(counted in udp_stale, said once)"
+                )
             return None
         message = self._newer(counter, message)
         if message is not None:
@@ -446,13 +537,14 @@ class DriverEnd(_End):
 
     def _refused(self, scene_nonce: bytes) -> None:
         self.counts["udp_refused"] += 1
+        self.answered = True  # the next HELLO asks a new challenge: the scene sees a live driver
         if scene_nonce in self.refused_by or len(self.refused_by) >= MAX_REFUSED:
             return
         self.refused_by.add(scene_nonce)
         log.warning(
             f"the scene at {self.peer[0]}:{self.peer[1]} refused this driver: it is paired with "
-            "another driver until it ends; nothing is rendered (stop the other driver and "
-            "restart the scene)"
+            "another driver, which still sends; nothing is rendered (stop the other driver: this "
+            f"one is taken once that one has been silent {DRIVER_SILENT_S} s)"
         )
 
 
@@ -469,7 +561,7 @@ class UdpLcm:
     key : bytes
         The shared key (:func:`~godobject_drake.link.keys.load_key`).
     clock : callable
-        Seconds, for the driver's HELLO timing (``time.monotonic``).
+        Seconds (``time.monotonic``): when a driver says HELLO; a scene's silence and HELLO rules.
     """
 
     def __init__(
@@ -524,10 +616,10 @@ class UdpLcm:
             raise ValueError(f"LCM URL {url!r}: no address for {host!r} ({e}); give an IP address") from None
 
     @classmethod
-    def listen(cls, url: str, key_file: str | Path = "") -> UdpLcm:
+    def listen(cls, url: str, key_file: str | Path = "", **options) -> UdpLcm:
         """The scene's end: listen on the URL's address, answer the paired driver."""
         key, path = load_key(key_file)
-        link = cls(cls._address(url), None, url, key=key)
+        link = cls(cls._address(url), None, url, key=key, **options)
         link.key_file = path
         log.info(f"{link.url}: waiting for a driver with the key {path} (fingerprint {key_fingerprint(key)})")
         return link
@@ -619,10 +711,7 @@ class UdpLcm:
                     read_until = time.perf_counter() + self.poll_budget_s
                 with self._lock:
                     self.counts["udp_received"] += 1
-                    if isinstance(self.end, DriverEnd):
-                        message, reply = self.end.receive(datagram, sender, self.clock())
-                    else:
-                        message, reply = self.end.receive(datagram, sender)
+                    message, reply = self.end.receive(datagram, sender, self.clock())
                     if reply is not None:
                         self._send(reply, sender)
                 if message is None:
