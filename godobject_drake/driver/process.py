@@ -603,6 +603,7 @@ def _log_to_stderr() -> None:
         handler = StderrHandler()
         handler.setFormatter(logging.Formatter("godobject-driver: %(message)s"))
         handler.driver_lines = True
+        handler.level_before = logger.level  # put back with the handler (main's end)
         logger.addHandler(handler)
         logger.setLevel(logging.INFO)
 
@@ -882,10 +883,11 @@ def main(argv=None) -> int:
     except ValueError as e:  # a device that would not open, a hand path that would not load
         print(f"godobject-driver: {e}", file=sys.stderr)
         return 2 if "--" in str(e) else 1
-    finally:  # run inside another program (a test, a scene), the driver leaves no log line format behind
+    finally:  # run inside another program (a test, a scene), the driver leaves its logger as it was
         logger = logging.getLogger("godobject_drake")
         for handler in [h for h in logger.handlers if getattr(h, "driver_lines", False)]:
             logger.removeHandler(handler)
+            logger.setLevel(handler.level_before)
 
 
 if __name__ == "__main__":
