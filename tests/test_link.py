@@ -44,6 +44,24 @@ DRIVER_AT = ("127.0.0.1", 40000)
 # -- helpers, also used by test_driver, test_pairing and test_fuzz -----------------------------------------
 
 
+@pytest.fixture(autouse=True)
+def the_package_logger_as_a_fresh_process_has_it():
+    """Each test here hears the link's log as a process of its own would: a scene or a driver run
+    earlier in the same process (a command line's handler, its info level) is set aside and put
+    back after."""
+    logger = logging.getLogger("godobject_drake")
+    before = (logger.level, logger.propagate, list(logger.handlers))
+    logger.setLevel(logging.NOTSET)
+    logger.propagate = True
+    for handler in before[2]:
+        logger.removeHandler(handler)
+    yield
+    logger.setLevel(before[0])
+    logger.propagate = before[1]
+    for handler in before[2]:
+        logger.addHandler(handler)
+
+
 def pump(*links, until, timeout_s: float = 5.0, what: str = "") -> None:
     """Poll ``links`` (waiting 1 ms each for a datagram) until ``until()``; fail after ``timeout_s``
     (generous: only a stalled machine comes near it)."""
