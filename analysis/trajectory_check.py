@@ -50,8 +50,7 @@ VARIANTS = {
     "lego_h2ms": ("lego", "plant: {time_step: 0.002}", None),
     "lego_implicit": ("lego", "god_object: {coupling: implicit}", None),
     "lego_implicit_bricks_16": ("lego", "god_object: {coupling: implicit}\nbricks: 16", 3.0),
-    # the laparoscopy at h = 1 ms (the rigid organs' step before the scene took 10 ms for its soft
-    # organ), then as shipped
+    # the laparoscopy at h = 1 ms (the step its baseline variants are recorded at), then as shipped
     "laparoscopy": ("laparoscopy", H1, None),
     "laparoscopy_position": ("laparoscopy", H1 + "simulation: {mode: position}", None),
     "laparoscopy_h10": ("laparoscopy", "", None),
