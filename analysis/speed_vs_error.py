@@ -613,8 +613,10 @@ def scale_section(rows: list[dict], out: Path, interleaved: dict | None = None) 
 def performance_goals(scene: str, rows: list[dict]) -> list[tuple]:
     """Rows of the goals table: (scene, at, configuration, RTF, goal).
 
-    Bricks and grasper: the scene's default configuration at h = 1 ms and the fastest one at
-    h = 1 ms (their goals are stated at h = 1 ms); the probe: its fastest configuration.
+    Bricks and grasper: the scene's default contact, solver and coupling at h = 1 ms and the
+    fastest configuration at h = 1 ms (their goals are stated at h = 1 ms); the probe: its
+    fastest configuration. The row says "default" only where the shipped scene's own step is
+    1 ms (the laparoscopy ships h = 10 ms: its row is its defaults at the goal's step).
     """
     ok = [r for r in rows if not r["refused"] and not r["diverged"] and r["cost_median_s"]]
     out = []
@@ -627,7 +629,13 @@ def performance_goals(scene: str, rows: list[dict]) -> list[tuple]:
             and r["config"].get("approximation") in (None, "sap")
             and r["config"].get("coupling") in (None, "cartesian", "explicit")
         ]
-        picks = [("default configuration, h = 1 ms", default)]
+        shipped_h = shipped_scenario(scene).plant.time_step
+        what = (
+            "default configuration, h = 1 ms"
+            if shipped_h == 1e-3
+            else f"default contact, solver and coupling at h = 1 ms (ships h = {1e3 * shipped_h:g} ms)"
+        )
+        picks = [(what, default)]
         picks.append(
             ("fastest at h = 1 ms", [min(at_1ms, key=lambda r: r["cost_median_s"])] if at_1ms else [])
         )
