@@ -454,7 +454,9 @@ def test_the_drivers_exit_lines_say_what_the_hand_felt_and_which_counts_mattered
     assert "did not matter (4.0% of the periods, the latest 4.0 ms late" in calm and "MATTERED" not in calm
     assert "10.00 s at 1000 Hz" in calm and "the scene's end" in calm
     assert all(f"  {key} " in calm for key in DRIVER_STATUS_KEYS)  # every count said, each once
-    rough = exit_lines(_summary(overruns=600, watchdog_trips=3, force_clamps=7))
+    rough = exit_lines(_summary(overruns=600, watchdog_trips=3, force_clamps=7) | {"run_s": 12.0})
+    # 10,000 periods run in 12 s of a 1 kHz loop: 2,000 skipped by its overruns
+    assert any("10000 of the 12000 periods of its 12.00 s at 1000 Hz" in line for line in rough)
     mattered = [line.split()[0] for line in rough if "MATTERED" in line]
     assert mattered == ["overruns", "watchdog_trips", "force_clamps"]
     assert any("the hand lost the force 3 times" in line for line in rough)

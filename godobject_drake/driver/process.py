@@ -313,6 +313,7 @@ class Driver:
                 if wait > 0:
                     time.sleep(wait)
         finally:
+            self.run_s = time.monotonic() - start
             self.shutdown()
 
     def _pause(self) -> None:
@@ -457,6 +458,7 @@ class Driver:
                 "period_s": self.period,
             },
             "rt_priority": getattr(self, "rt_priority", 0),
+            "run_s": getattr(self, "run_s", None),  # the loop's wall time, once it has run
             "ended_by": self.ended_by,
             "output_error": self.output_error,
             "pauses": self.pauses,

@@ -82,6 +82,15 @@ def _overruns(n: int, s: dict) -> str:
     )
 
 
+def _loops(n: int, s: dict) -> str:
+    period, ran = s["limits"]["period_s"], s.get("run_s")
+    due = None if ran is None else round(ran / period)
+    if due is None or n >= 0.99 * due:
+        return f"{n * period:.2f} s at {1 / period:g} Hz"
+    return (f"{n} of the {due} periods of its {ran:.2f} s at {1 / period:g} Hz: an overrun skips the periods "
+            "it missed (a Ctrl-Z pause too)")  # fmt: skip
+
+
 def _some(n: int, mattered: str, none: str = "none") -> str:
     return none if n == 0 else f"MATTERED: {mattered}"
 
@@ -105,8 +114,7 @@ def _rate(n: int, s: dict) -> str:
 
 # Each count: what it means, and whether it mattered in this run (from its value and the summary).
 COUNTS = {
-    "loops": ("device periods run",
-              lambda n, s: f"{n * s['limits']['period_s']:.2f} s at {1 / s['limits']['period_s']:g} Hz"),
+    "loops": ("device periods run", _loops),
     "overruns": ("periods that began more than one period late", _overruns),
     "watchdog_trips": ("times the scene's word went stale and the force went to zero", _watchdog),
     "scene_stops": ("times the scene said it stopped (its end, Stop, an error): zero force at once",
