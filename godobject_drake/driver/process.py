@@ -604,7 +604,10 @@ def _check(args) -> None:
             f"{rated.max_force_n:g} N ({rated.source})"
         )
     if not args.duration > 0:
-        raise BadInput(f"--duration {args.duration!r} s must be > 0 (inf: until SIGTERM or Ctrl-C)")
+        raise BadInput(
+            f"--duration {args.duration!r} s must be > 0 (inf, the default: until the scene stops, "
+            "SIGTERM or Ctrl-C)"
+        )
     if not 0 <= args.rt_priority <= 99:
         raise BadInput(
             f"--rt-priority {args.rt_priority!r} must be within 1 to 99 (SCHED_FIFO), or 0 for none"
@@ -855,7 +858,12 @@ def parser() -> argparse.ArgumentParser:
         default="button",
         help="button: button 0 grasps while held; always: grasp from the start (no buttons)",
     )
-    run.add_argument("--duration", type=float, default=math.inf, help="s (default: until SIGTERM or Ctrl-C)")
+    run.add_argument(
+        "--duration",
+        type=float,
+        default=math.inf,
+        help="s (default: until the scene stops, or with --stay until SIGTERM or Ctrl-C)",
+    )
     run.add_argument(
         "--rt-priority",
         type=int,
