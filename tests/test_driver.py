@@ -467,6 +467,19 @@ def test_the_drivers_exit_lines_say_what_the_hand_felt_and_which_counts_mattered
     assert exit_lines(nothing)[0].startswith(said)
 
 
+def test_the_scenes_stop_ends_the_driver_or_is_said_when_it_stays(capsys):
+    """The scene's STOP: a driver that exits on it stops its loop; one that stays (--stay) renders
+    zero and says it waits for the next run (it used to print nothing)."""
+    for exit_on_stop in (True, False):
+        driver = drv.Driver(drv.EmulatedDevice(), _QuietLink(), RATED["emulated"], rate_hz=1000.0,
+                            watchdog_periods=10, max_force_n=12.0, exit_on_stop=exit_on_stop)  # fmt: skip
+        driver._on_stop(b"")
+        said = capsys.readouterr().err
+        assert driver.stop_requested is exit_on_stop and driver.counts["scene_stops"] == 1
+        assert ("waiting for its next run (--stay; Ctrl-C ends the driver)" in said) is not exit_on_stop
+        assert driver.gate.state(0.0, False) == "stopped"  # zero force either way
+
+
 def test_the_driver_ends_with_its_scene_unless_told_to_stay():
     """The default a haptics user expects: the scene's stop ends the driver (it prints what the
     hand felt); --stay waits for the next run; giving both is refused."""
