@@ -60,6 +60,8 @@ PICTURES = (
     Picture("browser_recording_lego", "lego", 3.2, at_s=(3.1,)),
     Picture("browser_recording_laparoscopy", "laparoscopy", 4.0, at_s=(3.5,)),
     Picture("browser_recording_deformable_probe", "deformable_probe", 3.5, at_s=(3.0,)),
+    # the two hands apart (1 s: the right hand lifts brick_1 over), then the right's brick laid on the left's
+    Picture("browser_recording_two_hands", "lego_two_hands", 3.6, at_s=(1.0, 3.5)),
     Picture("browser_recording_tissue", "laparoscopy", 0.9, PRESS, at_s=(0.0, None)),
     Picture("browser_force_cue_tracking", "lego", 4.0, at_s=(1.0,)),
     Picture("browser_force_cue_at_wall", "lego", 4.0, at_s=(3.1,)),

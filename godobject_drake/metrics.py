@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import textwrap
 import warnings
 from pathlib import Path
 
@@ -292,6 +293,9 @@ def _cm_velocities(body: GraspableBody, states: np.ndarray) -> np.ndarray:
     return states[:, body.v_start + 3 : body.v_start + 6] + np.cross(w, R @ body.p_BoBcm_B)
 
 
+TEXT_WIDTH = 72  # a text in the metrics table (a warning) is wrapped to this many characters
+
+
 def format_table(rows: list[dict]) -> str:
     """A plain-text table of metrics, one column per run; a run of several tools gives the scene's
     column and one per tool (its ``tools``)."""
@@ -320,8 +324,14 @@ def format_table(rows: list[dict]) -> str:
     cells = [["metric", *headers]]
     cells += [[k] + [fmt(c.get(k)) if k in c or not s else "" for c, s in zip(columns, split, strict=True)]
               for k in keys]  # fmt: skip
-    widths = [max(len(c[i]) for c in cells) for i in range(len(cells[0]))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in cells]
+    # a long text (a warning) wrapped within its column, on lines of its own below the metric's name
+    wrapped = [[textwrap.wrap(c, TEXT_WIDTH, break_on_hyphens=False) or [""] for c in row] for row in cells]
+    widths = [max(len(line) for row in wrapped for line in row[i]) for i in range(len(cells[0]))]
+    lines = []
+    for row in wrapped:
+        for j in range(max(len(c) for c in row)):
+            parts = [(c[j] if j < len(c) else "").ljust(w) for c, w in zip(row, widths, strict=True)]
+            lines.append("  ".join(parts).rstrip())
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)
 

@@ -409,8 +409,9 @@ class _Run:
         if self.lag is not None:
             metrics.update(self.lag.result())
             summary = self.lag.summary(root.get_time(), self.wall) if self.lag.warn else None
-            if summary is not None:
-                logging.getLogger("godobject_drake.realtime").warning("%s", summary)
+            if summary is not None:  # the verdict: a warning unless real time held throughout
+                level = logging.INFO if self.lag.held else logging.WARNING
+                logging.getLogger("godobject_drake.realtime").log(level, "%s", summary)
         if self.guard.stopped:
             metrics["stopped_by_user"] = True
         if self.interrupted is not None:

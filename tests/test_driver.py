@@ -33,8 +33,10 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.devices.lcm import ForceTorqueMessage, LcmDevice
 from godobject_drake.driver import process as drv
 from godobject_drake.driver.families import RATED, HandPath
+from godobject_drake.driver.report import CONTACT_N, RenderedForce, exit_lines
 from godobject_drake.link.messages import (
     DRIVER_STATUS_CHANNEL,
+    DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
     POSE_CHANNEL,
     pose_message,
@@ -232,12 +234,15 @@ def test_an_emulated_device_feels_the_wall_through_a_driver_process(tmp_path):
     model is fresh and the hand holds still as the scene saw it);
     the force it renders is that request, or one rated step (1.2 N) towards it (the ramps after
     a watchdog trip, which a loaded machine gives). When the scene stops it says so, and the
-    driver renders zero and exits."""
+    driver renders zero and exits (its default: no --exit-on-stop given), printing what the hand
+    felt: the peak and the mean over the periods above 0.1 N of its own log's force column; the
+    scene's metrics have the same figures as of the driver's last report to it."""
     url = f"udp://127.0.0.1:{free_port()}"
-    driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
+    driver = start_driver(tmp_path, url, "--duration", "600")
     try:
         result = simulate(build_station(lcm_scenario(url, 4.0)), progress=False)
         assert driver.wait(timeout=120) == 0, driver.stderr.read()
+        err = driver.stderr.read()
     finally:
         driver.kill()
     m = result.metrics
@@ -270,6 +275,21 @@ def test_an_emulated_device_feels_the_wall_through_a_driver_process(tmp_path):
     assert summary["counts"]["scene_stops"] == 1 and log["state"][-2] == "stopped"
     after_stop = np.flatnonzero(log["state"] == "stopped")[0]
     assert np.all(rendered(log)[after_stop:] == 0.0)
+    # what the hand felt, against the log's force column (9 digits) by numpy
+    felt, magnitude = summary["rendered_force"], np.linalg.norm(f, axis=1)
+    contact = magnitude > 0.1
+    assert felt["peak_n"] == pytest.approx(magnitude.max(), rel=1e-8) and felt["peak_n"] > 0.5
+    assert felt["mean_in_contact_n"] == pytest.approx(magnitude[contact].mean(), rel=1e-8)
+    assert felt["contact_periods"] == contact.sum() > 200
+    assert felt["contact_s"] == pytest.approx(contact.sum() * 1e-3)
+    said = f"the hand felt: peak {felt['peak_n']:.3g} N, mean {felt['mean_in_contact_n']:.3g} N over"
+    assert said in err and "overruns" in err and "periods that began more than one period late" in err
+    # the scene's figures: the driver's last report (every 100 periods) before the scene's end,
+    # its first m["driver_loops"] periods (float32 on the link)
+    reported = magnitude[: m["driver_loops"]]
+    assert m["driver_force_peak_n"] == pytest.approx(reported.max(), rel=1e-6)
+    assert m["driver_force_mean_contact_n"] == pytest.approx(reported[reported > 0.1].mean(), rel=1e-6)
+    assert m["driver_contact_s"] == pytest.approx(np.sum(reported > 0.1) * 1e-3, rel=1e-6)
 
 
 def test_the_force_is_zero_within_the_local_models_fade_after_the_scene_is_killed(tmp_path):
@@ -388,12 +408,87 @@ def test_driver_status_reaches_the_scene_metrics():
     device = LcmDevice(scene, RigidTransform(), period_s=0.001)
     link = driver_link(scene)
     pair(scene, link)
-    link.Publish(DRIVER_STATUS_CHANNEL, status_message(5, {"watchdog_trips": 3, "buzz_events": 2}).encode())
+    assert device.lcm_status()["driver_force_peak_n"] is None  # nothing reported yet: not a 0 N
+    counts = {"watchdog_trips": 3, "buzz_events": 2, "force_peak_n": 2.375, "force_mean_contact_n": None,
+              "contact_s": 0.125}  # fmt: skip
+    link.Publish(DRIVER_STATUS_CHANNEL, status_message(5, counts).encode())
     pump(scene, until=lambda: device.driver_status_messages, what="the status")
     status = device.lcm_status()
     assert status["driver_watchdog_trips"] == 3 and status["driver_buzz_events"] == 2
     assert status["driver_force_clamps"] == 0 and status["driver_status_messages"] == 1
     assert status["lcm_udp_received"] == 3 and status["lcm_udp_pairings"] == 1  # HELLO, first DATA, status
+    # what the hand felt, as floats (a count is rounded; lcmt_robot_state carries float32: 2.375 is
+    # exact in it), the mean none yet (sent as NaN)
+    assert status["driver_force_peak_n"] == 2.375 and status["driver_contact_s"] == 0.125
+    assert status["driver_force_mean_contact_n"] is None
+
+
+def test_the_rendered_force_peak_and_mean_in_contact_by_hand():
+    """Five periods of 1 ms: 0, 0.05 N (under the 0.1 N of contact), 5 N (3, 4, 0), 1 N, and
+    exactly 0.1 N (not above it): peak 5 N, in contact 2 periods (2 ms), mean (5 + 1) / 2 = 3 N."""
+    felt = RenderedForce(1e-3)
+    for f in ([0, 0, 0], [0.05, 0, 0], [3.0, 4.0, 0], [0, 0, -1.0], [0.1, 0, 0]):
+        felt.add(np.array(f))
+    r = felt.result()
+    assert r["peak_n"] == 5.0 and r["mean_in_contact_n"] == 3.0 and r["contact_periods"] == 2
+    assert r["contact_s"] == pytest.approx(2e-3) and r["periods"] == 5
+    assert r["contact_threshold_n"] == CONTACT_N == 0.1
+    assert RenderedForce(1e-3).result()["mean_in_contact_n"] is None  # no contact: no mean, not 0
+
+
+def _summary(**counts) -> dict:
+    base = dict.fromkeys(DRIVER_STATUS_KEYS, 0) | {"loops": 10_000, "buzz_periods": 0} | counts
+    felt = {"peak_n": 5.0, "mean_in_contact_n": 3.0, "contact_s": 2.5, "contact_periods": 2500,
+            "contact_threshold_n": 0.1, "periods": 10_000}  # fmt: skip
+    return {"counts": base, "rendered_force": felt, "loop_lateness": {"max_s": 0.004},
+            "limits": {"period_s": 1e-3, "watchdog_s": 0.01, "max_force_n": 12.0}}  # fmt: skip
+
+
+def test_the_drivers_exit_lines_say_what_the_hand_felt_and_which_counts_mattered():
+    """What the driver prints at its end: the force felt, then every count with its meaning and,
+    by the rules of driver/report.py, whether it mattered: 400 overruns of 10,000 periods (4 %,
+    the latest 4 ms) did not, 600 (6 %) did; any watchdog trip or force clamp did."""
+    calm = "\n".join(exit_lines(_summary(overruns=400, scene_stops=1)))
+    said = "the hand felt: peak 5 N, mean 3 N over 2.50 s in contact (the periods rendering over 0.1 N)"
+    assert said in calm
+    assert "did not matter (4.0% of the periods, the latest 4.0 ms late" in calm and "MATTERED" not in calm
+    assert "10.00 s at 1000 Hz" in calm and "the scene's end" in calm
+    assert all(f"  {key} " in calm for key in DRIVER_STATUS_KEYS)  # every count said, each once
+    rough = exit_lines(_summary(overruns=600, watchdog_trips=3, force_clamps=7) | {"run_s": 12.0})
+    # 10,000 periods run in 12 s of a 1 kHz loop: 2,000 skipped by its overruns
+    assert any("10000 of the 12000 periods of its 12.00 s at 1000 Hz" in line for line in rough)
+    mattered = [line.split()[0] for line in rough if "MATTERED" in line]
+    assert mattered == ["overruns", "watchdog_trips", "force_clamps"]
+    assert any("the hand lost the force 3 times" in line for line in rough)
+    assert any("7 periods felt 12 N instead of what the scene asked" in line for line in rough)
+    nothing = _summary()
+    nothing["rendered_force"] |= {"peak_n": 0.05, "mean_in_contact_n": None, "contact_periods": 0}
+    said = "the hand felt no contact: the force rendered stayed at or below 0.1 N (peak 0.05 N)"
+    assert exit_lines(nothing)[0].startswith(said)
+
+
+def test_the_scenes_stop_ends_the_driver_or_is_said_when_it_stays(capsys):
+    """The scene's STOP: a driver that exits on it stops its loop; one that stays (--stay) renders
+    zero and says it waits for the next run (it used to print nothing)."""
+    for exit_on_stop in (True, False):
+        driver = drv.Driver(drv.EmulatedDevice(), _QuietLink(), RATED["emulated"], rate_hz=1000.0,
+                            watchdog_periods=10, max_force_n=12.0, exit_on_stop=exit_on_stop)  # fmt: skip
+        driver._on_stop(b"")
+        said = capsys.readouterr().err
+        assert driver.stop_requested is exit_on_stop and driver.counts["scene_stops"] == 1
+        assert ("waiting for its next run (--stay; Ctrl-C ends the driver)" in said) is not exit_on_stop
+        assert driver.gate.state(0.0, False) == "stopped"  # zero force either way
+
+
+def test_the_driver_ends_with_its_scene_unless_told_to_stay():
+    """The default a haptics user expects: the scene's stop ends the driver (it prints what the
+    hand felt); --stay waits for the next run; giving both is refused."""
+    run = ["run", "emulated"]
+    assert drv.parser().parse_args(run).exit_on_stop is True
+    assert drv.parser().parse_args([*run, "--exit-on-stop"]).exit_on_stop is True  # older commands run
+    assert drv.parser().parse_args([*run, "--stay"]).exit_on_stop is False
+    with pytest.raises(SystemExit):
+        drv.parser().parse_args([*run, "--stay", "--exit-on-stop"])
 
 
 class _QuietLink:
@@ -550,6 +645,7 @@ def test_the_driver_process_loads_no_drake_system_and_only_the_link_of_the_packa
         "godobject_drake.driver.families",
         "godobject_drake.driver.local_model",
         "godobject_drake.driver.process",
+        "godobject_drake.driver.report",  # what the hand felt, what its counts mean (the standard library)
         "godobject_drake.driver.safety",
         "godobject_drake.link",
         "godobject_drake.link.keys",

@@ -303,18 +303,63 @@ def test_a_run_that_cannot_hold_real_time_says_so_within_a_second(caplog):
     assert "0.80 s into the run" in text and "0.80 of real time" in text
     assert "each 1 ms step took 1.25 ms of wall time" in text  # 1 ms / 0.8
     assert "0.160 s behind" in text and "Fixes: X" in text  # 0.8 s − 0.64 s
-    summary = lag.summary(3.0, 3.0 / 0.8)
-    assert "ran at 0.80 of real time" in summary and "ended 0.750 s behind" in summary  # 3.75 − 3
+    assert lag.summary(3.0, 3.0 / 0.8) == (  # 3.75 s of wall time, 3.75 − 3 behind
+        "real time not held throughout: fell behind for the first 3.8 s (0.80 of real time); "
+        "0.80 of real time over the run; ended 0.750 s behind the wall clock"
+    )
+    assert lag.held is False
 
 
-def test_a_run_that_keeps_up_says_nothing(caplog):
+def test_the_verdict_says_when_the_run_fell_behind_and_what_it_held_after():
+    """The issue's run, on a synthetic clock: 0.76 of real time for the first 0.8 s of wall time,
+    then 1.05 while catching up (as Drake's simulator does when behind), then 1.0. The warning
+    came at 0.8 s; the verdict says both: behind for the first 0.8 s (two 0.4 s windows), then
+    held. Catching up 0.19 s at 1.05 takes 3.8 s: at 4 s of wall time the run ends 0.031 s
+    behind (by hand: 0.8 × 0.24 − 3.2 × 0.05 = 0.032, to a step)."""
+    lag = RealtimeLag(rate=1.0, late_s=1e-3, step_s=1e-3, warn=True)
+    now = t = 0.0
+    while t < 4.0:
+        lag.record(t, now=now)
+        now += 1e-3 / (0.76 if now < 0.8 else 1.05 if now > t else 1.0)
+        t += 1e-3
+    assert "0.80 s into the run it ran at 0.76 of real time" in lag.warned
+    assert lag.summary(4.0, now) == (
+        "real time not held throughout: fell behind for the first 0.8 s (0.76 of real time), then "
+        "held (1.05) to the end at 4.0 s; 0.99 of real time over the run; ended 0.031 s behind the wall clock"
+    )
+
+
+def test_the_verdict_keeps_bounded_memory_however_often_the_run_changes():
+    """2 s at half real time, 2 s at real time, over and over for 100 s: past MAX_SPANS stretches
+    the verdict sums them, keeping no more. 25 stretches behind, one per 4 s; each 2 s is 5
+    windows, about one straddling a change (below 0.9 when over a fifth of it is slow): a little
+    over half the time behind, at about half real time."""
+    lag = RealtimeLag(rate=1.0, late_s=1e-3, step_s=1e-3, warn=True)
+    now = t = 0.0
+    while now < 100.0:
+        lag.record(t, now=now)
+        now += 1e-3 / (0.5 if int(now / 2.0) % 2 else 1.0)
+        t += 1e-3
+    text = lag.summary(t, now)
+    assert len(lag.spans) == RealtimeLag.MAX_SPANS and lag.overflow
+    assert lag.behind_stretches == 25 and 0.45 < lag.behind_s / now < 0.65
+    (longest, at), rtf = lag.longest, lag.behind_t / lag.behind_s
+    assert 2.0 <= longest <= 2.0 + 2 * RealtimeLag.WINDOW_S and 0.5 <= rtf < 0.6
+    assert text.startswith(
+        f"real time not held throughout: fell behind for {lag.behind_s:.1f} s of {now:.1f} s in 25 stretches "
+        f"(the longest {longest:.1f} s from {at:.1f} s), at {rtf:.2f} of real time while behind; "
+    )
+
+
+def test_a_run_that_keeps_up_warns_nothing_and_says_it_held(caplog):
     """Real time held, and one 200 ms pause at 0.5 s that the simulator catches up (at 10 times
     real time, 22 ms later): over every 0.8 s the run kept real time, so no warning and no
-    summary; the pause is in the lag's maximum."""
+    verdict but "held"; the pause is in the lag's maximum."""
     with caplog.at_level("WARNING", logger="godobject_drake.realtime"):
         lag = _paced(1.0, 3.0, stall=(0.5, 0.2))
     assert not [r for r in caplog.records if r.name == "godobject_drake.realtime"]
-    assert lag.summary(3.0, 3.0) is None and lag.max_s == pytest.approx(0.2, abs=2e-3)
+    assert lag.summary(3.0, 3.0) == "real time held: 1.00 of real time over 3.0 s" and lag.held
+    assert lag.max_s == pytest.approx(0.2, abs=2e-3)
 
 
 def test_a_slowdown_mid_run_is_said_within_a_second():

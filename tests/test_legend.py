@@ -125,13 +125,15 @@ def tool_point(station, name: str) -> np.ndarray:
     return np.asarray(tool.device.samples(0.0)[0][1][0], float)
 
 
-def test_the_legend_lists_the_tools_as_the_camera_sees_them():
-    """laparoscopy_bimanual: in the scene's camera view the tool named left is drawn left of the
-    tool named right, and the legend lists them in that order (the legend's "tool left" colour was
-    on the screen's right: the camera looked from the side across the table from the surgeon).
-    lego_two_hands is not checked: its two hands stack two bricks at one place, each crossing the
-    other's side of the view."""
-    station, meshcat = built("laparoscopy_bimanual")
+@pytest.mark.parametrize("scene", ["laparoscopy_bimanual", "lego_two_hands"])
+def test_the_legend_lists_the_tools_as_the_camera_sees_them(scene):
+    """In the scene's camera view the tool named left starts left of the tool named right, and the
+    legend lists them in that order. The legend's "tool left" colour was on the screen's right in
+    both: laparoscopy_bimanual's camera looked from across the table from the surgeon,
+    lego_two_hands' from the bricks' side of the wall (the left hand's brick_2 at y = −0.05 drawn
+    right of the right hand's brick_1 at y = +0.05). lego_two_hands' hands later stack two bricks at
+    one place: their starts, each grasping its brick, are where they are apart."""
+    station, meshcat = built(scene)
     names = [m.group(1) for text in rows(meshcat) if (m := re.fullmatch(r"tool (\w+)", text))]
     assert sorted(names) == ["left", "right"], names
     x = screen_x(station.scenario, np.array([tool_point(station, name) for name in names]))

@@ -76,6 +76,22 @@ def test_table_lists_every_run():
     assert "0.0001" in text and "None" in text
 
 
+def test_a_long_warning_is_wrapped_within_its_column():
+    """A 500-character warning (the real-time one) made its row 500 characters wide; now it is
+    wrapped to TEXT_WIDTH (72) in its own column, its words all there in order, and the rows
+    after it keep their place."""
+    warning = " ".join(f"word{i:03d}" for i in range(63))  # 503 characters
+    text = format_table([{"mode": "god_object", "realtime_warning": warning, "seed": 0}])
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= len("realtime_warning") + 2 + 72 and len(warning) > 500
+    at = next(i for i, line in enumerate(lines) if line.startswith("realtime_warning"))
+    column = lines[at].index("word000")
+    follow = [line for line in lines[at + 1 :] if line[:column].strip() == ""]
+    assert " ".join([lines[at][column:], *(line[column:] for line in follow)]).split() == warning.split()
+    # 9 words of 7 characters and their spaces fill 71 of 72: 63 words on 7 lines
+    assert len(follow) == 6 and lines[at + 7].split() == ["seed", "0"]
+
+
 # -- shapes other than boxes: Drake's signed distance, half spaces by support function ------------------
 
 

@@ -229,7 +229,21 @@ def _entry(words: list[str]):
         return importlib.import_module(words[2]).main, words[3:]
     if words[0] == "python" and words[1].startswith(("diagrams/", "analysis/")):
         return load_script(words[1]).main, words[2:]
+    if words[0] == "python" and words[1].startswith("examples/") and words[1].endswith(".py"):
+        return _example(words[1]), words[2:]
     return None
+
+
+def _example(path: str):
+    """An example script (no parser: it runs as written): it must exist and be given nothing."""
+
+    def main(argv):
+        if not (REPO / path).is_file() or argv:
+            print(f"{path} {' '.join(argv)}: no such example, or arguments it does not take", file=sys.stderr)
+            raise SystemExit(2)
+        raise SystemExit(0)
+
+    return main
 
 
 def _pip_failure(words: list[str]) -> str | None:
@@ -353,3 +367,26 @@ def test_the_driver_commands_the_code_prints_parse(capsys):
             commands.append(re.sub(r"\b(FAMILY|KIND)\b", "emulated", command).strip())
     assert len(commands) >= 4
     assert {c: f for c in commands if (f := parse_failure(c, capsys))} == {}
+
+
+def test_each_kind_of_user_has_a_way_in():
+    """Issue 56 item 5: the docs' index and navigation open a way in for a haptics lab, a
+    surgical-simulation team and a Drake user, each section's first page the one that takes them
+    from the install to a first result; "where to go next" names the haptic devices and the
+    laparoscopy."""
+    import yaml
+
+    nav = yaml.safe_load((REPO / "mkdocs.yml").read_text())["nav"]
+    sections = {name: pages for entry in nav for name, pages in entry.items()}
+    first = {name: next(iter(sections[name][0].values())) for name in
+             ("Haptics lab", "Surgical simulation", "Drake diagrams")}  # fmt: skip
+    assert first == {"Haptics lab": "guide/start_haptics.md",
+                     "Surgical simulation": "guide/start_surgical.md",
+                     "Drake diagrams": "guide/start_drake.md"}  # fmt: skip
+    index = (REPO / "docs" / "index.md").read_text()
+    start, after = index.split("## Where to start")[1].split("## Where to go next")
+    assert all(f"]({page})" in start for page in first.values())
+    assert "](haptic_devices.md)" in after and "](guide/laparoscopy.md)" in after
+    for page in first.values():  # from the install to a first result: each opens with the install
+        text = (REPO / "docs" / page).read_text()
+        assert text.index("python -m pip install -e .") < text.index("## Next")

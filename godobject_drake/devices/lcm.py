@@ -55,7 +55,9 @@ has stopped": zero force at once, without waiting for its watchdog.
 
 **Driver status**: a driver (:mod:`~godobject_drake.driver.process`) publishes its fault counts on
 ``GODOBJECT_DRIVER_STATUS`` (``lcmt_robot_state``, one entry per count,
-:data:`~godobject_drake.link.messages.DRIVER_STATUS_KEYS`); on a ``udp://`` link the newest counts are in the
+:data:`~godobject_drake.link.messages.DRIVER_STATUS_KEYS`) and what the hand felt (the force
+rendered: its peak, its mean in contact and the time in contact,
+:data:`~godobject_drake.link.messages.DRIVER_FORCE_KEYS`); on a ``udp://`` link the newest are in the
 metrics as ``driver_*``.
 
 **Pairing** (``udp://`` only): the link takes messages from its one paired driver only, each
@@ -83,6 +85,7 @@ from godobject_drake.config.device_files import DEFAULT_DEVICE_RATE_HZ, SampleGu
 from godobject_drake.config.gains import GRASP_NEAREST
 from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.link.messages import (
+    DRIVER_FORCE_KEYS,
     DRIVER_STATUS_CHANNEL,
     DRIVER_STATUS_KEYS,
     FEEDBACK_CHANNEL,
@@ -228,6 +231,7 @@ class LcmDevice(DeviceSource):
         self._outside = 0
         self.driver_link = not isinstance(lcm, DrakeLcm)  # udp://: a driver process reports its counts
         self.driver_counts = dict.fromkeys(DRIVER_STATUS_KEYS, 0)
+        self.driver_felt = dict.fromkeys(DRIVER_FORCE_KEYS)  # what the hand felt: None until reported
         self.driver_status_messages = 0
         self.driver_bad_status = 0  # status messages that did not decode
         if self.driver_link:
@@ -284,6 +288,8 @@ class LcmDevice(DeviceSource):
         for name, value in zip(msg.joint_name, msg.joint_position, strict=False):
             if name in self.driver_counts and math.isfinite(value):
                 self.driver_counts[name] = round(value)
+            elif name in self.driver_felt and math.isfinite(value):
+                self.driver_felt[name] = float(value)
 
     def _grasp_ok(self, name: str) -> bool:
         return name in ("", "*") or self.known_grasps is None or name in self.known_grasps
@@ -303,6 +309,7 @@ class LcmDevice(DeviceSource):
         if self.driver_link:
             self.lcm.HandleSubscriptions(0)  # the driver's last counts, sent as it stops
             counts.update({f"driver_{k}": v for k, v in self.driver_counts.items()})
+            counts.update({f"driver_{k}": v for k, v in self.driver_felt.items()})
             counts["driver_status_messages"] = self.driver_status_messages
             counts["driver_bad_status"] = self.driver_bad_status
             counts.update({f"lcm_{k}": v for k, v in self.lcm.counts.items()})

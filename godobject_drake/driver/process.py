@@ -3,7 +3,7 @@ the scene, the scene's feedback wrench to the device, and every safety on the de
 
     godobject-driver run FAMILY --scene udp://127.0.0.1:7667 [--key-file K] [--rate 1000]
                      [--watchdog-periods 10] [--max-force N] [--rt-priority 50] [--log F.csv]
-                     [--summary F.json]
+                     [--summary F.json] [--stay]
     godobject-driver calibrate FAMILY --scenario S.yaml --out CALIBRATED.yaml [--seconds 20]
     (or python -m godobject_drake.driver.process ...)
 
@@ -48,8 +48,13 @@ Each device period the loop:
      ``buzz_min_n`` is damped: the force rendered is the mean of the last four requested, which
      cancels the Nyquist component; each onset is counted (``buzz_events``);
 
-4. publishes its counts (``GODOBJECT_DRIVER_STATUS``) ten times a second and at exit, which the
-   scene puts in its metrics as ``driver_*``.
+4. publishes its counts and what the hand felt (the force rendered: :mod:`~godobject_drake.driver.report`)
+   on ``GODOBJECT_DRIVER_STATUS`` ten times a second and at exit, which the scene puts in its
+   metrics as ``driver_*``.
+
+The driver ends with its scene (the scene's stop), printing what the hand felt (the peak force
+rendered, its mean while in contact: above 0.1 N) and each count with what it means and whether it
+mattered; ``--stay`` keeps it for the scene's next run.
 
 On its own exit and on every signal that ends a process and can be caught (SIGTERM, SIGINT,
 SIGHUP: a closed terminal or a dropped SSH session, SIGQUIT) the driver renders zero, writes the
@@ -93,6 +98,7 @@ import numpy as np
 
 from godobject_drake.driver.families import FAMILIES, RATED, EmulatedDevice, HandPath, Rated
 from godobject_drake.driver.local_model import LocalRenderer
+from godobject_drake.driver.report import RenderedForce, exit_lines
 from godobject_drake.driver.safety import FeedbackGate, ForceSafety
 from godobject_drake.link.keys import KEY_ENV, KeyFileError, key_fingerprint
 from godobject_drake.link.logs import StderrHandler
@@ -157,6 +163,7 @@ class Driver:
         self.period = 1.0 / rate_hz
         self.watchdog_s = watchdog_periods * self.period
         self.safety = ForceSafety(max_force_n, rated.max_force_rate_n_s, self.period)
+        self.felt = RenderedForce(self.period)  # what the hand felt: the force rendered
         self.gate = FeedbackGate(self.watchdog_s)
         self.grasp, self.grasp_button, self.clutch_button = grasp, grasp_button, clutch_button
         self.exit_on_stop, self.channel = exit_on_stop, channel
@@ -252,6 +259,9 @@ class Driver:
         self.counts["scene_stops"] = self.gate.stops
         if self.exit_on_stop:
             self.stop_requested = True
+        else:
+            _say("godobject-driver: the scene stopped: zero force; waiting for its next run (--stay; Ctrl-C "
+                 "ends the driver)")  # fmt: skip
 
     def _buttons(self, buttons) -> tuple[bool, bool]:
         def pressed(i):
@@ -270,6 +280,9 @@ class Driver:
             **self.counts,
             **{k: self.safety.counts[k] for k in ("force_clamps", "rate_clamps", "buzz_events")},
             "link_rejected": sum(link.get(k, 0) for k in LINK_REJECTED),
+            "force_peak_n": self.felt.peak_n,  # what the hand felt, for the scene's metrics
+            "force_mean_contact_n": self.felt.mean_in_contact_n,
+            "contact_s": self.felt.contact_periods * self.period,
         }
         self.lcm.Publish(DRIVER_STATUS_CHANNEL, status_message(round(now * 1e6), counts).encode())
 
@@ -300,6 +313,7 @@ class Driver:
                 if wait > 0:
                     time.sleep(wait)
         finally:
+            self.run_s = time.monotonic() - start
             self.shutdown()
 
     def _pause(self) -> None:
@@ -383,6 +397,7 @@ class Driver:
         """Command the force; the age of the pose it was computed from."""
         self.device.render(f)
         self.pose_age.add(time.monotonic() - read_at)
+        self.felt.add(f)
         self.local.rendered(f)
 
     def _send_pose(self, utime: int, sent, q, grasp: bool) -> None:
@@ -431,6 +446,7 @@ class Driver:
     def summary(self) -> dict:
         return {
             "counts": {**self.counts, **self.safety.counts},
+            "rendered_force": self.felt.result(),
             "link": self.link_counts(),
             "limits": {
                 "model": self.rated.model,
@@ -442,6 +458,7 @@ class Driver:
                 "period_s": self.period,
             },
             "rt_priority": getattr(self, "rt_priority", 0),
+            "run_s": getattr(self, "run_s", None),  # the loop's wall time, once it has run
             "ended_by": self.ended_by,
             "output_error": self.output_error,
             "pauses": self.pauses,
@@ -587,7 +604,10 @@ def _check(args) -> None:
             f"{rated.max_force_n:g} N ({rated.source})"
         )
     if not args.duration > 0:
-        raise BadInput(f"--duration {args.duration!r} s must be > 0 (inf: until SIGTERM or Ctrl-C)")
+        raise BadInput(
+            f"--duration {args.duration!r} s must be > 0 (inf, the default: until the scene stops, "
+            "SIGTERM or Ctrl-C)"
+        )
     if not 0 <= args.rt_priority <= 99:
         raise BadInput(
             f"--rt-priority {args.rt_priority!r} must be within 1 to 99 (SCHED_FIFO), or 0 for none"
@@ -699,7 +719,8 @@ def _loop(driver: Driver, args) -> int:
                 write_atomically(args.summary, json.dumps(summary, indent=1))
             except OutputError as e:
                 failed.append(f"--summary: {e}")
-        _say(f"godobject-driver: {json.dumps(summary['counts'])}")
+        for line in exit_lines(summary):
+            _say(f"godobject-driver: {line}")
         if driver.ended_by:
             _say(f"godobject-driver: ended by {driver.ended_by}: zero force commanded, the device closed")
         for message in ([driver.output_error] if driver.output_error else []) + failed:
@@ -837,7 +858,12 @@ def parser() -> argparse.ArgumentParser:
         default="button",
         help="button: button 0 grasps while held; always: grasp from the start (no buttons)",
     )
-    run.add_argument("--duration", type=float, default=math.inf, help="s (default: until SIGTERM or Ctrl-C)")
+    run.add_argument(
+        "--duration",
+        type=float,
+        default=math.inf,
+        help="s (default: until the scene stops, or with --stay until SIGTERM or Ctrl-C)",
+    )
     run.add_argument(
         "--rt-priority",
         type=int,
@@ -845,7 +871,21 @@ def parser() -> argparse.ArgumentParser:
         help="1-99: run the loop under SCHED_FIFO at this priority (Linux; needs CAP_SYS_NICE), as a "
         "device's servo loop should; 0 (default): the normal scheduler",
     )
-    run.add_argument("--exit-on-stop", action="store_true", help="exit when the scene says it stopped")
+    ending = run.add_mutually_exclusive_group()
+    ending.add_argument(
+        "--stay",
+        dest="exit_on_stop",
+        action="store_false",
+        help="when the scene says it stopped, render zero and wait for its next run (default: exit, "
+        "printing what the hand felt and the counts)",
+    )
+    ending.add_argument(
+        "--exit-on-stop",
+        dest="exit_on_stop",
+        action="store_true",
+        default=True,
+        help="exit when the scene says it stopped (the default; --stay waits for the next run)",
+    )
     run.add_argument(
         "--no-local-model",
         action="store_true",

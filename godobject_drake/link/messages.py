@@ -45,6 +45,14 @@ DRIVER_STATUS_KEYS = (
     "link_rejected",  # datagrams the driver's end of the link dropped (LINK_REJECTED)
 )
 
+# What the hand felt, as the driver reports it beside its counts (godobject_drake.driver.report):
+# in the metrics as driver_<key>, None until a driver reports it (a driver before these keys).
+DRIVER_FORCE_KEYS = (
+    "force_peak_n",  # the largest force rendered (N)
+    "force_mean_contact_n",  # its mean over the periods in contact (above 0.1 N); NaN: none yet
+    "contact_s",  # how long the force rendered was above 0.1 N (s)
+)
+
 
 GRASP_PREFIX = "grasp="
 
@@ -86,12 +94,15 @@ def parse_robot_state(raw: bytes, names) -> tuple[int, list[str], list[float], s
 
 
 def status_message(utime: int, counts: dict) -> lcmt_robot_state:
-    """A driver's counts as an ``lcmt_robot_state`` (names :data:`DRIVER_STATUS_KEYS`)."""
+    """A driver's counts as an ``lcmt_robot_state`` (names :data:`DRIVER_STATUS_KEYS`), and what the
+    hand felt (:data:`DRIVER_FORCE_KEYS`, those ``counts`` has; None goes as NaN). A scene takes the
+    names it knows: one older than a name ignores it."""
+    names = [*DRIVER_STATUS_KEYS, *(k for k in DRIVER_FORCE_KEYS if k in counts)]
     msg = lcmt_robot_state()
     msg.utime = int(utime)
-    msg.num_joints = len(DRIVER_STATUS_KEYS)
-    msg.joint_name = list(DRIVER_STATUS_KEYS)
-    msg.joint_position = [float(counts.get(k, 0)) for k in DRIVER_STATUS_KEYS]
+    msg.num_joints = len(names)
+    msg.joint_name = names
+    msg.joint_position = [math.nan if counts.get(k, 0) is None else float(counts.get(k, 0)) for k in names]
     return msg
 
 
