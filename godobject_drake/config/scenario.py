@@ -297,7 +297,15 @@ MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 # The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
 SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
 # the shipped scenes: diagrams/NAME.yaml
-SHIPPED = ("lego", "laparoscopy", "deformable_probe", "lego_two_hands", "laparoscopy_bimanual", "lego_driver")
+SHIPPED = (
+    "lego",
+    "laparoscopy",
+    "deformable_probe",
+    "lego_two_hands",
+    "laparoscopy_bimanual",
+    "lego_driver",
+    "laparoscopy_bimanual_drivers",
+)
 
 
 def shipped_scenario_file(name: str) -> Path:

@@ -1,0 +1,111 @@
+"""Both hands from two drivers (issue 53 item 4): the bimanual laparoscopy scene
+(``laparoscopy_bimanual_drivers``) with each grasper's device on a driver link of its own, and two
+``godobject-driver run emulated`` processes, one per hand, on loopback.
+
+What a person can check: the left hand's path (models/haptic/bimanual_left.json) takes the left
+grasper's jaws to the grasp site on the uterus's edge, closes them there and lifts, so the left
+tool takes ``edge::site`` and the held edge pulls its jaws down: the left driver renders a force
+with a downward z (the device's frame has the world's axes). The right hand's path
+(bimanual_right.json) presses the right grasper's closed jaws 8 mm past the uterus's top, so the
+tissue pushes back: the right driver renders a force with an upward z. Swap the two links (each
+tool driven by the other's hand) and neither holds: the left jaws close far from the site, the
+right ones come down beside the organ (its y radius is 30 mm, the left hand takes them to
+y = −45 mm).
+"""
+
+import json
+import threading
+
+import numpy as np
+import pytest
+from test_driver import free_port, start_driver
+
+from godobject_drake.config.scenario import MODELS_DIR, shipped_scenario
+from godobject_drake.driver import process as drv
+from godobject_drake.simulation import simulate
+from godobject_drake.station.build import build_station
+
+HANDS = ("left", "right")
+
+
+def hand(name: str) -> dict:
+    return json.loads((MODELS_DIR / "haptic" / f"bimanual_{name}.json").read_text())
+
+
+def rendered(log) -> np.ndarray:
+    return np.c_[log["fx"], log["fy"], log["fz"]]
+
+
+@pytest.mark.slow(seconds=90)
+def test_two_driver_processes_each_drive_their_own_grasper_and_feel_its_tissue(tmp_path):
+    """The scene waits for both drivers, then runs its 8 s at real time (slower on a loaded
+    machine: each hand moves on the wall clock, so it runs ahead of the scene, and the checks
+    below hold for that). Checked: each link paired once with its own driver, whose counts the
+    tool's metrics carry; a second driver for the left tool, started 1 s into the run, is refused
+    (the left link counts it, the right does not) and renders nothing; the left grasper takes the
+    site and lifts it while the right one presses the tissue; each driver renders a non-zero force
+    of the direction its tool's contact gives (left: down, the held edge; right: up, the tissue)."""
+    s = shipped_scenario("laparoscopy_bimanual_drivers")
+    urls = {name: f"udp://127.0.0.1:{free_port()}" for name in HANDS}
+    for name in HANDS:
+        s.tools[name].device.url = urls[name]
+    folders = {name: tmp_path / name for name in (*HANDS, "second")}
+    for folder in folders.values():
+        folder.mkdir()
+    drivers = {
+        name: start_driver(folders[name], urls[name], "--exit-on-stop", "--duration", "600", hand=hand(name))
+        for name in HANDS
+    }
+    started = threading.Event()
+    second = []
+
+    def start_second(plant_context, root_context):  # once both drivers are paired and the run is on
+        if not started.is_set() and plant_context.get_time() >= 1.0:
+            started.set()
+            second.append(start_driver(folders["second"], urls["left"], "--duration", "2", hand=hand("left")))
+
+    try:
+        result = simulate(build_station(s), progress=False, observe=start_second)
+        for name, driver in drivers.items():
+            assert driver.wait(timeout=60) == 0, (name, driver.stderr.read())
+        assert second and second[0].wait(timeout=60) == 0, second and second[0].stderr.read()
+    finally:
+        for driver in [*drivers.values(), *second]:
+            driver.kill()
+    m = result.metrics
+    assert not m["diverged"]
+    tools = m["tools"]
+    for name in HANDS:  # each link: one pairing, its own driver's counts
+        assert tools[name]["lcm_udp_pairings"] == 1, name
+        assert tools[name]["driver_loops"] > 1000 and tools[name]["driver_status_messages"] > 0, name
+    assert tools["left"]["lcm_udp_refused_drivers"] == 1 and tools["right"]["lcm_udp_refused_drivers"] == 0
+    refused = json.loads((folders["second"] / "driver.json").read_text())
+    assert refused["link"]["udp_refused"] > 0 and refused["link"]["udp_pairings"] == 0
+    assert not np.any(rendered(drv.read_log(folders["second"] / "driver.csv")))
+
+    # each tool went where its own hand took it
+    events = tools["left"].get("grasp_events", [])
+    assert events and events[0].endswith("took edge::site"), events
+    assert "grasp_events" not in tools["right"]
+    assert tools["left"]["grasped_max_rise_m"] > 0.002
+    assert tools["right"]["max_tissue_contact_force_N"] > 1.0
+    assert tools["left"]["max_tissue_contact_force_N"] < 0.5 * tools["right"]["max_tissue_contact_force_N"]
+
+    took, let_go = (float(e.split()[0]) for e in events)
+    logs = {name: drv.read_log(folders[name] / "driver.csv") for name in HANDS}
+    left, right = logs["left"], logs["right"]
+    # left: held, the hand lifted (its handle above -15 mm on its way up from -30 mm)
+    ok = left["state"] == "ok"
+    held = ok & (left["t_scene"] > took) & (left["t_scene"] < let_go) & (left["z"] > -0.015)
+    # right: the handle within 5 mm of the press's depth (-34.8 mm)
+    pressed = (right["state"] == "ok") & (right["z"] < -0.030)
+    f_left, f_right = rendered(left)[held], rendered(right)[pressed]
+    print(
+        f"left: {held.sum()} periods held, |f| peak {np.linalg.norm(f_left, axis=1).max():.3g} N, "
+        f"mean f {np.round(f_left.mean(axis=0), 3)}; right: {pressed.sum()} periods pressed, |f| peak "
+        f"{np.linalg.norm(f_right, axis=1).max():.3g} N, mean f {np.round(f_right.mean(axis=0), 3)}; "
+        f"real time {m['real_time_factor']:.3g}, trips {[tools[n]['driver_watchdog_trips'] for n in HANDS]}"
+    )
+    assert held.sum() > 20 and pressed.sum() > 20  # 20 ms each (loaded, 0.25 of real time: 150, 195)
+    assert f_left[:, 2].mean() < -0.1 and np.linalg.norm(f_left, axis=1).max() > 0.3
+    assert f_right[:, 2].mean() > 0.1 and np.linalg.norm(f_right, axis=1).max() > 0.3
