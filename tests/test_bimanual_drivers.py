@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from test_driver import free_port, start_driver
 
-from godobject_drake.config.scenario import MODELS_DIR, shipped_scenario
+from godobject_drake.config.scenario import MODELS_DIR, ScenarioError, shipped_scenario
 from godobject_drake.driver import process as drv
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
@@ -34,6 +34,27 @@ def hand(name: str) -> dict:
 
 def rendered(log) -> np.ndarray:
     return np.c_[log["fx"], log["fy"], log["fz"]]
+
+
+def test_two_tools_on_one_driver_link_are_refused_naming_both_and_the_fix():
+    """A udp:// link pairs with one driver, which drives one tool: two tools on one address are
+    refused before the run, whatever their channels (they used to pass the check, then fail to
+    listen, blaming "another scene or driver"); two on one channel of one link, as before."""
+    one_port = "tools: {right: {device: !Lcm {url: 'udp://127.0.0.1:7668', channel: RIGHT_POSE}}}"
+    with pytest.raises(
+        ScenarioError,
+        match=r"tools\.right\.device\.url: 'udp://127\.0\.0\.1:7668' is tools\.left's driver link too: a "
+        r"udp:// link pairs with one driver, which drives one tool; give each tool a port of its own "
+        r"\(e\.g\. udp://127\.0\.0\.1:7669\) and start one driver for each",
+    ):
+        shipped_scenario("laparoscopy_bimanual_drivers", one_port)
+    in_process = "tools: {left: {device: !Lcm {url: 'memq://'}}, right: {device: !Lcm {url: 'memq://'}}}"
+    with pytest.raises(
+        ScenarioError, match=r"tools\.right\.device\.channel: 'GODOBJECT_DEVICE_POSE' on memq"
+    ):
+        shipped_scenario("laparoscopy_bimanual_drivers", in_process)
+    ports = shipped_scenario("laparoscopy_bimanual_drivers").tools  # as shipped: a port each
+    assert [ports[name].device.url for name in HANDS] == ["udp://127.0.0.1:7668", "udp://127.0.0.1:7669"]
 
 
 @pytest.mark.slow(seconds=90)
