@@ -21,6 +21,17 @@ with the machine's cores, CPU model and load average before and after.
 
     python analysis/bimanual_drivers.py [--rounds 1] [--set tools.left.feedback.kd=60 ...] [--out FILE.json]
 
+Two figures behind the scene's choices, without drivers:
+
+- ``--rates 1000 200 100``: what the device's rate costs. Each rate, the scene with both devices
+  on ``memq://`` (nothing sends: the tools hold their start) runs ``--seconds`` (2), beside the
+  scripted ``laparoscopy_bimanual`` before each, in one process: CPU time per simulated second
+  (an LCM device keeps the run on the wall clock, so a rate it cannot hold also warns).
+- ``--stiffness``: the feedback's stiffness at each device per N/m of ``feedback.kd``, along the
+  tube and across it, at each waypoint of the shipped hands: the eigenvalues of
+  ``J⁻ᵀ (Σ Jᵢᵀ Jᵢ) J⁻¹`` (``J`` the trocar's Jacobian of the tip, ``Jᵢ`` Drake's Jacobians of the
+  coupled bodies' centres of mass on yaw, pitch and insertion: Eq. 8's translational spring).
+
 Not a test: figures depend on the machine's load. All traffic stays on 127.0.0.1.
 """
 
@@ -172,6 +183,62 @@ def report(k: int, r: dict, before: str, after: str) -> dict:
     return {"before": before, "after": after, "scene": scene, "hands": hands}
 
 
+def rates(values: list[float], seconds: float) -> None:
+    """CPU per simulated second of the scene at each device rate, the scripted scene beside it."""
+    from godobject_drake.config import scenario as sc
+    from godobject_drake.config.scenario import replace
+    from godobject_drake.simulation import simulate
+    from godobject_drake.station.build import build_station
+
+    def cost(s) -> float:
+        station = build_station(s)
+        start = time.process_time()
+        simulate(station, progress=False, realtime_rate=0.0, keep_logs=False)
+        return (time.process_time() - start) / seconds
+
+    scripted = replace(sc.shipped_scenario("laparoscopy_bimanual"), **{"simulation.duration_s": seconds})
+    print(f"\n{machine()}")
+    for rate in values:
+        s = replace(sc.shipped_scenario("laparoscopy_bimanual_drivers"), **{"simulation.duration_s": seconds})
+        for name in HANDS:
+            device = s.tools[name].device
+            device.url, device.rate_hz = "memq://", rate
+            device.channel, device.feedback_channel = f"POSE_{name}", f"FEEDBACK_{name}"
+        print(
+            f"  scripted {cost(scripted):.2f} s CPU per simulated s; devices at {rate:g} Hz {cost(s):.2f} s"
+        )
+    print(machine())
+
+
+def stiffness() -> None:
+    """The feedback's stiffness at each device per N/m of kd along each shipped hand's path."""
+    from godobject_drake.config import scenario as sc
+    from godobject_drake.config.scenario import MODELS_DIR, replace
+    from godobject_drake.devices.trocar import TrocarKinematics
+    from godobject_drake.station.build import build_station
+
+    s = replace(sc.shipped_scenario("laparoscopy_bimanual"), **{"organs.model": "rigid"})
+    station, drivers = build_station(s), sc.shipped_scenario("laparoscopy_bimanual_drivers")
+    plant = station.plant
+    for name in HANDS:
+        tool, model = station.tools[name].coupling.tool, plant.GetModelInstanceByName(f"grasper_{name}")
+        kin = TrocarKinematics.from_plant(plant, model, "port", "tube", ("yaw", "pitch", "insertion", "roll"))
+        v = [plant.GetJointByName(j, model).velocity_start() for j in ("yaw", "pitch", "insertion")]
+        origin = np.asarray(drivers.tools[name].device.device_to_world.xyz, float)
+        hand = json.loads((MODELS_DIR / "haptic" / f"bimanual_{name}.json").read_text())["waypoints"]
+        for w in hand:
+            q4 = kin.inverse(origin + w["xyz"], np.eye(3))
+            K = sum(J[3:, v].T @ J[3:, v] for J in tool.com_jacobians(np.r_[q4, 0.0, 0.0]))
+            Jinv = np.linalg.inv(kin.jacobian(q4))
+            K_device = Jinv.T @ K @ Jinv
+            u = kin.forward(q4)[1][:, 2]  # the tube's axis
+            across = np.linalg.eigvalsh(K_device)[-2:]
+            print(
+                f"  {name:5s} t {w['t']:6.1f} s, insertion {q4[2] * 1e3:5.1f} mm: per N/m of kd, "
+                f"{u @ K_device @ u:.2f} N/m along the tube, {across[0]:.2f} and {across[1]:.2f} across"
+            )
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -182,9 +249,20 @@ def main(argv=None) -> int:
         help="a scenario override passed to the scene (e.g. tools.left.feedback.kd=60)",
     )  # fmt: skip
     parser.add_argument("--out", default="", help="write every round's figures to FILE.json")
+    parser.add_argument("--rates", type=float, nargs="+", metavar="HZ", help="the device rates' cost instead")
+    parser.add_argument("--seconds", type=float, default=2.0, help="simulated s per --rates run (default 2)")
+    parser.add_argument("--stiffness", action="store_true", help="the feedback's stiffness at each device")
     args = parser.parse_args(argv)
     if args.rounds < 1:
         parser.error(f"--rounds {args.rounds} must be ≥ 1")
+    if args.rates or args.stiffness:
+        if args.rates and not (args.seconds > 0 and all(r > 0 for r in args.rates)):
+            parser.error(f"--rates {args.rates} and --seconds {args.seconds} must be > 0")
+        if args.stiffness:
+            stiffness()
+        if args.rates:
+            rates(args.rates, args.seconds)
+        return 0
     rounds = []
     for k in range(1, args.rounds + 1):
         before = machine()
