@@ -57,6 +57,64 @@ def test_two_tools_on_one_driver_link_are_refused_naming_both_and_the_fix():
     assert [ports[name].device.url for name in HANDS] == ["udp://127.0.0.1:7668", "udp://127.0.0.1:7669"]
 
 
+def test_the_feedback_at_each_device_is_3_kd_along_the_tube_and_far_stiffer_across_it():
+    """The left device at its grasper's starting tip (45 mm below the pivot), the feedback's
+    stiffness per N/m of kd (Eq. 8's spring on each coupled body's centre of mass, through the
+    trocar's ``Jᵀ f = τ``), by two methods: Jacobians (``J⁻ᵀ (Σ Jᵢᵀ Jᵢ) J⁻¹``, as
+    analysis/bimanual_drivers.py --stiffness gives it) and Drake's forward kinematics (the device
+    moved 10 µm, each body's centre of mass moved, the spring's forces mapped to the device as the
+    scene maps them). Along the tube 3 kd (the tube and the two jaws slide 1:1 with the insertion:
+    by hand); across it 25.4 kd, the centres of mass being above the pivot. The shipped kd keeps
+    that under 600 N/m (kd 60, 1,530 N/m, oscillated the emulated handle to its 12 N clamp)."""
+    from pydrake.multibody.tree import BodyIndex
+
+    from godobject_drake.config.scenario import replace
+    from godobject_drake.devices.trocar import TrocarKinematics
+    from godobject_drake.systems.articulated import generalized_forces
+
+    s = replace(shipped_scenario("laparoscopy_bimanual"), **{"organs.model": "rigid"})
+    station = build_station(s)
+    plant, tool = station.plant, station.tools["left"].coupling.tool
+    model = plant.GetModelInstanceByName("grasper_left")
+    kin = TrocarKinematics.from_plant(plant, model, "port", "tube", ("yaw", "pitch", "insertion", "roll"))
+    drivers = shipped_scenario("laparoscopy_bimanual_drivers").tools["left"]
+    q0 = kin.inverse(drivers.device.device_to_world.xyz, np.eye(3))
+    assert q0[2] == pytest.approx(0.0451, abs=1e-4)  # 45 mm deep
+    v = [plant.GetJointByName(j, model).velocity_start() for j in ("yaw", "pitch", "insertion")]
+    K = sum(J[3:, v].T @ J[3:, v] for J in tool.com_jacobians(np.r_[q0, 0.0, 0.0]))
+    J_inv = np.linalg.inv(kin.jacobian(q0))
+    K_device = J_inv.T @ K @ J_inv  # method 1, per N/m of kd
+    u = kin.forward(q0)[1][:, 2]  # the tube's axis
+    across = np.cross(u, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+
+    context = plant.CreateDefaultContext()
+
+    def centres(q4):
+        positions = plant.GetPositions(context).copy()
+        for name, value in zip(("yaw", "pitch", "insertion", "roll"), q4, strict=True):
+            positions[plant.GetJointByName(name, model).position_start()] = value
+        plant.SetPositions(context, positions)
+        return [plant.EvalBodyPoseInWorld(context, plant.get_body(BodyIndex(b.index))).multiply(b.p_BoBcm_B)
+                for b in tool.bodies]  # fmt: skip
+
+    def stiffness(direction):  # method 2: the device moved 10 µm, kd = 1 (Eq. 8: f = kd (x − x_device))
+        p0, R0 = kin.forward(q0)
+        q1 = kin.inverse(p0 + 1e-5 * direction, R0)
+        f = [x - x_device for x, x_device in zip(centres(q0), centres(q1), strict=True)]
+        tau = generalized_forces(tool, np.array([np.r_[np.zeros(3), fi] for fi in f]), np.r_[q0, 0.0, 0.0])
+        return -float(kin.device_wrench(q0, tau[:4])[3:] @ direction) / 1e-5  # it pulls the device back
+
+    assert u @ K_device @ u == pytest.approx(3.0, rel=1e-6)
+    assert stiffness(-u) == pytest.approx(3.0, rel=1e-3)
+    assert across @ K_device @ across == pytest.approx(25.44, abs=0.01)
+    assert stiffness(across) == pytest.approx(across @ K_device @ across, rel=1e-3)
+    kd = drivers.feedback.kd
+    assert kd * across @ K_device @ across < 600.0, (
+        f"kd {kd}: {kd * across @ K_device @ across:.0f} N/m across"
+    )
+
+
 @pytest.mark.slow(seconds=90)
 def test_two_driver_processes_each_drive_their_own_grasper_and_feel_its_tissue(tmp_path):
     """The scene waits for both drivers, then runs its 8 s at real time (slower on a loaded
