@@ -144,6 +144,9 @@ NOT_RUN = {
     "godobject-driver": "a device's loop: runs until its scene stops (tests/test_driver.py pairs one)",
     "python -m godobject_drake.driver.": "a device's loop: runs until its scene stops (tests/test_driver.py)",
     "godobject run lego_driver": "waits for its driver, in another terminal (tests/test_pairing.py)",
+    "godobject run laparoscopy_bimanual_drivers": (
+        "waits for its two drivers, in two other terminals (tests/test_bimanual_drivers.py)"
+    ),
     "python -m godobject_drake run diagrams/lego_haptic.yaml": "waits for its driver (tests/test_pairing.py)",
     "godobject run diagrams/lego_haptic.yaml": "waits for its driver (tests/test_pairing.py)",
     "godobject run lego --device lcm": "waits for a device on LCM (tests/test_lcm.py)",

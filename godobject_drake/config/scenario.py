@@ -89,6 +89,7 @@ from godobject_drake.config.tools import (  # noqa: F401
     tool_union,
 )
 from godobject_drake.config.yaml_guard import YamlShapeError, check_yaml, check_yaml_file, shown
+from godobject_drake.link.transport import parse_url
 
 
 class ScenarioError(ValueError):
@@ -297,7 +298,15 @@ MODELS_DIR = Path(str(importlib.resources.files("godobject_models")))
 # The installed package godobject_scenarios (the clone's diagrams/ folder in an editable install).
 SCENARIOS_DIR = Path(str(importlib.resources.files("godobject_scenarios")))
 # the shipped scenes: diagrams/NAME.yaml
-SHIPPED = ("lego", "laparoscopy", "deformable_probe", "lego_two_hands", "laparoscopy_bimanual", "lego_driver")
+SHIPPED = (
+    "lego",
+    "laparoscopy",
+    "deformable_probe",
+    "lego_two_hands",
+    "laparoscopy_bimanual",
+    "lego_driver",
+    "laparoscopy_bimanual_drivers",
+)
 
 
 def shipped_scenario_file(name: str) -> Path:
@@ -684,12 +693,32 @@ def _check_tools(s: Scenario, where: str) -> None:
                 f"tools.NAME.{field} and leave the top-level {field} out (a flag that sets it: use --set "
                 f"tools.NAME.{field}...=VALUE)",
             )
+    _check_links(s, where)
+
+
+def _check_links(s: Scenario, where: str) -> None:
+    """Two LCM devices never on one channel of one link, and two devices never on one ``udp://``
+    address: such a link pairs with one driver, which drives one tool (docs/guide/laparoscopy.md
+    "Both hands from two drivers")."""
     links: dict[tuple, str] = {}
+    listens: dict[tuple, str] = {}
     for name, tool in s.tools.items():
         channel = getattr(tool.device, "channel", None)
         if channel is None:
             continue
-        key = (getattr(tool.device, "url", ""), channel)
+        url = getattr(tool.device, "url", "")
+        if url.startswith("udp://"):
+            host, port = parse_url(url)
+            if (host, port) in listens:
+                _fail(
+                    where,
+                    f"tools.{name}.device.url",
+                    f"{url!r} is tools.{listens[host, port]}'s driver link too: a udp:// link pairs with one "
+                    f"driver, which drives one tool; give each tool a port of its own (e.g. "
+                    f"udp://{host}:{port + 1}) and start one driver for each",
+                )
+            listens[host, port] = name
+        key = (url, channel)
         if key in links:
             _fail(
                 where,
