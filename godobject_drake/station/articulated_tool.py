@@ -20,6 +20,7 @@ from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.devices.trocar import PoseJointDevice, TrocarKinematics
 from godobject_drake.metrics import TissueMetrics, ToolMetrics
 from godobject_drake.station import loop
+from godobject_drake.station.articulated_model import add_articulated_model
 from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
@@ -97,6 +98,8 @@ class ArticulatedGodObject(GodObject):
             device.connect_joint_feedback(
                 builder, god.feedback.GetOutputPort("tau_device"), device.GetOutputPort("q_device"), tau_at
             )
+            if getattr(pose_device, "driver_link", False):  # a driver process: the local model too
+                add_articulated_model(builder, scene, pose_device, device, god)
         if god.grasp is not None:
             god.grasp.jaw_index = list(scenario.god_object.device_joints).index(god.grasp.config.jaw)
         return god
