@@ -267,3 +267,25 @@ def test_a_driver_refuses_a_matrix_model_whose_stiffest_direction_is_past_its_de
         driver._on_local_model(raw)
         assert driver.local.heard == taken
     assert driver.summary()["local_model"]["too_stiff"] == 1
+
+
+def test_a_matrix_models_lag_is_no_force_whatever_its_planes_and_the_tissue_meets_the_handle():
+    """An articulated tool's scene states its lag whatever its planes (the whole stretch while its
+    tip is clear of the tissue): a tip lagging 3 mm above its target, 1 cm above the tissue's
+    plane, renders nothing, where a rigid tool's GLM2 model with a plane published renders the
+    stretch (``kd`` × 3 mm); the handle then 2 mm into the tissue meets it at once: the
+    tissue's push at the balance, the closed form."""
+    h, lag = np.array([0.0, 0.0, 0.01]), (0.0, 0.0, 0.003)
+    fields = dict(p_G=h + lag, p_T=h, planes=[SURFACE], lag=lag)
+    r = LocalRenderer()
+    r.take(matrix_model(D=0 * K_TUBE, **fields), arrived=0.0, h_used=h)
+    np.testing.assert_allclose(r.request(h, 0.0, T), np.zeros(3), atol=1e-15)  # rounding of p_G − p_T − lag
+    deep = np.array([0.0, 0.0, -0.002])
+    r.energy_v = r.energy_in = 1.0  # paid for
+    m = float(np.linalg.solve(K_TUBE, [0.0, 0.0, 1.0])[2])
+    np.testing.assert_allclose(
+        r.request(deep, 0.001, T), [0.0, 0.0, 600.0 * 0.002 / (1 + 600.0 * m)], atol=1e-12
+    )
+    rigid = LocalRenderer()
+    rigid.take(model(kd=60.0, **fields), arrived=0.0, h_used=h)
+    np.testing.assert_allclose(rigid.request(h, 0.0, T), [0.0, 0.0, 60.0 * 0.003], atol=1e-12)

@@ -206,7 +206,10 @@ class LocalRenderer:
         self.planes = [(np.array(p, float), np.array(n, float), float(s)) for p, n, s in model.planes]
         self.grasp = p_T - h_used
         stretch = p_G - p_T
-        if not self.planes:  # free space: the coupling's free lag is no force (module docstring)
+        # free space: the coupling's free lag is no force (module docstring); a matrix model
+        # (GLM3) states its lag whatever its planes: the whole stretch while its tool touches
+        # nothing, none while it does (docs/local_model.md "An articulated tool")
+        if not self.planes or model.stiffness is not None:
             stretch = stretch - np.array(model.lag, float)
         for point, normal, _ in self.planes:  # what the planes holding G (on or in them) explain
             if float(np.dot(normal, p_G - point)) <= ACTIVE_M:

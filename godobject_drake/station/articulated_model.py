@@ -19,12 +19,19 @@ as the ``GLM3`` payload, and the damping ``D`` the same with ``γd``, ``γd_rot`
 The planes: the FEM organ (``organs.model: fem``) under the tool's tip, where the tube's axis
 meets its rest surface (:func:`~godobject_drake.systems.tissue_stiffness.ray_surface_hit`), a
 plane through it for the tool's furthest point along the axis, published while that point is
-within :data:`~godobject_drake.link.scene_model.PLANE_MARGIN_M` of it; its stiffness the
-tissue's there from the FEM model (``analyze``'s:
-:func:`~godobject_drake.systems.tissue_stiffness.contact_stiffness`), so the driver's proxy
-sinks into it as the tool's tip sinks into the tissue. Rigid organs publish no plane (not built:
-the stretch is then rendered as the free part, re-anchored each model and paid for by the
-driver's energy budget).
+within :data:`TISSUE_MARGIN_M` of it (the rest surface does not move: the plane is true before
+the scene's tip gets there, so the driver's proxy meets the tissue as the hand does, however
+far the slow scene's tip lags); its stiffness the tissue's there from the FEM model
+(``analyze``'s :func:`~godobject_drake.systems.tissue_stiffness.contact_stiffness`, its
+matrix factorised once), so the
+driver's proxy sinks into it as the tool's tip sinks into the tissue.
+
+The lag: while the tip is clear of that plane (more than
+:data:`~godobject_drake.driver.local_model.ACTIVE_M` above it) the tool touches nothing the
+model states, so its whole stretch is the coupling's free lag (published as ``lag``: no force);
+on or in it, none. Rigid organs publish no plane and no lag (not built: the stretch is then
+rendered as the free part, re-anchored each model and paid for by the driver's energy budget,
+as the held wrench renders it).
 """
 
 from __future__ import annotations
@@ -38,9 +45,12 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.link.messages import ALIVE_CHANNEL, LOCAL_MODEL_CHANNEL, LocalModel
-from godobject_drake.link.scene_model import LOCAL_MODEL_MIN_PERIOD_S, PLANE_MARGIN_M, SceneHeartbeat
+from godobject_drake.link.scene_model import LOCAL_MODEL_MIN_PERIOD_S, SceneHeartbeat
 from godobject_drake.systems.tissue import tool_capsules
-from godobject_drake.systems.tissue_stiffness import contact_stiffness, ray_surface_hit
+from godobject_drake.systems.tissue_stiffness import OrganCompliance, ray_surface_hit
+
+TISSUE_MARGIN_M = 0.05  # the organ's plane is published this far ahead of the tool (its size)
+CLEAR_M = 1e-4  # the tip farther than this above the organ's plane touches nothing (the driver's ACTIVE_M)
 
 
 def lever_matrices(tool, trocar, q_device, q4, v_trocar, gains) -> tuple[np.ndarray, np.ndarray]:
@@ -62,19 +72,15 @@ def lever_matrices(tool, trocar, q_device, q4, v_trocar, gains) -> tuple[np.ndar
 
 class TissuePlane:
     """The FEM organ's plane under the tool's tip (module docstring), with the tissue's stiffness
-    there from the FEM model, computed once per surface triangle and barycentric weights to
-    0.01 (a linear solve of the organ's stiffness matrix: 1 to 50 ms)."""
+    there from the FEM model (:class:`~godobject_drake.systems.tissue_stiffness.OrganCompliance`)."""
 
     def __init__(self, organ, plant, scene_graph, model):
         self.organ, self.plant = organ, plant
         self.capsules = tool_capsules(plant, scene_graph, model)
-        self._stiffness: dict = {}
-        self.solves = 0
-        # the organ's stiffness matrix assembled now, not at the first contact (20 to 150 ms of
-        # Python: the scene's loop held up while the tool touches the tissue, measured 0.48 s on
-        # a loaded machine, past the heartbeat's 0.5 s with the fade)
-        top = organ.rest_W[np.argmax(organ.rest_W[:, 2])]
-        contact_stiffness(organ, top + np.array([0.0, 0.0, 0.01]), [0.0, 0.0, -1.0])
+        # the organ's stiffness matrix assembled and factorised now, not at the first contact:
+        # contact_stiffness's sparse solve costs 4 (4 cells) to 25 ms (8 cells) a point, 20 to
+        # 150 ms the first (measured), each a hold-up of the scene's loop
+        self.compliance = OrganCompliance(organ)
 
     def reach(self, context, p_W: np.ndarray, d: np.ndarray) -> float:
         """How far past the tip's origin ``p_W`` the tool reaches along the axis ``d`` (its
@@ -99,14 +105,9 @@ class TissuePlane:
         t, tri, w, normal = hit
         surface = p_W + (t - back) * d
         point = surface - self.reach(context, p_W, d) * d  # the tip's origin when the tool touches
-        if float(normal @ (p_W - point)) > PLANE_MARGIN_M:
+        if float(normal @ (p_W - point)) > TISSUE_MARGIN_M:
             return None
-        key = (int(tri), *np.round(w, 2).tolist(), *np.round(d, 2).tolist())
-        k = self._stiffness.get(key)
-        if k is None:
-            k = self._stiffness[key] = contact_stiffness(organ, p_W - back * d, d)["stiffness_n_m"]
-            self.solves += 1
-        return point, normal, k
+        return point, normal, self.compliance.stiffness(tri, w, d)
 
 
 class ArticulatedModelPublisher(LeafSystem):
@@ -159,20 +160,23 @@ class ArticulatedModelPublisher(LeafSystem):
         K_W, D_W = lever_matrices(self.tool, self.trocar, q_device, q4_T, self._v_trocar, self.gains)
         R, s2 = self._R_DevW, self._scale**2
         K, D = s2 * R @ K_W @ R.T, s2 * R @ D_W @ R.T
-        planes = ()
+        planes, lag = (), (0.0, 0.0, 0.0)
         if self.tissue is not None:
             ctx = self.tool.set_device_state(x[:nq][self.tool.q_device], None, x)
             found = self.tissue.plane(ctx, p_G, -R_G[:, 2])
             if found is not None:
                 point, normal, k = found
                 planes = ((self._to_dev(point), tuple(R @ normal), s2 * k),)
+                if float(normal @ (p_G - point)) > CLEAR_M:  # clear of the tissue: all of it lag
+                    lag = tuple(R @ (p_G - p_T) / self._scale)
         q = (RotationMatrix(R) @ RotationMatrix(R_G)).ToQuaternion().wxyz()
         kd, gamma_d = (float(np.linalg.eigvalsh(M)[-1]) for M in (K, D))  # the stiffest direction's
         return LocalModel(
             scene_utime=round(context.get_time() * 1e6), pose_utime=self.device.receiver._last_utime or 0,
             period_s=self.period_s, kd=kd, gamma_d=gamma_d,
             kd_rot=0.0, gamma_d_rot=0.0, p_G=self._to_dev(p_G), v_G=tuple(R @ v_G / self._scale),
-            q_G=tuple(q / np.linalg.norm(q)), w_G=(0.0, 0.0, 0.0), p_T=self._to_dev(p_T), planes=planes,
+            q_G=tuple(q / np.linalg.norm(q)), w_G=(0.0, 0.0, 0.0), p_T=self._to_dev(p_T), lag=lag,
+            planes=planes,
             stiffness=tuple(K.ravel().tolist()), damping=tuple(D.ravel().tolist()),
         )  # fmt: skip
 

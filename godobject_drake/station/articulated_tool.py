@@ -95,11 +95,14 @@ class ArticulatedGodObject(GodObject):
             v_device = list(tool.v_device)
             tau_at = [v_device.index(plant.GetJointByName(name, model).velocity_start())
                       for name in scenario.god_object.pose_to_joints.joints]  # fmt: skip
+            if getattr(pose_device, "driver_link", False):  # a driver process: the local model too,
+                # added before the wrench's publisher so that its first model leaves first (Drake
+                # runs the publish events of one time in the order the systems were added): a
+                # driver that heard the wrench first would trip its watchdog before the model came
+                add_articulated_model(builder, scene, pose_device, device, god)
             device.connect_joint_feedback(
                 builder, god.feedback.GetOutputPort("tau_device"), device.GetOutputPort("q_device"), tau_at
             )
-            if getattr(pose_device, "driver_link", False):  # a driver process: the local model too
-                add_articulated_model(builder, scene, pose_device, device, god)
         if god.grasp is not None:
             god.grasp.jaw_index = list(scenario.god_object.device_joints).index(god.grasp.config.jaw)
         return god
