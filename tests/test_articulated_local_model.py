@@ -80,6 +80,20 @@ def test_the_levers_stiffness_is_the_feedbacks_force_differenced_at_the_device(g
     assert across > 10 * along
 
 
+def test_the_lever_is_no_spring_closer_to_the_pivot_than_the_trocars_least_insertion(grasper):
+    """At 9 mm below the pivot (the trocar's least insertion: 10 mm) the device's wrench is zero
+    (``device_wrench``), and so is the model's spring: no 1/d² stiffness near the pivot; at
+    11 mm, ``K`` is the lever's (63.2 N/m along the tube)."""
+    station, mapped = grasper
+    trocar, tool = mapped.trocar, station.coupling.tool
+    v_trocar = [list(tool.v_device)[i] for i in mapped._index[:3]]
+    for depth, along in ((0.009, 0.0), (0.011, 3 * 21.07)):
+        q = np.zeros(len(mapped.device_joints))
+        q[mapped._index] = trocar.inverse(trocar.p_WP + np.array([0.0, 0.0, -depth]), np.eye(3))
+        K, D = lever_matrices(tool, trocar, q, q[mapped._index], v_trocar, station.god_object.feedback.gains)
+        assert K[2, 2] == pytest.approx(along, rel=1e-9) and (along > 0 or not np.any(D))
+
+
 # -- a driver process pressing the FEM uterus through the trocar ----------------------------------------
 
 

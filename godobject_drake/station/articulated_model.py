@@ -58,7 +58,10 @@ def lever_matrices(tool, trocar, q_device, q4, v_trocar, gains) -> tuple[np.ndar
     with ``Kq = Σ Jᵢᵀ diag(kd_rot I, kd I) Jᵢ`` over the trocar's velocities ``v_trocar`` (yaw,
     pitch, insertion), the centre-of-mass Jacobians of the device's configuration ``q_device``
     (as the feedback takes them), ``J`` the trocar's at ``q4``; ``D`` the same with the dampings.
-    Symmetrised (rounding)."""
+    Symmetrised (rounding). Zero closer to the pivot than the trocar's ``min_insertion_m``, as the
+    wrench the trocar maps there (``J`` is singular at the pivot: ``K`` grows as ``1/d²``)."""
+    if not float(q4[2]) >= trocar.min_insertion_m:
+        return np.zeros((3, 3)), np.zeros((3, 3))
     Js = [J[:, v_trocar] for J in tool.com_jacobians(np.asarray(q_device, float))]
     J_inv = np.linalg.inv(trocar.jacobian(q4))
     out = []
