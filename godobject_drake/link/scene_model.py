@@ -143,12 +143,13 @@ class SceneHeartbeat:
     """The scene's word that it is alive while its loop is held up (docs/local_model.md
     "Validity"): a thread of its own, every :data:`BEAT_S` of wall time, publishes
     :func:`~godobject_drake.link.messages.alive_message` with the newest model's time, when that
-    model is at least ``beat_s`` old and at most ``stall_limit_s``. The driver holds the model
+    model is at least ``beat_s`` old and at most :meth:`limit` (``stall_limit_s``, longer for a
+    scene whose models come slower than ``stall_limit_s / 6``). The driver holds the model
     for as long as it hears this (its validity counts from the newest of the model and its
     heartbeats), so a loop paused by a fold of its logs or a long step (0.1 to 0.2 s on a
     loaded machine, where the model's own validity is 3 scene periods + 50 ms) does not fade
     the wall; a scene killed falls silent, and the fade bound holds from its last word; a loop
-    that hangs is vouched for ``stall_limit_s`` at most.
+    that hangs is vouched for :meth:`limit` at most.
 
     :meth:`tick` is the decision (plain arithmetic on the times given, tested exactly); the
     thread, started by the first model, calls it. ``publish`` takes the payload."""
