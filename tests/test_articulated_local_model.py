@@ -187,6 +187,7 @@ def _check_press(result, out, k):
     assert out["force_N"] / out["u_m"] == pytest.approx(k, rel=0.15)
 
 
+@pytest.mark.realtime  # no trip, no ripple: the scene's and the driver's loops kept on time
 @pytest.mark.slow(seconds=60)
 def test_a_driver_process_presses_the_realtime_fem_uterus_through_the_trocar_on_the_local_model(tmp_path):
     """The shipped real-time organ (4 cells, h = 10 ms) pressed through the trocar from the
@@ -200,6 +201,7 @@ def test_a_driver_process_presses_the_realtime_fem_uterus_through_the_trocar_on_
     _check_press(result, out, k)
 
 
+@pytest.mark.realtime  # no trip, no ripple: the scene's and the driver's loops kept on time
 @pytest.mark.slow(seconds=150)
 def test_a_driver_process_presses_the_reference_fem_uterus_through_the_trocar_on_the_local_model(tmp_path):
     """The same on the reference organ (8 cells, h = 1 ms, about 0.01 of real time here: a
