@@ -291,9 +291,10 @@ def test_a_driver_process_presses_the_fem_uterus_with_the_grasper_and_feels_its_
     rendered at the hold is that force, up the device's z, within 2 %. Measured (a 2.5 s run):
     0.6513 N over 1.083 mm, 601.5 N/m against 606.6 (−0.8 %); the driver rendered 0.6509 N.
 
-    The grasper's feedback reaches the driver as the held wrench (no local model is published
-    for an articulated tool: docs/local_model.md), so between two messages of a scene this slow
-    the watchdog zeroes it; the rows compared are those the driver rendered as fresh."""
+    The driver renders the held wrench here (``--no-local-model``: the scene's own force, what
+    this test checks), so between two messages of a scene this slow the watchdog zeroes it; the
+    rows compared are those the driver rendered as fresh. The grasper's local model, which
+    renders the tissue smoothly at the device's rate: tests/test_articulated_local_model.py."""
     from test_driver import free_port, start_driver
 
     from godobject_drake.driver import process as drv
@@ -305,7 +306,7 @@ def test_a_driver_process_presses_the_fem_uterus_with_the_grasper_and_feels_its_
     hand = {"waypoints": [{"t": 0.0, "xyz": [0.0, 0.0, 0.01], "grasp": True},
                           {"t": 1.0, "xyz": [0.0, 0.0, -0.02], "grasp": True},
                           {"t": 600.0, "xyz": [0.0, 0.0, -0.02], "grasp": True}]}  # fmt: skip
-    driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600", hand=hand)
+    driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600", "--no-local-model", hand=hand)
     try:
         result = simulate(build_station(s), progress=False)
         assert driver.wait(timeout=120) == 0, driver.stderr.read()

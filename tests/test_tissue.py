@@ -16,11 +16,6 @@ from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.studies.indentation import IndentationSetup, hertz_force, indent, layer_correction
 from godobject_drake.studies.stability import BodyLoop, coupled_body_matrices
-from godobject_drake.studies.tissue_stiffness import (
-    linear_stiffness_matrix,
-    ray_surface_hit,
-    static_compliance,
-)
 from godobject_drake.systems.tissue import (
     body_config,
     ellipsoid_tet_mesh,
@@ -29,6 +24,11 @@ from godobject_drake.systems.tissue import (
     surface_triangles,
     symmetric_extreme_eigenvalues,
     tet_volumes,
+)
+from godobject_drake.systems.tissue_stiffness import (
+    linear_stiffness_matrix,
+    ray_surface_hit,
+    static_compliance,
 )
 
 RADII = (0.045, 0.03, 0.025)  # the uterus's semi-axes (models/laparoscopy/organs.sdf)

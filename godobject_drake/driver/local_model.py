@@ -78,14 +78,17 @@ ALLOWANCE_J = 1e-6  # J: the budget lends this much, so accounts standing at zer
 MAX_DAMPING = 10.0  # N·s/m: the passivity controller's damper at most (a hand's own is ~8)
 
 
-def project(y: np.ndarray, planes, kd: float) -> np.ndarray:
+def project(y: np.ndarray, planes, kd) -> np.ndarray:
     """``y`` moved out of every plane it entered (module docstring): the proxy ``x`` that balances
     the coupling's spring ``kd (y − x)`` against the planes' pushes, a plane of stiffness ``s``
     pushing ``s`` times the depth of ``x`` in it (``s`` inf: rigid, ``x`` not in it at all). One
     plane: ``x`` stays in by ``kd/(kd + s)`` of the depth of ``y``. Several: projected
     Gauss–Seidel on each plane's push (its share of ``x − y``, never pulling), :data:`SWEEPS`
     passes; exact in one pass for planes at right angles, and a plane ``y`` never reached moves
-    nothing."""
+    nothing. ``kd`` a 3×3 matrix (an articulated tool's coupling, ``GLM3``): the same balance in
+    its metric (:func:`project_matrix`)."""
+    if isinstance(kd, np.ndarray):
+        return project_matrix(y, planes, kd)
     x = np.array(y, float)
     pushed = [0.0] * len(planes)  # each plane's push so far, as a displacement along its normal (m)
     for _ in range(SWEEPS if len(planes) > 1 else 1):
@@ -98,6 +101,55 @@ def project(y: np.ndarray, planes, kd: float) -> np.ndarray:
             x = x + change * np.asarray(normal)
             pushed[i] += change
     return x
+
+
+def project_matrix(y: np.ndarray, planes, K: np.ndarray) -> np.ndarray:
+    """:func:`project` for a coupling whose stiffness is the symmetric positive definite matrix
+    ``K`` (docs/local_model.md "An articulated tool"): ``x`` minimises
+    ``½ (x − y)ᵀ K (x − y) + Σ ½ sᵢ depthᵢ(x)²`` (a rigid plane: ``x`` not in it), so
+    ``K (x − y) = Σ λᵢ nᵢ`` with each push ``λᵢ = sᵢ depthᵢ(x) ≥ 0``. A push ``λ`` on plane ``i``
+    moves ``x`` by ``λ K⁻¹ nᵢ``, and its own depth by ``−λ mᵢ`` (``mᵢ = nᵢᵀ K⁻¹ nᵢ``), so alone
+    it balances at ``Δλ = (depth − λᵢ/sᵢ) / (mᵢ + 1/sᵢ)``, never below a push of zero; the
+    same projected Gauss–Seidel passes. ``K = kd I``: :func:`project`'s steps. All zero (no
+    spring): ``x`` is ``y`` moved out of each plane along its normal, as ``kd`` 0 does."""
+    x = np.array(y, float)
+    if not np.any(K):
+        return project(x, planes, 0.0)
+    K_inv = np.linalg.inv(K)
+    pushed = [0.0] * len(planes)  # each plane's push so far (N)
+    for _ in range(SWEEPS if len(planes) > 1 else 1):
+        for i, (point, normal, stiffness) in enumerate(planes):
+            n = np.asarray(normal, float)
+            w = K_inv @ n
+            depth = -float(np.dot(n, x - point))
+            change = max(-pushed[i], (depth - pushed[i] / stiffness) / (float(n @ w) + 1.0 / stiffness))
+            x = x + change * w
+            pushed[i] += change
+    return x
+
+
+def spring_force(K, e: np.ndarray) -> np.ndarray:
+    """The coupling's spring on the stretch ``e``: ``kd e``, or ``K e`` for a matrix."""
+    return K @ e if isinstance(K, np.ndarray) else K * e
+
+
+def spring_energy(K, e: np.ndarray) -> float:
+    """What the coupling's spring holds at the stretch ``e``: ``½ kd |e|²`` or ``½ eᵀ K e``."""
+    return 0.5 * float(e @ K @ e) if isinstance(K, np.ndarray) else 0.5 * K * float(e @ e)
+
+
+def explained(stretch: np.ndarray, normal: np.ndarray, K) -> np.ndarray:
+    """The stretch less what a plane of ``normal`` pushing on the god-object explains: its push
+    ``λ n`` holds the stretch ``λ K⁻¹ n`` (``λ/kd n`` for a scalar); the part along ``n`` is
+    taken, so what is left has no component along ``n`` (scalar) or pushes nothing along it
+    (``nᵀ K⁻¹ K (rest) = 0``)."""
+    along = float(np.dot(normal, stretch))
+    if along <= 0.0:
+        return stretch
+    if not isinstance(K, np.ndarray):
+        return stretch - along * normal
+    w = np.linalg.solve(K, normal)
+    return stretch - along / float(normal @ w) * w
 
 
 class LocalRenderer:
@@ -126,6 +178,7 @@ class LocalRenderer:
         self.beta = 1.0
         self.weight = 0.0  # the model's validity at the last request
         self.damping = 0.0  # N·s/m: the passivity controller's at the last request
+        self.K = self.D = 0.0  # the coupling's stiffness and damping: kd, γd or 3×3 matrices (GLM3)
         self.unpaid = 0.0  # J: spring energy asked for and not rendered, summed
         self.trips = 0
         self.models = 0
@@ -143,20 +196,25 @@ class LocalRenderer:
             self.gaps.append(arrived - self.arrived)
         self.model, self.arrived = model, float(arrived)
         self.models += 1
-        kd = model.kd
+        if model.stiffness is None:  # GLM2: the scalar gains, rendered exactly as before GLM3
+            self.K, self.D = model.kd, model.gamma_d
+        else:  # GLM3: the coupling's matrices at the device
+            self.K = np.array(model.stiffness, float).reshape(3, 3)
+            self.D = np.array(model.damping, float).reshape(3, 3)
         p_G, p_T = np.array(model.p_G, float), np.array(model.p_T, float)
         h_used = p_T if h_used is None else np.array(h_used, float)
         self.planes = [(np.array(p, float), np.array(n, float), float(s)) for p, n, s in model.planes]
         self.grasp = p_T - h_used
         stretch = p_G - p_T
-        if not self.planes:  # free space: the coupling's free lag is no force (module docstring)
+        # free space: the coupling's free lag is no force (module docstring); a matrix model
+        # (GLM3) states its lag whatever its planes: the whole stretch while its tool touches
+        # nothing, none while it does (docs/local_model.md "An articulated tool")
+        if not self.planes or model.stiffness is not None:
             stretch = stretch - np.array(model.lag, float)
         for point, normal, _ in self.planes:  # what the planes holding G (on or in them) explain
             if float(np.dot(normal, p_G - point)) <= ACTIVE_M:
-                along = float(np.dot(normal, stretch))
-                if along > 0.0:
-                    stretch = stretch - along * normal
-        self.offset = stretch if kd > 0 else np.zeros(3)
+                stretch = explained(stretch, normal, self.K)
+        self.offset = stretch if np.any(self.K) else np.zeros(3)
 
     def alive(self, scene_utime: int, arrived: float) -> None:
         """The scene's heartbeat of ``arrived``: alive, its newest model of ``scene_utime``
@@ -197,7 +255,7 @@ class LocalRenderer:
     def proxy(self, h) -> np.ndarray:
         """The proxy ``x`` for the handle at ``h`` (the god-object's point: ``h + c`` moved by the
         free part and out of the planes)."""
-        return project(np.asarray(h, float) + self.grasp + self.offset, self.planes, self.model.kd)
+        return project(np.asarray(h, float) + self.grasp + self.offset, self.planes, self.K)
 
     def request(self, h, now: float, period_s: float, live: bool = True) -> np.ndarray:
         """The force to render for the handle at ``h`` now (module docstring): the free part
@@ -213,15 +271,15 @@ class LocalRenderer:
         if self.model is None or weight == 0.0 or not live:
             self.spring, self.beta, self._env = 0.0, 0.0, None
             return np.zeros(3)
-        m = self.model
+        K, D = self.K, self.D
         hc = h + self.grasp  # the target now
         y = hc + self.offset
-        x = project(y, self.planes, m.kd)
+        x = project(y, self.planes, K)
         rate = np.zeros(3)
-        if before is not None and m.gamma_d > 0.0 and period_s > 0.0:
+        if before is not None and np.any(D > 0.0) and period_s > 0.0:
             b = before + self.grasp  # the same model: a re-anchoring is no rate
-            rate = ((x - hc) - (project(b + self.offset, self.planes, m.kd) - b)) / period_s
-        spring = 0.5 * m.kd * float((x - y) @ (x - y))
+            rate = ((x - hc) - (project(b + self.offset, self.planes, K) - b)) / period_s
+        spring = spring_energy(K, x - y)
         budget = self.energy_v + ALLOWANCE_J
         if spring <= budget:
             beta = 1.0
@@ -235,8 +293,8 @@ class LocalRenderer:
         # push (a leak); a fade keeps what the faded spring held, for the model that follows
         paid = beta**2 * spring + BANK_J
         self.energy_v, self.energy_in = min(self.energy_v, paid), min(self.energy_in, paid)
-        self._env = (self.grasp + self.offset, self.grasp, self.planes, m.kd, self.beta)
-        f = self.beta * (m.kd * (x - hc) + m.gamma_d * rate)
+        self._env = (self.grasp + self.offset, self.grasp, self.planes, K, self.beta)
+        f = self.beta * (spring_force(K, x - hc) + spring_force(D, rate))
         # short in either account: the device's (its held forces) or the environment's (a free
         # force that pulled the hand along, a change of model): the damper asks it back
         deficit = max(self.spring - self.energy_in, -self.energy_v - ALLOWANCE_J)
@@ -257,7 +315,8 @@ class LocalRenderer:
         if self._env is None:
             return np.zeros(3)
         offset, grasp, planes, kd, beta = self._env
-        return beta * kd * (project(h + offset, planes, kd) - h - grasp)
+        stretch = project(h + offset, planes, kd) - h - grasp
+        return beta * (kd @ stretch) if isinstance(kd, np.ndarray) else beta * kd * stretch
 
     def _account(self, h: np.ndarray) -> None:
         if self._h is not None:

@@ -213,12 +213,15 @@ class Driver:
             self.bad_local_models += 1
             self.counts["bad_feedback"] += 1
             return
-        if model.kd > self.rated.max_stiffness_n_m:  # a wall stiffer than the device renders: it kicks
+        kd = model.kd  # a matrix coupling (GLM3): its stiffest direction's
+        if model.stiffness is not None:
+            kd = max(kd, float(np.linalg.eigvalsh(np.reshape(model.stiffness, (3, 3)))[-1]))
+        if kd > self.rated.max_stiffness_n_m:  # a wall stiffer than the device renders: it kicks
             self.stiff_local_models += 1
             self.counts["bad_feedback"] += 1
             if self.stiff_local_models == 1:
                 logging.getLogger("godobject_drake").warning(
-                    f"the scene's local model asks a stiffness kd = {model.kd:.4g} N/m, past the "
+                    f"the scene's local model asks a stiffness kd = {kd:.4g} N/m, past the "
                     f"{self.rated.max_stiffness_n_m:,.0f} N/m the {self.rated.model} renders: refused, no "
                     "force from it (counted in bad_feedback); give the scene a lower --kd"
                 )

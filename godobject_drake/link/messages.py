@@ -12,6 +12,7 @@ import dataclasses
 import math
 import struct
 
+import numpy as np
 from drake import lcmt_robot_state
 
 POSE_CHANNEL = "GODOBJECT_DEVICE_POSE"
@@ -122,10 +123,18 @@ def pose_message(utime: int, p, q, grasp: str | None = None) -> lcmt_robot_state
 
 LOCAL_MODEL_CHANNEL = "GODOBJECT_LOCAL_MODEL"
 LOCAL_MODEL_MAGIC = b"GLM2"  # GLM2: with the coupling's free lag (GLM1 had none)
+# GLM3: GLM2 with the coupling's stiffness and damping as 3×3 matrices (an articulated tool
+# through a trocar: stiffer along the tube than across it), each row-major after the lag
+LOCAL_MODEL_MATRIX_MAGIC = b"GLM3"
 MAX_PLANES = 8  # contacts per local model: a god-object held in a corner needs 3
 _LM_HEAD = struct.Struct(">4sqqd4d3d3d4d3d3d3dB")  # see LocalModel
+_LM3_HEAD = struct.Struct(">4sqqd4d3d3d4d3d3d3d9d9dB")  # GLM3: the two matrices before the plane count
 _LM_PLANE = struct.Struct(">3d3dd")
 UNIT_TOLERANCE = 1e-6  # a normal or quaternion further from unit length is refused, not renormalised
+# A matrix further from symmetric than this (relative to its largest entry) is refused; one whose
+# smallest eigenvalue is below this times its largest is not positive definite (a stiffness) or
+# semidefinite (a damping: its eigenvalues ≥ −this times the largest)
+MATRIX_TOLERANCE = 1e-9
 
 
 class LocalModelError(ValueError):
@@ -149,7 +158,15 @@ class LocalModel:
     driver leaves it out of the force in free space, docs/local_model.md); ``planes``: each
     ``(point, normal, stiffness)``: the god-object's reference point may not cross the plane
     through ``point`` against the unit ``normal`` (pointing out of the obstacle), ``stiffness``
-    N/m (``inf``: rigid)."""
+    N/m (``inf``: rigid).
+
+    ``stiffness``, ``damping``: None (the payload ``GLM2``: the coupling is ``kd``, ``gamma_d``
+    alike in every direction), or the coupling's 3×3 matrices at the device, row-major (9
+    floats; the payload ``GLM3``): an articulated tool driven through a trocar is stiffer along
+    its tube than across it (docs/local_model.md "An articulated tool"). The stiffness is
+    symmetric positive definite (or all zero: no spring), the damping symmetric positive
+    semidefinite; ``kd`` and ``gamma_d`` are then their largest eigenvalues (the stiffest
+    direction's: what a device's rated stiffness is checked against)."""
 
     scene_utime: int
     pose_utime: int
@@ -165,16 +182,24 @@ class LocalModel:
     p_T: tuple
     lag: tuple = (0.0, 0.0, 0.0)
     planes: tuple = ()
+    stiffness: tuple | None = None
+    damping: tuple | None = None
 
     def encode(self) -> bytes:
         if len(self.planes) > MAX_PLANES:
             raise LocalModelError(
                 f"a local model of {len(self.planes)} planes: at most {MAX_PLANES} (keep the nearest)"
             )
-        head = _LM_HEAD.pack(
-            LOCAL_MODEL_MAGIC, int(self.scene_utime), int(self.pose_utime), float(self.period_s),
+        if (self.stiffness is None) != (self.damping is None):
+            raise LocalModelError("a local model states both its stiffness and damping matrices, or neither")
+        matrices, head_format, magic = (), _LM_HEAD, LOCAL_MODEL_MAGIC
+        if self.stiffness is not None:
+            matrices = (*map(float, self.stiffness), *map(float, self.damping))
+            head_format, magic = _LM3_HEAD, LOCAL_MODEL_MATRIX_MAGIC
+        head = head_format.pack(
+            magic, int(self.scene_utime), int(self.pose_utime), float(self.period_s),
             self.kd, self.gamma_d, self.kd_rot, self.gamma_d_rot,
-            *self.p_G, *self.v_G, *self.q_G, *self.w_G, *self.p_T, *self.lag, len(self.planes),
+            *self.p_G, *self.v_G, *self.q_G, *self.w_G, *self.p_T, *self.lag, *matrices, len(self.planes),
         )  # fmt: skip
         planes = (_LM_PLANE.pack(*point, *normal, stiffness) for point, normal, stiffness in self.planes)
         return head + b"".join(planes)
@@ -185,24 +210,55 @@ def _finite(name: str, values) -> None:
         raise LocalModelError(f"local model: {name} {list(values)} is not finite")
 
 
+def _matrix(name: str, values, definite: bool) -> tuple:
+    """``values`` (9, row-major) checked as a symmetric positive definite (``definite``; or all
+    zero) or semidefinite 3×3 matrix, or :class:`LocalModelError` naming the matrix, the value
+    and the limit."""
+    _finite(name, values)
+    m = np.array(values, float).reshape(3, 3)
+    size = float(np.max(np.abs(m)))
+    asymmetry = float(np.max(np.abs(m - m.T)))
+    if asymmetry > MATRIX_TOLERANCE * size:
+        raise LocalModelError(
+            f"local model: {name} {list(values)} is not symmetric ({asymmetry:.3g} between an entry and its "
+            f"transpose's, past {MATRIX_TOLERANCE:g} of its largest entry {size:.6g})"
+        )
+    low, high = (float(e) for e in np.linalg.eigvalsh(m)[[0, -1]])
+    if definite and size > 0.0 and not low > MATRIX_TOLERANCE * high:
+        raise LocalModelError(
+            f"local model: {name} {list(values)} has the eigenvalue {low:.6g}, not > {MATRIX_TOLERANCE:g} "
+            f"of its largest {high:.6g}: a stiffness is positive definite (or all zero: no spring)"
+        )
+    if not definite and low < -MATRIX_TOLERANCE * max(high, 0.0):
+        raise LocalModelError(
+            f"local model: {name} {list(values)} has the eigenvalue {low:.6g} < 0: a damping is positive "
+            "semidefinite"
+        )
+    return tuple(values)
+
+
 def parse_local_model(raw: bytes) -> LocalModel:
-    """A :class:`LocalModel` from its payload, or :class:`LocalModelError` naming what is wrong:
-    another magic, a length that does not match the plane count, more than :data:`MAX_PLANES`
-    planes, a value that is not finite (a stiffness may be ``inf``: rigid), a negative gain, a
-    stiffness ≤ 0, a normal or quaternion not of unit length (within :data:`UNIT_TOLERANCE`), a
-    negative time or a period not > 0. Nothing is renormalised or clamped."""
+    """A :class:`LocalModel` from its payload (``GLM2``, or ``GLM3`` with the coupling's
+    matrices), or :class:`LocalModelError` naming what is wrong: another magic, a length that
+    does not match the plane count, more than :data:`MAX_PLANES` planes, a value that is not
+    finite (a stiffness may be ``inf``: rigid), a negative gain, a stiffness ≤ 0, a normal or
+    quaternion not of unit length (within :data:`UNIT_TOLERANCE`), a negative time or a period
+    not > 0; in ``GLM3`` a stiffness matrix not symmetric or not positive definite (nor all
+    zero), a damping matrix not symmetric or not positive semidefinite
+    (:data:`MATRIX_TOLERANCE`). Nothing is renormalised or clamped."""
     raw = bytes(raw)
-    if len(raw) < _LM_HEAD.size:
-        raise LocalModelError(f"local model: {len(raw)} bytes, shorter than its {_LM_HEAD.size}-byte head")
-    fields = _LM_HEAD.unpack_from(raw)
-    if fields[0] != LOCAL_MODEL_MAGIC:
+    head = _LM3_HEAD if raw[:4] == LOCAL_MODEL_MATRIX_MAGIC else _LM_HEAD
+    if len(raw) < head.size:
+        raise LocalModelError(f"local model: {len(raw)} bytes, shorter than its {head.size}-byte head")
+    fields = head.unpack_from(raw)
+    if fields[0] not in (LOCAL_MODEL_MAGIC, LOCAL_MODEL_MATRIX_MAGIC):
         raise LocalModelError(f"local model: magic {fields[0]!r}, not {LOCAL_MODEL_MAGIC!r}")
     n = fields[-1]
     if n > MAX_PLANES:
         raise LocalModelError(f"local model: {n} planes, at most {MAX_PLANES}")
-    if len(raw) != _LM_HEAD.size + n * _LM_PLANE.size:
+    if len(raw) != head.size + n * _LM_PLANE.size:
         raise LocalModelError(
-            f"local model: {len(raw)} bytes for {n} planes; expected {_LM_HEAD.size + n * _LM_PLANE.size}"
+            f"local model: {len(raw)} bytes for {n} planes; expected {head.size + n * _LM_PLANE.size}"
         )
     scene_utime, pose_utime, period = fields[1:4]
     gains, rest = fields[4:8], fields[8:-1]
@@ -219,9 +275,13 @@ def parse_local_model(raw: bytes) -> LocalModel:
         _finite(name, values)
     if abs(math.hypot(*q_G) - 1.0) > UNIT_TOLERANCE:
         raise LocalModelError(f"local model: q_G {list(q_G)} is not a unit quaternion")
+    matrices = {}
+    if head is _LM3_HEAD:
+        matrices = {"stiffness": _matrix("stiffness", rest[19:28], True),
+                    "damping": _matrix("damping", rest[28:37], False)}  # fmt: skip
     planes = []
     for i in range(n):
-        values = _LM_PLANE.unpack_from(raw, _LM_HEAD.size + i * _LM_PLANE.size)
+        values = _LM_PLANE.unpack_from(raw, head.size + i * _LM_PLANE.size)
         point, normal, stiffness = values[0:3], values[3:6], values[6]
         _finite(f"plane {i} point/normal", [*point, *normal])
         if abs(math.hypot(*normal) - 1.0) > UNIT_TOLERANCE:
@@ -229,7 +289,9 @@ def parse_local_model(raw: bytes) -> LocalModel:
         if math.isnan(stiffness) or not stiffness > 0:
             raise LocalModelError(f"local model: plane {i} stiffness {stiffness!r} must be > 0 (inf: rigid)")
         planes.append((point, normal, stiffness))
-    return LocalModel(scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, lag, tuple(planes))
+    return LocalModel(
+        scene_utime, pose_utime, period, *gains, p_G, v_G, q_G, w_G, p_T, lag, tuple(planes), **matrices
+    )
 
 
 # -- the scene's word that it is alive -----------------------------------------------------------

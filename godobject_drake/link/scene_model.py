@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 
 import numpy as np
@@ -131,18 +132,24 @@ def plane_point(p_WG, distance: float, normal, stiffness: float) -> np.ndarray:
 
 BEAT_S = 0.005  # s of wall time between two heartbeats while no model is sent
 STALL_LIMIT_S = 0.5  # s: a scene whose loop has sent no model for this long vouches for none
+# ... unless its models come slower: STALL_INTERVALS times the median of its last 16 intervals
+# between models, at most MAX_STALL_S (the FEM uterus at h = 1 ms sends one every 0.3 to 0.6 s
+# of wall time, some 1.8 s apart on a loaded machine: docs/local_model.md "An articulated tool")
+STALL_INTERVALS = 6.0
+MAX_STALL_S = 5.0
 
 
 class SceneHeartbeat:
     """The scene's word that it is alive while its loop is held up (docs/local_model.md
     "Validity"): a thread of its own, every :data:`BEAT_S` of wall time, publishes
     :func:`~godobject_drake.link.messages.alive_message` with the newest model's time, when that
-    model is at least ``beat_s`` old and at most ``stall_limit_s``. The driver holds the model
+    model is at least ``beat_s`` old and at most :meth:`limit` (``stall_limit_s``, longer for a
+    scene whose models come slower than ``stall_limit_s / 6``). The driver holds the model
     for as long as it hears this (its validity counts from the newest of the model and its
     heartbeats), so a loop paused by a fold of its logs or a long step (0.1 to 0.2 s on a
     loaded machine, where the model's own validity is 3 scene periods + 50 ms) does not fade
     the wall; a scene killed falls silent, and the fade bound holds from its last word; a loop
-    that hangs is vouched for ``stall_limit_s`` at most.
+    that hangs is vouched for :meth:`limit` at most.
 
     :meth:`tick` is the decision (plain arithmetic on the times given, tested exactly); the
     thread, started by the first model, calls it. ``publish`` takes the payload."""
@@ -157,6 +164,7 @@ class SceneHeartbeat:
         self.publish, self.beat_s, self.stall_limit_s, self.clock = publish, beat_s, stall_limit_s, clock
         self.utime: int | None = None  # the newest model's scene time (µs)
         self.model_at = -math.inf  # when it was sent (``clock``)
+        self.intervals: deque = deque(maxlen=16)  # between the last models sent (s of ``clock``)
         self.beats = 0
         self.stopped = False
         self._lock = threading.Lock()
@@ -167,9 +175,13 @@ class SceneHeartbeat:
         """The loop sent a model of scene time ``utime`` at ``now``; the first starts the thread,
         and the first after a stop (the same scene run again) a new one."""
         with self._lock:
-            self.utime, self.model_at = int(utime), float(now)
-            if self.stopped:
+            if self.stopped:  # run again: its own pace
                 self.stopped, self._wake, self._thread = False, threading.Event(), None
+                self.model_at = -math.inf
+                self.intervals.clear()
+            if now > self.model_at > -math.inf:
+                self.intervals.append(float(now) - self.model_at)
+            self.utime, self.model_at = int(utime), float(now)
             start = self._thread is None
             if start:
                 self._thread = threading.Thread(
@@ -178,15 +190,24 @@ class SceneHeartbeat:
         if start:
             self._thread.start()
 
+    def limit(self) -> float:
+        """How long after a model it is vouched for (s): ``stall_limit_s``, or for a scene whose
+        models come slower :data:`STALL_INTERVALS` times the median of its last 16 intervals
+        between them, at most :data:`MAX_STALL_S` (a loop that hangs is still caught: its models
+        stop, and the limit does not grow without them)."""
+        if not self.intervals:
+            return self.stall_limit_s
+        return max(self.stall_limit_s, min(MAX_STALL_S, STALL_INTERVALS * float(np.median(self.intervals))))
+
     def tick(self, now: float) -> bool:
-        """Beat now if a model stands that is at least ``beat_s`` and at most ``stall_limit_s``
+        """Beat now if a model stands that is at least ``beat_s`` and at most :meth:`limit`
         old; whether it beat. Sent under the lock, so a stop returns only once a beat under way
         has left: none follows the scene's stop message."""
         with self._lock:
             if self.stopped or self.utime is None:
                 return False
             age = now - self.model_at
-            if age < self.beat_s or age > self.stall_limit_s:
+            if age < self.beat_s or age > self.limit():
                 return False
             self.publish(alive_message(self.utime))
             self.beats += 1

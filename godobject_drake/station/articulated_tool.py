@@ -20,6 +20,7 @@ from godobject_drake.devices.sources import DeviceSource, JointDevice
 from godobject_drake.devices.trocar import PoseJointDevice, TrocarKinematics
 from godobject_drake.metrics import TissueMetrics, ToolMetrics
 from godobject_drake.station import loop
+from godobject_drake.station.articulated_model import add_articulated_model
 from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
@@ -94,6 +95,11 @@ class ArticulatedGodObject(GodObject):
             v_device = list(tool.v_device)
             tau_at = [v_device.index(plant.GetJointByName(name, model).velocity_start())
                       for name in scenario.god_object.pose_to_joints.joints]  # fmt: skip
+            if getattr(pose_device, "driver_link", False):  # a driver process: the local model too,
+                # added before the wrench's publisher so that its first model leaves first (Drake
+                # runs the publish events of one time in the order the systems were added): a
+                # driver that heard the wrench first would trip its watchdog before the model came
+                add_articulated_model(builder, scene, pose_device, device, god)
             device.connect_joint_feedback(
                 builder, god.feedback.GetOutputPort("tau_device"), device.GetOutputPort("q_device"), tau_at
             )

@@ -16,9 +16,9 @@ from godobject_drake.studies.analyze.implicit import implicit_joint_rows
 from godobject_drake.studies.stability import (
     bisect,
 )
-from godobject_drake.studies.tissue_stiffness import contact_stiffness, ray_surface_hit
 from godobject_drake.systems.articulated import joint_space_loop
 from godobject_drake.systems.tissue import tool_capsules
+from godobject_drake.systems.tissue_stiffness import contact_stiffness, ray_surface_hit
 
 
 def _tissue_pose(station, q_device: np.ndarray) -> dict | None:

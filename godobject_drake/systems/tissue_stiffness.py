@@ -121,3 +121,32 @@ def contact_stiffness(organ: "FemOrgan", origin, direction) -> dict:
     point = np.asarray(origin, float) + t * d
     return {"stiffness_n_m": 1.0 / c, "point_W": point.tolist(), "normal_W": normal.tolist(),
             "distance_m": t, "vertices": list(weights), "weights": list(weights.values())}  # fmt: skip
+
+
+class OrganCompliance:
+    """:func:`contact_stiffness` for many points of one organ: its stiffness matrix assembled
+    and the free vertices' block factorised once (SuperLU), so each point costs two triangular
+    solves (the local model asks it at the scene's rate: docs/local_model.md "An articulated
+    tool"). The same linear statics, the same held vertices."""
+
+    def __init__(self, organ: "FemOrgan"):
+        spec = organ.spec
+        K = getattr(organ, "_linear_K", None)
+        if K is None:
+            K = organ._linear_K = linear_stiffness_matrix(
+                organ.rest_W, organ_tets(organ), spec.mesh_youngs_modulus_pa, spec.poissons_ratio
+            )
+        fixed = organ.rest_W[:, 2] < organ.rest_W[:, 2].max() - spec.attached_below_m
+        self.organ, self.n = organ, K.shape[0]
+        self.free = np.flatnonzero(~np.repeat(fixed, 3))
+        self._lu = spla.splu(K[self.free][:, self.free].tocsc())
+
+    def stiffness(self, triangle: int, weights, direction) -> float:
+        """The organ's stiffness (N/m) for a point force along ``direction`` at the point of
+        barycentric ``weights`` on its surface ``triangle`` (:func:`ray_surface_hit`'s)."""
+        d = np.asarray(direction, float) / np.linalg.norm(direction)
+        f = np.zeros(self.n)
+        for v, w in zip(self.organ.triangles[triangle], weights, strict=True):
+            f[3 * v : 3 * v + 3] += w * d
+        f_free = f[self.free]
+        return 1.0 / float(f_free @ self._lu.solve(f_free))
