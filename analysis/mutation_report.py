@@ -84,9 +84,9 @@ UNITS = {
     # controller, taking a model: everything of LocalRenderer but the validity), the validity (the
     # scene's period, the fade, the trips). heard and reserve are properties, which mutmut 3.8
     # leaves unmutated (it skips decorated functions); they are named for when it does not
-    # GLM3 (an articulated tool's coupling as 3×3 matrices, docs/local_model.md "An articulated
-    # tool"): the matrices' checks (_matrix) with the payload's, the proxy in their metric with
-    # the scalar's
+    # GLM3 (an articulated tool's coupling as 3×3 matrices, docs/local_model.md
+    # "An articulated tool"): the matrices' checks (_matrix) with the payload's, the proxy in
+    # their metric with the scalar's
     "link: local model": ("link.messages", None, {"parse_local_model", "_finite", "_matrix", "alive_message",
                                                   "parse_alive"}),
     "link: local model payload": ("link.messages", "LocalModel", None),
