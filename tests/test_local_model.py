@@ -1108,3 +1108,29 @@ def test_the_free_lag_restarts_on_the_god_object_when_the_grasp_changes():
     assert free.v == (0.0, 0.5, 0.0)
     free.reset(0.008, -1, np.array([0.3, 0.0, 0.0]), np.array([0.01, 0, 0]), np.zeros(3), np.zeros(3))
     assert free.advance(0.009, np.array([0.3, 0.0, 0.0]), np.ones(3)) == (0.0, 0.0, 0.0)
+
+
+def test_after_a_stall_the_damper_takes_the_handles_speed_over_the_time_that_passed():
+    """The driver's loop is held up 18 ms (a loaded machine) while the hand moves at 0.1 m/s: the
+    handle is 1.8 mm on at the next request. Its speed is 1.8 mm / 18 ms = 0.1 m/s, so the
+    controller's damper, capped (a 100 mJ deficit: 100 mJ / (0.1² × 1 ms) ≫ 10 N·s/m), pushes
+    1 N against it, not the 18 N of the same step read as one period's 1.8 m/s (the spike seen
+    after a stall on a loaded machine); the stretch's rate through a soft plane the same:
+    γd × 0.1 m/s × kd/(kd + s), not 18 times that."""
+    r = LocalRenderer()
+    take_at(r, (0.0, 0.0, 0.0), 0.0, kd=100.0)
+    r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    r.rendered(np.zeros(3))
+    r.energy_in = -0.1  # a deficit: the controller acts, at its cap
+    f = r.request((1.8e-3, 0.0, 0.0), now=0.018, period_s=T)
+    assert r.damping == MAX_DAMPING and np.allclose(f, [-MAX_DAMPING * 0.1, 0.0, 0.0], rtol=1e-12)
+    # the stretch's rate: a soft plane (s = kd) the handle presses into by 1.8 mm in 18 ms
+    r = LocalRenderer()
+    soft = ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 100.0)
+    take_at(r, (0.0, 0.0, 0.0), 0.0, kd=100.0, gamma_d=2.0, planes=(soft,))
+    r.request((0.0, 0.0, 0.0), now=0.0, period_s=T)
+    r.rendered(np.zeros(3))
+    r.energy_in = r.energy_v = 1.0  # paid for: β = 1, no controller
+    f = r.request((0.0, 0.0, -1.8e-3), now=0.018, period_s=T)
+    # the proxy sinks by kd/(kd + s) = ½ of the way: its stretch 0.9 mm up, its rate 0.05 m/s
+    assert r.damping == 0.0 and f[2] == pytest.approx(100.0 * 0.9e-3 + 2.0 * 0.05, rel=1e-9)

@@ -183,6 +183,7 @@ class LocalRenderer:
         self.trips = 0
         self.models = 0
         self._h: np.ndarray | None = None  # the handle at the last render
+        self._t: float | None = None  # when the last request was made (the driver's clock, s)
         self._f = np.zeros(3)  # the force last rendered
         self._damper = np.zeros(3)  # the controller's part of the force last requested
         self._was_valid = False
@@ -265,6 +266,11 @@ class LocalRenderer:
         when not ``live`` (a stop, the clutch). Called every period: the budget counts every move."""
         h = np.asarray(h, float)
         before = self._h
+        # the handle moved from ``before`` over the time since the last request: a period, or
+        # more when the driver's loop was held up (a rate over the nominal period would be that
+        # many times too fast: the damper's spike after a stall)
+        elapsed = period_s if self._t is None else max(period_s, now - self._t)
+        self._t = now
         self._account(h)
         weight = self.weight = self.validity(now)
         self.damping, self._damper = 0.0, np.zeros(3)
@@ -278,7 +284,7 @@ class LocalRenderer:
         rate = np.zeros(3)
         if before is not None and np.any(D > 0.0) and period_s > 0.0:
             b = before + self.grasp  # the same model: a re-anchoring is no rate
-            rate = ((x - hc) - (project(b + self.offset, self.planes, K) - b)) / period_s
+            rate = ((x - hc) - (project(b + self.offset, self.planes, K) - b)) / elapsed
         spring = spring_energy(K, x - y)
         budget = self.energy_v + ALLOWANCE_J
         if spring <= budget:
@@ -299,7 +305,7 @@ class LocalRenderer:
         # force that pulled the hand along, a change of model): the damper asks it back
         deficit = max(self.spring - self.energy_in, -self.energy_v - ALLOWANCE_J)
         if deficit > 0.0 and before is not None and period_s > 0.0:  # the controller
-            v = (h - before) / period_s
+            v = (h - before) / elapsed
             speed2 = float(v @ v)
             # > 0 as a product: a hand settling on a steady force moves by steps whose square
             # underflows (its speed² × T is 0.0 while its speed² is not): no damper, no division by 0
