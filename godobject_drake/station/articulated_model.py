@@ -27,11 +27,14 @@ matrix factorised once), so the
 driver's proxy sinks into it as the tool's tip sinks into the tissue.
 
 The lag: while the tip is clear of that plane (more than
-:data:`~godobject_drake.driver.local_model.ACTIVE_M` above it) the tool touches nothing the
-model states, so its whole stretch is the coupling's free lag (published as ``lag``: no force);
-on or in it, none. Rigid organs publish no plane and no lag (not built: the stretch is then
-rendered as the free part, re-anchored each model and paid for by the driver's energy budget,
-as the held wrench renders it).
+:data:`~godobject_drake.driver.local_model.ACTIVE_M` above it) and the jaws hold nothing, the
+tool touches nothing the model states, so its whole stretch is the coupling's free lag
+(published as ``lag``: no force); on or in it, none; while the jaws hold a site, none either:
+the stretch is the held tissue's pull (the driver renders it as the free part, a constant
+force the energy budget pays for, as the rigid tool's held body's weight). Rigid organs
+publish no plane and no lag (not built: the stretch is then rendered as the free part,
+re-anchored each model and paid for by the driver's energy budget, as the held wrench renders
+it).
 """
 
 from __future__ import annotations
@@ -120,9 +123,10 @@ class ArticulatedModelPublisher(LeafSystem):
     frame; its heartbeat as the rigid tool's. Inputs: ``q_device`` (the mapped device's joints:
     the target) and the plant's ``state``."""
 
-    def __init__(self, lcm_device, pose_joints, tool, gains, tissue: TissuePlane | None):
+    def __init__(self, lcm_device, pose_joints, tool, gains, tissue: TissuePlane | None, grasp=None):
         super().__init__()
         self.device, self.tool, self.gains, self.tissue = lcm_device, tool, gains, tissue
+        self.grasp = grasp  # the jaws' JawHold (station.articulated_tool), or None
         self.trocar = pose_joints.trocar
         plant = tool.plant
         self.plant = plant
@@ -170,7 +174,8 @@ class ArticulatedModelPublisher(LeafSystem):
             if found is not None:
                 point, normal, k = found
                 planes = ((self._to_dev(point), tuple(R @ normal), s2 * k),)
-                if float(normal @ (p_G - point)) > CLEAR_M:  # clear of the tissue: all of it lag
+                holding = self.grasp is not None and bool(self.grasp.holding)
+                if float(normal @ (p_G - point)) > CLEAR_M and not holding:  # clear: all of it lag
                     lag = tuple(R @ (p_G - p_T) / self._scale)
         q = (RotationMatrix(R) @ RotationMatrix(R_G)).ToQuaternion().wxyz()
         kd, gamma_d = (float(np.linalg.eigvalsh(M)[-1]) for M in (K, D))  # the stiffest direction's
@@ -205,7 +210,7 @@ def add_articulated_model(builder, scene, lcm_device, pose_joints, god) -> Artic
         tissue = TissuePlane(god.tissue, scene.plant, scene.scene_graph, god.tool.model)
     publisher = builder.AddNamedSystem(
         "local_model_publisher",
-        ArticulatedModelPublisher(lcm_device, pose_joints, god.tool, god.feedback.gains, tissue),
+        ArticulatedModelPublisher(lcm_device, pose_joints, god.tool, god.feedback.gains, tissue, god.grasp),
     )
     builder.Connect(pose_joints.GetOutputPort("q_device"), publisher.GetInputPort("q_device"))
     builder.Connect(scene.plant.get_state_output_port(), publisher.GetInputPort("state"))
