@@ -24,7 +24,15 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.metrics import SceneMetrics, configuration, scene_configuration, verdict, worst_of
+from godobject_drake.metrics import (
+    SceneMetrics,
+    TissueMetrics,
+    configuration,
+    scene_configuration,
+    soft_body_result,
+    verdict,
+    worst_of,
+)
 from godobject_drake.outputs import SignalsHeld
 from godobject_drake.realtime import RealtimeLag
 from godobject_drake.safeguards import (
@@ -265,6 +273,8 @@ class _Run:
         wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
         self.logs = _Logs(station, root, keep_logs)
+        self.soft = {name: (logger.FindMutableLog(root), TissueMetrics())
+                     for name, logger in station.soft_loggers.items()}  # fmt: skip
         try:  # each tool's metrics, on its own view of the station
             self.measured = {name: SceneMetrics(view) for name, view in station.views.items()}
             self.metrics_error = None
@@ -293,6 +303,9 @@ class _Run:
         """The logs drained into each tool's running metrics; a metric that fails is reported,
         never lost."""
         chunks = self.logs.drain()
+        for log, measured in self.soft.values():  # each soft body's rows, folded on their own
+            measured.update(log.data().T)
+            log.Clear()
         if self.measured is not None and self.metrics_error is None:
             try:
                 # A diverged state's huge numbers overflow: what they give is non-finite, and the
@@ -429,6 +442,8 @@ class _Run:
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
         metrics.update(self.tool_metrics(with_devices=True))
+        for name, (_, measured) in self.soft.items():  # each soft body's, its name first
+            metrics.update({f"{name}_{k}": v for k, v in soft_body_result(measured).items()})
         metrics.update(verdict(metrics, self.scenario, self.station.records))
         result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
         if self.interrupted is not None:

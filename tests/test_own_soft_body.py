@@ -1,0 +1,271 @@
+"""Soft bodies of one's own (``deformables:``): a tetrahedral VTK mesh or a primitive in any scene,
+held where the scenario says; a bad mesh refused before the run (exit 2), naming the file, the
+value and the fix."""
+
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from godobject_drake.config.scenario import (
+    ScenarioError,
+    check_scenario,
+    load_scenario,
+    replace,
+    scenario_from_yaml,
+)
+from godobject_drake.systems.tissue import grid_tet_mesh, write_vtk
+
+REPO = Path(__file__).resolve().parents[1]
+SDF = REPO / "examples" / "cube_post.sdf"
+
+# The cube-and-post scene of examples/ (its cube, post and floor), its tool resting, and a soft pad.
+SCENE = """name: soft_pad
+directives:
+- add_model:
+    name: cube_post
+    file: {sdf}
+    default_free_body_pose:
+      cube: {{translation: [-0.15, 0.0, 0.025]}}
+device: !Scripted
+  waypoints:
+  - {{t: 0.0, xyz: [0.15, 0.1, 0.1]}}
+  - {{t: 1.0, xyz: [0.15, 0.1, 0.1]}}
+simulation: {{duration_s: {duration}}}
+deformables:
+  pad:
+{body}
+"""
+PAD = """    mesh: pad.vtk
+    xyz_m: [0.0, -0.08, 0.1]
+    attach: [{to: world, lower_m: [-0.05, -0.13, 0.114], upper_m: [0.05, -0.03, 0.116]}]"""
+
+
+def pad_mesh(n=(4, 4, 2), size=(0.08, 0.08, 0.03)):
+    """A box grid's tetrahedra about the origin (m)."""
+    return grid_tet_mesh(*(np.linspace(-s / 2, s / 2, k + 1) for s, k in zip(size, n, strict=True)))
+
+
+def write_scene(tmp_path, V=None, T=None, body=PAD, duration=0.01) -> Path:
+    if V is not None:
+        write_vtk(tmp_path / "pad.vtk", V, T)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE.format(sdf=SDF, duration=duration, body=body))
+    return scene
+
+
+def run(scene: Path):
+    return subprocess.run(
+        [sys.executable, "-m", "godobject_drake", "run", str(scene), "--no-progress"],
+        capture_output=True, text=True, timeout=120, cwd=REPO,
+    )  # fmt: skip
+
+
+def refused(scene: Path, *said: str) -> str:
+    done = run(scene)
+    assert done.returncode == 2, (done.returncode, done.stderr[-800:])
+    for words in said:
+        assert words in done.stderr, (words, done.stderr[-800:])
+    assert "Traceback" not in done.stderr
+    return done.stderr
+
+
+def test_a_mesh_of_triangles_not_tetrahedra_exits_2_naming_the_file_the_cell_type_and_the_fix(tmp_path):
+    V, T = pad_mesh()
+    write_scene(tmp_path, V, T)
+    text = (tmp_path / "pad.vtk").read_text()
+    tets = text.split("CELLS")[1].split("CELL_TYPES")[0].splitlines()[1:]
+    tris = [" ".join(["3", *line.split()[1:4]]) for line in tets if line]
+    text = text.split("CELLS")[0] + f"CELLS {len(tris)} {4 * len(tris)}\n" + "\n".join(tris)
+    (tmp_path / "pad.vtk").write_text(text + f"\nCELL_TYPES {len(tris)}\n" + "5\n" * len(tris))
+    refused(tmp_path / "scene.yaml", "pad.vtk", "cell types [5]", "tetrahedralize it")
+
+
+def test_inverted_tetrahedra_exit_2_naming_the_file_the_volume_and_the_fix(tmp_path):
+    V, T = pad_mesh()
+    T = T.copy()
+    T[3] = T[3][[0, 2, 1, 3]]
+    scene = write_scene(tmp_path, V, T)
+    said = refused(scene, "pad.vtk", "1 of 192 tetrahedra are inverted", "swap two points")
+    assert "cell 3" in said
+
+
+def test_a_flat_tetrahedron_exits_2_naming_the_file_and_remeshing(tmp_path):
+    V, T = pad_mesh()
+    n = len(V)
+    flat = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.01, 0.01, 0.0]])
+    refused(
+        write_scene(tmp_path, np.vstack([V, flat]), np.vstack([T, [n, n + 1, n + 2, n + 3]])),
+        "pad.vtk", "1 degenerate tetrahedra", f"cell {len(T)}", "remesh it",
+    )  # fmt: skip
+
+
+def test_a_mesh_in_millimetres_exits_2_naming_its_size_and_the_scale(tmp_path):
+    V, T = pad_mesh()
+    refused(write_scene(tmp_path, V * 1000, T), "pad.vtk", "is 80 m across", "Give scale: 0.001")
+
+
+def test_a_soft_body_held_by_nothing_exits_2_saying_it_will_fall(tmp_path):
+    V, T = pad_mesh()
+    body = "    mesh: pad.vtk\n    xyz_m: [0.0, -0.08, 0.1]"
+    refused(write_scene(tmp_path, V, T, body), "deformables.pad.attach: none", "will fall", "free: true")
+
+
+def test_an_attachment_that_holds_no_vertex_exits_2_naming_the_box_and_where_the_body_is(tmp_path):
+    V, T = pad_mesh()
+    body = PAD.replace("0.114], upper_m: [0.05, -0.03, 0.116]", "0.3], upper_m: [0.05, -0.03, 0.4]")
+    refused(
+        write_scene(tmp_path, V, T, body),
+        "deformables.pad.attach[0]: no vertex", "[-0.05, -0.13, 0.3] to [0.05, -0.03, 0.4]",
+        "[-0.04, -0.12, 0.085] to [0.04, -0.04, 0.115]", "move the box onto it",
+    )  # fmt: skip
+
+
+def test_a_mesh_too_fine_for_the_time_step_exits_2_estimating_its_cost(tmp_path):
+    V, T = pad_mesh((12, 12, 6))  # 1183 vertices: about 0.18 s a step against h = 1 ms
+    said = refused(write_scene(tmp_path, V, T), "1183 vertices", "ms (docs/results.md)", "coarser mesh")
+    assert "past max_slowdown 20" in said
+
+
+def build(scenario):
+    from godobject_drake.station.build import build_station
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return build_station(scenario)
+
+
+def test_the_held_face_stays_where_it_is_and_the_rest_hangs_from_it(tmp_path):
+    """Drake's fixed constraint holds the vertices in the attach box where they are (X_BA is the
+    registered geometry's frame in B: with X_BA = I the whole pad dropped 0.1 m, its pose's z, at
+    once); the free vertices sag under gravity a little, by about ρ g L² / E."""
+    from godobject_drake.simulation import simulate
+
+    V, T = pad_mesh()
+    scenario = load_scenario(write_scene(tmp_path, V, T, duration=0.3))
+    station = build(scenario)
+    (body,) = [s._body for s in station.diagram.GetSystems() if s.get_name() == "pad_soft_body_observer"]
+    assert body.attached == 25  # the top face's 5 x 5 vertices
+    assert np.allclose(body.rest_W.mean(axis=0), [0.0, -0.08, 0.1])  # the mesh placed at xyz_m
+    result = simulate(station, progress=False, keep_logs=True)
+    plant = station.plant
+    context = plant.GetMyContextFromRoot(result.context)
+    p = plant.get_deformable_body_configuration_output_port().Eval(context).value(body.geometry_id)
+    p = np.asarray(p).reshape(-1, 3)
+    moved = np.linalg.norm(p - body.rest_W, axis=1)
+    assert moved[body.held].max() < 1e-5
+    assert moved.max() < 2e-3  # 1000 kg/m³ · 9.8 · (0.03 m)² / 50 kPa ≈ 0.2 mm: hanging, not falling
+    soft = {k[4:]: v for k, v in result.metrics.items() if k.startswith("pad_")}
+    assert soft["steps"] == 301 and soft["rigid_penetration_m"] == 0.0 and soft["rigid_inside_steps"] == 0
+    assert soft["max_displacement_m"] == pytest.approx(moved[body.surface].max(), rel=0.2)
+
+
+def test_a_primitive_is_meshed_at_its_resolution_and_checked_like_a_file():
+    from godobject_drake.config.scene import SoftBody
+    from godobject_drake.systems.soft_body import soft_body_mesh
+
+    box = SoftBody(shape="box", size_m=[0.08, 0.04, 0.02], resolution_m=0.01, free=True)
+    V, T = soft_body_mesh(box, "deformables.b", 1e-3)
+    assert len(V) == 9 * 5 * 3 and len(T) == 6 * 8 * 4 * 2
+    assert np.ptp(V, axis=0) == pytest.approx([0.08, 0.04, 0.02])
+    ball = SoftBody(shape="sphere", size_m=[0.02], resolution_m=0.01, free=True)
+    V, T = soft_body_mesh(ball, "deformables.b", 1e-3)
+    assert np.linalg.norm(V, axis=1).max() == pytest.approx(0.02)
+    huge = SoftBody(shape="box", size_m=[3.0, 0.1, 0.1], resolution_m=0.5, free=True)
+    with pytest.raises(ValueError, match=r"3 m across .* Give scale: 0\.001"):
+        soft_body_mesh(huge, "deformables.b", 1e-3)
+
+
+@pytest.mark.parametrize(
+    ("body", "said"),
+    [
+        ("{shape: cube, size_m: [0.1]}", "deformables.x.shape: 'cube'; choose one of"),
+        ("{shape: box, size_m: [0.1], free: true}", "deformables.x.size_m: [0.1]; a box takes 3"),
+        ("{mesh: a.vtk, shape: box, free: true}", "give one, a tetrahedral VTK file as mesh"),
+        ("{shape: sphere, size_m: [0.1], poissons_ratio: 0.5, free: true}", "poissons_ratio: 0.5"),
+        ("{shape: sphere, size_m: [0.1], attach: [{within_m: 0.01}]}", "of the world: give a box"),
+    ],
+)
+def test_a_soft_bodys_fields_are_checked_naming_the_field(body, said):
+    with pytest.raises(ScenarioError) as e:
+        check_scenario(scenario_from_yaml(f"deformables: {{x: {body}}}\n"))
+    assert said in str(e.value)
+
+
+EXAMPLE = REPO / "examples" / "own_soft_body" / "own_soft_body.yaml"
+
+
+def run_example_to(t: float, overrides: str | None = None):
+    """The example run to ``t``: its station, result and the lobe's observer and its context."""
+    from godobject_drake.simulation import simulate
+
+    scenario = load_scenario(EXAMPLE, overrides)
+    station = build(replace(scenario, **{"simulation.duration_s": t}))
+    result = simulate(station, progress=False)
+    (observer,) = [s for s in station.diagram.GetSystems() if s.get_name() == "lobe_soft_body_observer"]
+    return station, result, observer, observer.GetMyContextFromRoot(result.context)
+
+
+@pytest.mark.slow
+def test_the_example_lobe_pressed_answers_with_the_fem_models_stiffness_there():
+    """The probe held 4 mm past the lobe's top for 1 s: the force it presses with over the
+    indentation there (Drake's FEM, the weighted displacement of the contact's surface triangle)
+    against the stiffness analyze reads from the lobe's own mesh (linear statics of its
+    tetrahedra, its attached face held: studies.tissue_stiffness.contact_stiffness), within 15 %.
+    Both from the settled lobe before the probe touches (its own and the site's weight)."""
+    from godobject_drake.studies.tissue_stiffness import contact_stiffness
+
+    _, _, observer, before = run_example_to(0.9)
+    _, _, observer2, pressed = run_example_to(2.45)
+    body = observer2._body
+    d = np.array([0.0, 0.0, -1.0])
+    stiffness = contact_stiffness(body, [0.01, 0.004, 0.1], d)
+    weights = dict(zip(stiffness["vertices"], stiffness["weights"], strict=True))
+    moved = observer2.positions(pressed) - observer.positions(before)
+    indentation = sum(w * moved[v] @ d for v, w in weights.items())
+    force = (observer2.contact_force(pressed) - observer.contact_force(before)) @ d
+    assert 0.05e-3 < indentation < 3e-3 and force > 0.1, (indentation, force)
+    assert force / indentation == pytest.approx(stiffness["stiffness_n_m"], rel=0.15)
+
+
+@pytest.mark.slow
+def test_the_example_runs_its_probe_never_inside_its_site_lifted_its_metrics_and_recording(tmp_path):
+    record = tmp_path / "lobe.html"
+    _, result, _, _ = run_example_to(5.5, f"recording: {{file: {record}}}")
+    m = result.metrics
+    assert not m["diverged"] and m["lobe_steps"] == round(5.5 / 0.004) + 1
+    assert m["lobe_rigid_inside_steps"] == 0  # the probe's centre never inside the deformed lobe
+    # the probe's ball in the lobe's deformed surface as deep as SAP's contact compliance lets it:
+    # under a millimetre, and seen (no vertex of the coarse surface is inside the 4 mm ball)
+    assert 0.3e-3 < m["lobe_rigid_penetration_m"] < 1e-3, m["lobe_rigid_penetration_m"]
+    assert 0.1 < m["lobe_max_contact_force_N"] < 2.0 and m["lobe_max_strain"] > 0
+    assert m["lobe_max_displacement_m"] > 2e-3, m["lobe_max_displacement_m"]  # the lift raised it
+    assert m["recording_bytes"] > 0 and "lobe_tissue/surface" in record.read_text()
+
+
+def test_the_guide_shows_the_example_scenario_as_it_is():
+    import re
+
+    page = (REPO / "docs" / "guide" / "own_soft_body.md").read_text()
+    blocks = re.findall(r"```yaml\n(.*?)```", page, flags=re.S)
+    assert blocks == [EXAMPLE.read_text()]
+
+
+def test_the_example_mesh_is_what_its_script_makes():
+    """examples/own_soft_body/lobe.vtk is make_lobe.py's output, a real tetrahedral mesh."""
+    from godobject_drake.config.meshes import check_tetrahedra, read_tet_vtk
+
+    sys.path.insert(0, str(EXAMPLE.parent))
+    try:
+        import make_lobe
+    finally:
+        sys.path.pop(0)
+    V, T = make_lobe.lobe()
+    V2, T2 = read_tet_vtk(EXAMPLE.parent / "lobe.vtk", "lobe.vtk")
+    assert np.array_equal(T, T2) and np.allclose(V, V2, rtol=0, atol=1e-15)
+    assert (len(V), len(T)) == (180, 576)
+    check_tetrahedra(V2, T2, "lobe.vtk")
+    assert np.ptp(V2, axis=0) == pytest.approx([0.12, 0.04, 0.03])
