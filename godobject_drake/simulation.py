@@ -444,6 +444,8 @@ class _Run:
         metrics.update(self.tool_metrics(with_devices=True))
         for name, (_, measured) in self.soft.items():  # each soft body's, its name first
             metrics.update({f"{name}_{k}": v for k, v in soft_body_result(measured).items()})
+            if isinstance(metrics.get("max_penetration_m"), float):  # a tool in a soft body is in the budget
+                metrics["max_penetration_m"] = max(metrics["max_penetration_m"], measured.max_pen)
         metrics.update(verdict(metrics, self.scenario, self.station.records))
         result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
         if self.interrupted is not None:
