@@ -162,7 +162,8 @@ def _finish(
         sleeper = SleepManager(scene.plant, scene.scene_graph, scenario.sleep, couplings, meshcat)
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
-        max(predicted) if predicted else None, sleeper, tool_loggers, records, soft_loggers=soft_loggers,
+        max(predicted) if predicted else None, sleeper, tool_loggers, records,
+        soft_loggers=soft_loggers, soft_bodies=scene.soft_bodies,
     )  # fmt: skip
 
 
@@ -344,6 +345,9 @@ class Station:
     tool_loggers : dict[str, dict[str, str]]
         Each tool's logger names: its own name for a log (``terms``) to the station's
         (``left/terms``).
+    soft_bodies : dict[str, FemSoftBody]
+        The scene's soft bodies (``deformables``), by name
+        (:class:`~godobject_drake.systems.soft_body.FemSoftBody`).
     soft_loggers : dict[str, VectorLogSink]
         Each soft body's (``deformables``) :class:`~godobject_drake.systems.soft_body.SoftBodyObserver`
         summary, per step, by its name; folded into the metrics per soft body.
@@ -367,6 +371,7 @@ class Station:
     records: dict[str, sc.ToolRecord] = dataclasses.field(default_factory=dict)
     views: dict[str, "Station"] = dataclasses.field(default_factory=dict, repr=False)
     soft_loggers: dict[str, VectorLogSink] = dataclasses.field(default_factory=dict)
+    soft_bodies: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if not self.views:
