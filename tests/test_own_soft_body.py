@@ -108,6 +108,11 @@ def test_a_mesh_in_millimetres_exits_2_naming_its_size_and_the_scale(tmp_path):
     refused(write_scene(tmp_path, V * 1000, T), "pad.vtk", "is 80 m across", "Give scale: 0.001")
 
 
+def test_a_mesh_file_that_is_not_there_exits_2_naming_the_field_and_where_paths_start(tmp_path):
+    """Before: Python's bare "[Errno 2] No such file or directory"."""
+    refused(write_scene(tmp_path), "deformables.pad.mesh:", "pad.vtk does not exist", "scenario's folder")
+
+
 def test_a_soft_body_held_by_nothing_exits_2_saying_it_will_fall(tmp_path):
     V, T = pad_mesh()
     body = "    mesh: pad.vtk\n    xyz_m: [0.0, -0.08, 0.1]"
@@ -330,3 +335,41 @@ def test_the_hands_squeeze_the_sponge_lift_carry_and_set_it_down_by_friction_alo
         axis=0
     )
     assert moved == pytest.approx([0.04, 0.0, 0.0], abs=2e-3)
+
+
+def write_vtk_51(path: Path, V, T) -> Path:
+    """A legacy-ASCII VTK file of version 5.1 (what meshio and VTK 9 write by default)."""
+    lines = [
+        "# vtk DataFile Version 5.1",
+        "tets",
+        "ASCII",
+        "DATASET UNSTRUCTURED_GRID",
+        f"POINTS {len(V)} double",
+    ]
+    lines += [" ".join(f"{x:.17g}" for x in v) for v in V]
+    lines += [
+        f"CELLS {len(T) + 1} {4 * len(T)}",
+        "OFFSETS vtktypeint64",
+        " ".join(str(4 * k) for k in range(len(T) + 1)),
+    ]
+    lines += [
+        "CONNECTIVITY vtktypeint64",
+        *(" ".join(map(str, t)) for t in T),
+        f"CELL_TYPES {len(T)}",
+        *["10"] * len(T),
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_vtk_51_mesh_as_meshio_writes_it_is_read_as_the_older_format_is(tmp_path):
+    from godobject_drake.config.meshes import read_tet_vtk
+
+    V, T = pad_mesh()
+    V1, T1 = read_tet_vtk(write_vtk(tmp_path / "a.vtk", V, T), "a.vtk")
+    V2, T2 = read_tet_vtk(write_vtk_51(tmp_path / "b.vtk", V, T), "b.vtk")
+    assert np.array_equal(T1, T) and np.array_equal(T2, T) and np.array_equal(V1, V2)
+    bad = tmp_path / "c.vtk"
+    bad.write_text((tmp_path / "b.vtk").read_text().replace("vtktypeint64\n0 4 8", "vtktypeint64\n0 3 8"))
+    with pytest.raises(ValueError, match="CELLS are not 4 points each"):
+        read_tet_vtk(bad, "c.vtk")

@@ -129,7 +129,8 @@ def _vtk_refuse(where: str, line: int, index: int, points: int):
 
 def read_tet_vtk(path: str | Path, where: str):
     """The points ``(n, 3)`` and tetrahedra ``(m, 4)`` of a legacy-ASCII VTK unstructured grid of
-    tetrahedra (cell type 10), as Drake's ``RegisterDeformableBody`` reads; anything else refused
+    tetrahedra (cell type 10; file version 4.2 and older, or 5.1's ``OFFSETS``/``CONNECTIVITY``),
+    as Drake's ``RegisterDeformableBody`` reads; anything else refused
     (:class:`MeshFileError`), naming ``where``, what the file is and the fix."""
     import numpy as np
 
@@ -161,8 +162,16 @@ def read_tet_vtk(path: str | Path, where: str):
         n = int(words[i + 1])
         V = np.array(words[i + 3 : i + 3 + 3 * n], float).reshape(n, 3)
         i = section("CELLS")
-        m = int(words[i + 1])
-        body = np.array(words[i + 3 : i + 3 + int(words[i + 2])], int)
+        if "OFFSETS" in upper:  # VTK 5.1 (meshio's and VTK 9's default): offsets, then the points
+            j, c = upper.index("OFFSETS"), upper.index("CONNECTIVITY")
+            m = int(words[i + 1]) - 1
+            offsets = np.array(words[j + 2 : j + 2 + m + 1], int)
+            points = np.array(words[c + 2 : c + 2 + int(offsets[-1])], int)
+            sizes = np.diff(offsets)
+            body = np.column_stack([sizes, points.reshape(m, -1)]).ravel() if np.all(sizes == 4) else sizes
+        else:  # VTK 4.2 and older: each cell's point count, then its points
+            m = int(words[i + 1])
+            body = np.array(words[i + 3 : i + 3 + int(words[i + 2])], int)
         i = section("CELL_TYPES")
         types = np.array(words[i + 2 : i + 2 + m], int)
     except (ValueError, IndexError) as e:

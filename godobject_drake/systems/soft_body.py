@@ -22,6 +22,7 @@ body welded to the world Drake refuses ("a clique with zero number of velocities
 import shutil
 import tempfile
 import weakref
+from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -84,6 +85,11 @@ def soft_body_mesh(spec: SoftBody, where: str, time_step: float):
     """The soft body's rest vertices ``(n, 3)`` in its own frame (m) and tetrahedra ``(m, 4)``,
     read or meshed, checked (module docstring); ``ValueError`` naming ``where`` and the fix."""
     if spec.mesh:
+        if not Path(spec.mesh).is_file():
+            raise ValueError(
+                f"{where}.mesh: {spec.mesh} does not exist: give a tetrahedral VTK file (a relative path is "
+                "taken from the scenario's folder; package://godobject_models/... from the models)"
+            )
         V, T = read_tet_vtk(spec.mesh, f"{where}.mesh: {spec.mesh}")
         V = V * spec.scale
         check_tetrahedra(V, T, f"{where}.mesh: {spec.mesh}")
