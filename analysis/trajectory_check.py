@@ -69,6 +69,8 @@ VARIANTS = {
                           "spec: {youngs_modulus_pa: 5.0e4, nodes: 42, fem_resolution_m: 0.02}, "
                           "gains: {omega_n: 30.0, zeta: 1.0, omega_n_rot: 30.0}}", None),
     "probe_position": ("deformable_probe", "simulation: {mode: position}", None),
+    # a soft body of one's own (deformables:): the probe presses the lobe, its summary rows kept
+    "own_soft_body": ("examples/own_soft_body/own_soft_body.yaml", "", 2.5),
 }  # fmt: skip
 
 # Metrics that measure the machine, not the run.
@@ -88,7 +90,8 @@ def run_variant(name: str) -> dict[str, np.ndarray]:
     from godobject_drake.station.build import build_station
 
     scene, overrides, duration = VARIANTS[name]
-    scenario = load_scenario(DIAGRAMS / f"{scene}.yaml", overrides or None)
+    path = ROOT / scene if "/" in scene else DIAGRAMS / f"{scene}.yaml"  # a shipped scene, or a file
+    scenario = load_scenario(path, overrides or None)
     if duration is not None:
         scenario = replace(scenario, **{"simulation.duration_s": duration})
     with warnings.catch_warnings():
