@@ -2,7 +2,7 @@
 the held body nearest (or deepest into) each soft body, and the body's stiffness there from its
 own FEM mesh (linear statics, its attached vertices held: :func:`~godobject_drake.studies.
 tissue_stiffness.contact_stiffness`, as the laparoscopy's organ's). Drake's press at such a point
-answers within 1 % on the example lobe (tests/test_own_soft_body.py)."""
+answers within 0.03 % on the example lobe (tests/test_own_soft_body.py)."""
 
 from __future__ import annotations
 
