@@ -184,6 +184,19 @@ def test_a_primitive_is_meshed_at_its_resolution_and_checked_like_a_file():
         soft_body_mesh(huge, "deformables.b", 1e-3)
 
 
+def test_a_mesh_point_in_no_tetrahedron_is_refused_naming_how_many(tmp_path):
+    from godobject_drake.config.scene import SoftBody
+    from godobject_drake.systems.soft_body import soft_body_mesh
+
+    V, T = pad_mesh()
+    write_vtk(tmp_path / "pad.vtk", np.vstack([V, [[0.0, 0.0, 0.2]]]), T)
+    spec = SoftBody(mesh=str(tmp_path / "pad.vtk"), free=True)
+    with pytest.raises(ValueError, match=r"1 of its 76 points belong to no tetrahedron .*remove them"):
+        soft_body_mesh(spec, "deformables.pad", 1e-3)
+    write_vtk(tmp_path / "pad.vtk", V, T)
+    assert len(soft_body_mesh(spec, "deformables.pad", 1e-3)[0]) == 75
+
+
 @pytest.mark.parametrize(
     ("body", "said"),
     [

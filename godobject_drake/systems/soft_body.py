@@ -64,8 +64,9 @@ COST_S = (2.0e-4, 1.6e-5, 1.06e-7)
 
 
 def estimated_step_cost_s(vertices: int) -> float:
-    """One plant step's wall time (s) a soft body of ``vertices`` vertices adds, estimated from
-    the fit measured on a 2-core AMD EPYC (docs/results.md)."""
+    """The CPU time (s) a soft body of ``vertices`` vertices adds to a plant step, estimated from
+    the fit measured on a 2-core AMD EPYC (docs/results.md): on an idle machine, about its wall
+    time too."""
     a, b, c = COST_S
     return a + b * vertices + c * vertices**2
 
