@@ -416,3 +416,23 @@ def build_station_with(scenario, meshcat):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return build_station(scenario, meshcat)
+
+
+def test_analyze_finds_where_the_articulated_grasper_presses_a_soft_pad_and_its_stiffness_there():
+    """The laparoscopy's path pushes the closed grasper straight down the port's axis: analyze
+    meets the pad on that axis at its top's centre, (0, 0, 0.036) m, the push 63 mm past it (the
+    path's deepest, into the rigid uterus under the pad), and reads the pad's stiffness there from
+    its own mesh: the same number as the FEM statics along that ray."""
+    from godobject_drake.config.scenario import shipped_scenario_file
+    from godobject_drake.studies.analyze import analyze
+
+    scenario = load_scenario(
+        shipped_scenario_file("laparoscopy"),
+        f"deformables: {{pad: {{shape: box, {PADS['articulated'][2]}}}}}",
+    )
+    out = analyze(scenario, quick=True, verify=False)
+    (row,) = [r for r in out["checks"] if r["section"] == "soft bodies"]
+    press = out["soft_bodies"]["pad"]
+    assert press["point_W"] == pytest.approx([0.0, 0.0, 0.036], abs=1e-6)
+    assert press["push_m"] == pytest.approx(0.063, abs=2e-3)
+    assert row["value"] == press["stiffness_n_m"] and 500 < row["value"] < 5000

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from godobject_drake.studies.analyze.common import Check
+from godobject_drake.studies.analyze.tissue import _tissue_pose
 from godobject_drake.studies.tissue_stiffness import contact_stiffness
 from godobject_drake.systems.tissue import capsule_against_surface
 
@@ -43,6 +44,33 @@ def _nearest_press(body, points: np.ndarray) -> tuple[int, float, np.ndarray] | 
     return k, float(abs(best[0])), inward
 
 
+def _articulated_rows(station, scenario, bodies: dict, out: dict) -> list[Check]:
+    """An articulated tool: the device sample whose closed tool reaches deepest past each soft
+    body's rest surface along its tube's axis (as the organ's analysis), and the stiffness there."""
+    rows, found = [], {}
+    samples = station.device.samples(scenario.simulation.duration_s)
+    for name, body in bodies.items():
+        poses = [x for x in (_tissue_pose(station, q, body) for q in samples) if x is not None]
+        pose = max(poses, key=lambda x: x["depth_m"], default=None)
+        if pose is None or pose["depth_m"] < -REACH_M:
+            rows.append(Check("soft bodies", "stiffness where the tool presses it", name, "info", None, None,
+                              "", "", why=f"the tool's axis never comes within {REACH_M * 1e3:g} mm of it "
+                              "on the device's path"))  # fmt: skip
+            continue
+        back = float(np.max(np.linalg.norm(body.rest_W - pose["p"], axis=1))) + 0.01
+        stiffness = contact_stiffness(body, pose["p"] - back * pose["d"], pose["d"])
+        found[name] = {"push_m": pose["depth_m"], **stiffness}
+        rows.append(Check(
+            "soft bodies", f"stiffness where the tool presses it (linear FEM of its {body.vertex_count} "
+            "vertices, its attached ones held, point force)", name, "info", stiffness["stiffness_n_m"], None,
+            "N/m", "", why=f"at {np.round(stiffness['point_W'], 4).tolist()} m, along the tube's axis "
+            f"{np.round(pose['d'], 3).tolist()}: the device's deepest push, {pose['depth_m'] * 1e3:.3g} mm "
+            "past its rest surface; a finer mesh answers softer",
+        ))  # fmt: skip
+    out["soft_bodies"] = found
+    return rows
+
+
 def _glued(body, grasp: str) -> bool:
     """Whether the grasped name is a body glued to the soft body (its site moves with it)."""
     return any(grasp == full or full.endswith(f"::{grasp}") or full.startswith(f"{grasp}::")
@@ -56,9 +84,7 @@ def _soft_body_checks(station, scenario, out: dict) -> list[Check]:
         return []
     rows, found = [], {}
     if station.god_object.device_space != "pose":
-        return [Check("soft bodies", "stiffness where the tool presses it", name, "info", None, None, "", "",
-                      why="a joint-space tool's press on a soft body of deformables: is not analyzed yet "
-                      "(the laparoscopy's organs: is)") for name in bodies]  # fmt: skip
+        return _articulated_rows(station, scenario, bodies, out)
     samples = station.device.samples(scenario.simulation.duration_s)
     for name, body in bodies.items():  # what the device holds presses, but a site glued to the body
         held = [(t, s[0]) for t, s in samples if s is not None and s[2] and not _glued(body, s[2])]
