@@ -55,6 +55,7 @@ VARIANTS = {
     "laparoscopy_position": ("laparoscopy", H1 + "simulation: {mode: position}", None),
     "laparoscopy_h10": ("laparoscopy", "", None),
     "laparoscopy_fem": ("laparoscopy", "organs: {model: fem}", None),
+    "laparoscopy_bimanual": ("laparoscopy_bimanual", "", 3.0),  # its FEM uterus and glued grasp site
     "laparoscopy_joint_pd": ("laparoscopy", H1 + "god_object: !Articulated {model: grasper, device_joints: "
                              "[yaw, pitch, insertion, roll, jaw_upper, jaw_lower], coupling: joint_pd, "
                              "imposed_joints: [jaw_upper, jaw_lower], gains: {omega_n: 20.0, zeta: 1.0}, "
@@ -68,6 +69,8 @@ VARIANTS = {
                           "spec: {youngs_modulus_pa: 5.0e4, nodes: 42, fem_resolution_m: 0.02}, "
                           "gains: {omega_n: 30.0, zeta: 1.0, omega_n_rot: 30.0}}", None),
     "probe_position": ("deformable_probe", "simulation: {mode: position}", None),
+    # a soft body of one's own (deformables:): the probe presses the lobe, its summary rows kept
+    "own_soft_body": ("examples/own_soft_body/own_soft_body.yaml", "", 2.5),
 }  # fmt: skip
 
 # Metrics that measure the machine, not the run.
@@ -87,7 +90,8 @@ def run_variant(name: str) -> dict[str, np.ndarray]:
     from godobject_drake.station.build import build_station
 
     scene, overrides, duration = VARIANTS[name]
-    scenario = load_scenario(DIAGRAMS / f"{scene}.yaml", overrides or None)
+    path = ROOT / scene if "/" in scene else DIAGRAMS / f"{scene}.yaml"  # a shipped scene, or a file
+    scenario = load_scenario(path, overrides or None)
     if duration is not None:
         scenario = replace(scenario, **{"simulation.duration_s": duration})
     with warnings.catch_warnings():

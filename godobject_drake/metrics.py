@@ -350,13 +350,14 @@ class TissueMetrics:
 
     def __init__(self):
         self.max_disp = self.max_strain = self.max_pen = self.max_force = 0.0
-        self.inside_steps = 0
+        self.inside_steps = self.steps = 0
         self.force_at_max = np.zeros(3)
 
     def update(self, rows: np.ndarray) -> None:
         rows = np.asarray(rows, float).reshape(-1, 7)
         if not len(rows):
             return
+        self.steps += len(rows)
         self.max_disp = max(self.max_disp, float(rows[:, 0].max()))
         self.max_strain = max(self.max_strain, float(rows[:, 1].max()))
         self.max_pen = max(self.max_pen, float(rows[:, 2].max()))
@@ -375,6 +376,21 @@ class TissueMetrics:
             "max_tissue_contact_force_N": self.max_force,
             "tool_force_at_max_N": [float(v) for v in self.force_at_max],
         }
+
+
+def soft_body_result(measured: TissueMetrics) -> dict:
+    """A soft body's metrics (``deformables``; the run's metrics give them its name first,
+    ``lobe_max_displacement_m``), from its
+    :class:`~godobject_drake.systems.soft_body.SoftBodyObserver`'s rows folded by ``measured``."""
+    return {
+        "max_displacement_m": measured.max_disp,
+        "max_strain": measured.max_strain,
+        "rigid_penetration_m": measured.max_pen,  # the deepest a moving body's shape is inside it
+        "rigid_inside_steps": measured.inside_steps,  # steps a moving body's origin was inside it
+        "max_contact_force_N": measured.max_force,
+        "force_at_max_N": [float(-v) for v in measured.force_at_max],  # on the soft body
+        "steps": measured.steps,
+    }
 
 
 class ToolMetrics:

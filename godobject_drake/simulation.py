@@ -24,7 +24,15 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from godobject_drake.metrics import SceneMetrics, configuration, scene_configuration, verdict, worst_of
+from godobject_drake.metrics import (
+    SceneMetrics,
+    TissueMetrics,
+    configuration,
+    scene_configuration,
+    soft_body_result,
+    verdict,
+    worst_of,
+)
 from godobject_drake.outputs import SignalsHeld
 from godobject_drake.realtime import RealtimeLag
 from godobject_drake.safeguards import (
@@ -55,7 +63,9 @@ class RunResult:
         What the monitor saw (``checks``, ``projections``, ``stopped``).
     data : dict[str, numpy.ndarray]
         Every logger of ``station.loggers``, one row per plant step from t = 0, cut to their
-        common length (``simulate(keep_logs=True)``, the default; empty otherwise).
+        common length, and each soft body's summary rows as ``NAME_soft_body``
+        (:class:`~godobject_drake.systems.soft_body.SoftBodyObserver`) (``simulate(keep_logs=True)``,
+        the default; empty otherwise).
     """
 
     metrics: dict
@@ -265,6 +275,9 @@ class _Run:
         wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
         self.logs = _Logs(station, root, keep_logs)
+        self.soft = {name: (logger.FindMutableLog(root), TissueMetrics())
+                     for name, logger in station.soft_loggers.items()}  # fmt: skip
+        self.soft_kept = {} if keep_logs else None  # each soft body's summary rows, with keep_logs
         try:  # each tool's metrics, on its own view of the station
             self.measured = {name: SceneMetrics(view) for name, view in station.views.items()}
             self.metrics_error = None
@@ -293,6 +306,12 @@ class _Run:
         """The logs drained into each tool's running metrics; a metric that fails is reported,
         never lost."""
         chunks = self.logs.drain()
+        for name, (log, measured) in self.soft.items():  # each soft body's rows, folded on their own
+            rows = log.data().T.copy()
+            log.Clear()
+            measured.update(rows)
+            if self.soft_kept is not None:
+                self.soft_kept.setdefault(f"{name}_soft_body", []).append(rows)
         if self.measured is not None and self.metrics_error is None:
             try:
                 # A diverged state's huge numbers overflow: what they give is non-finite, and the
@@ -430,8 +449,14 @@ class _Run:
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
         metrics.update(self.tool_metrics(with_devices=True))
+        for name, (_, measured) in self.soft.items():  # each soft body's, its name first
+            metrics.update({f"{name}_{k}": v for k, v in soft_body_result(measured).items()})
+            if isinstance(metrics.get("max_penetration_m"), float):  # a tool in a soft body is in the budget
+                metrics["max_penetration_m"] = max(metrics["max_penetration_m"], measured.max_pen)
         metrics.update(verdict(metrics, self.scenario, self.station.records))
-        result = RunResult(metrics, self.station, self.simulator, self.guard, self.logs.kept())
+        data = self.logs.kept()
+        data.update({key: np.concatenate(chunks) for key, chunks in (self.soft_kept or {}).items()})
+        result = RunResult(metrics, self.station, self.simulator, self.guard, data)
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
         return result

@@ -26,7 +26,8 @@ def run(argv: list, cwd: Path) -> subprocess.CompletedProcess:
 
 def test_every_example_has_a_test():
     tested = {"cube_post.yaml", "cube_post.sdf", "drake_table_block.yaml", "compose_diagram.py",
-              "articulated_arm.py"}  # fmt: skip
+              "articulated_arm.py",
+              "own_soft_body"}  # its scenes and mesh: tests/test_own_soft_body.py  # fmt: skip
     assert {p.name for p in EXAMPLES.iterdir()} == tested
 
 

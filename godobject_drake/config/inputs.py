@@ -187,6 +187,9 @@ def check_inputs(scenario, models_dir: Path, where: str = "scenario") -> None:
     :class:`InputFileError`. Its paths are absolute already (``resolve_paths``)."""
     walk = _Walk(models_dir)
     walk.directives(scenario.directives, f"{where}: directives", None)
+    for name, body in getattr(scenario, "deformables", {}).items():
+        if body.mesh:
+            walk.file(body.mesh, f"{where}: deformables.{name}.mesh", None)
     holders = scenario.tools or {"": scenario}  # each tool's device: its own, or the scenario's
     for name, holder in holders.items():
         at = f"tools.{name}." if name else ""

@@ -125,3 +125,93 @@ def _vtk_refuse(where: str, line: int, index: int, points: int):
         f"{where}: line {line}: a cell names point {index}, but the mesh has {points} (numbered 0 to "
         f"{points - 1}); Drake's reader would read past them. Fix the mesh: write it from its tetrahedra"
     )
+
+
+def read_tet_vtk(path: str | Path, where: str):
+    """The points ``(n, 3)`` and tetrahedra ``(m, 4)`` of a legacy-ASCII VTK unstructured grid of
+    tetrahedra (cell type 10; file version 4.2 and older, or 5.1's ``OFFSETS``/``CONNECTIVITY``),
+    as Drake's ``RegisterDeformableBody`` reads; anything else refused
+    (:class:`MeshFileError`), naming ``where``, what the file is and the fix."""
+    import numpy as np
+
+    fix = (
+        "write it as a legacy-ASCII VTK unstructured grid of tetrahedra (cell type 10), e.g. with "
+        "godobject_drake.systems.tissue.write_vtk(path, points, tets)"
+    )
+    raw = Path(path).read_bytes()
+    lines = raw.decode("ascii", errors="replace").splitlines()
+    if len(lines) < 4 or not lines[0].startswith("# vtk DataFile") or lines[2].strip().upper() != "ASCII":
+        first = (lines[0] if lines else "")[:40]
+        third = (lines[2] if len(lines) > 2 else "")[:20]
+        raise MeshFileError(
+            f"{where}: not a legacy-ASCII VTK file (first line {first!r}, third {third!r}); {fix}"
+        )
+    words = " ".join(lines[3:]).split()
+    upper = [w.upper() for w in words]
+
+    def section(key: str) -> int:
+        if key not in upper:
+            raise MeshFileError(f"{where}: no {key} section; {fix}")
+        return upper.index(key)
+
+    if "UNSTRUCTURED_GRID" not in upper:
+        raise MeshFileError(f"{where}: not an UNSTRUCTURED_GRID (a surface or image?); a soft body needs a "
+                            f"volume mesh of tetrahedra: {fix}")  # fmt: skip
+    try:
+        i = section("POINTS")
+        n = int(words[i + 1])
+        V = np.array(words[i + 3 : i + 3 + 3 * n], float).reshape(n, 3)
+        i = section("CELLS")
+        if "OFFSETS" in upper:  # VTK 5.1 (meshio's and VTK 9's default): offsets, then the points
+            j, c = upper.index("OFFSETS"), upper.index("CONNECTIVITY")
+            m = int(words[i + 1]) - 1
+            offsets = np.array(words[j + 2 : j + 2 + m + 1], int)
+            points = np.array(words[c + 2 : c + 2 + int(offsets[-1])], int)
+            sizes = np.diff(offsets)
+            body = np.column_stack([sizes, points.reshape(m, -1)]).ravel() if np.all(sizes == 4) else sizes
+        else:  # VTK 4.2 and older: each cell's point count, then its points
+            m = int(words[i + 1])
+            body = np.array(words[i + 3 : i + 3 + int(words[i + 2])], int)
+        i = section("CELL_TYPES")
+        types = np.array(words[i + 2 : i + 2 + m], int)
+    except (ValueError, IndexError) as e:
+        raise MeshFileError(f"{where}: its POINTS, CELLS or CELL_TYPES cannot be read ({e}); {fix}") from None
+    if len(types) != m or np.any(types != 10):
+        other = sorted(set(types.tolist()) - {10})
+        raise MeshFileError(
+            f"{where}: cell types {other} (5: triangles, 12: hexahedra); a soft body is tetrahedra "
+            f"(type 10) only: tetrahedralize it (e.g. TetGen, fTetWild, gmsh -3), then {fix}"
+        )
+    if len(body) != 5 * m or np.any(body[::5] != 4):
+        raise MeshFileError(f"{where}: its CELLS are not 4 points each; {fix}")
+    T = body.reshape(m, 5)[:, 1:]
+    if np.any(T < 0) or np.any(T >= n):
+        raise MeshFileError(f"{where}: a cell names a point outside 0..{n - 1}; {fix}")
+    return V, T
+
+
+def check_tetrahedra(V, T, where: str) -> None:
+    """Refuse inverted (negative volume) and degenerate (flat: volume under 1e-6 of its longest
+    edge's cube) tetrahedra, naming the first, its volume and the fix."""
+    import numpy as np
+
+    a, b, c, d = (V[T[:, k]] for k in range(4))
+    vol = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
+    edges = np.stack([b - a, c - a, d - a, c - b, d - b, d - c], axis=1)
+    longest = np.linalg.norm(edges, axis=2).max(axis=1)
+    flat = np.abs(vol) < 1e-6 * longest**3
+    if np.any(flat):
+        k = int(np.flatnonzero(flat)[0])
+        raise MeshFileError(
+            f"{where}: {int(flat.sum())} degenerate tetrahedra (the first, cell {k} of points "
+            f"{T[k].tolist()}, has volume {vol[k]:.3g} m³ for a longest edge of {longest[k]:.3g} m); "
+            "FEM cannot bend a flat tetrahedron: remesh it (TetGen -q, fTetWild) for well-shaped cells"
+        )
+    if np.any(vol < 0):
+        k = int(np.flatnonzero(vol < 0)[0])
+        raise MeshFileError(
+            f"{where}: {int((vol < 0).sum())} of {len(T)} tetrahedra are inverted (the first, cell {k} of "
+            f"points {T[k].tolist()}, has volume {vol[k]:.3g} m³ < 0; Drake needs "
+            "(p1 − p0) × (p2 − p0) · (p3 − p0) > 0): swap two points of each (e.g. tets[:, [1, 2]] = "
+            "tets[:, [2, 1]] where the volume is negative)"
+        )

@@ -73,6 +73,8 @@ from godobject_drake.config.scene import (  # noqa: F401
     Recording,
     Simulation,
     Sleep,
+    SoftAttach,
+    SoftBody,
     Visualization,
     Workspace,
     default_plant_config,
@@ -175,6 +177,10 @@ class Scenario:
         Rigid organs (the default: the directives' shapes) or FEM tissue (``--set
         organs.model=fem``: the laparoscopy scene's uterus as a Drake FEM body,
         :mod:`godobject_drake.systems.tissue`).
+    deformables : dict[str, SoftBody]
+        Soft bodies of the user's own, in any scene: each a name (lower case, digits, ``_``) and
+        its tetrahedral mesh or primitive, pose, material and attachment (Drake FEM,
+        :mod:`godobject_drake.systems.soft_body`; docs/guide/own_soft_body.md).
     haptic, simulation, visualization, recording, metrics :
         See their classes.
     tools : dict[str, Tool]
@@ -200,6 +206,7 @@ class Scenario:
     bricks: int = 0
     sleep: Sleep = dataclasses.field(default_factory=Sleep)
     organs: Organs = dataclasses.field(default_factory=Organs)
+    deformables: dict[str, SoftBody] = dataclasses.field(default_factory=dict)
     tools: dict[str, Tool] = dataclasses.field(default_factory=dict)
 
     def per_tool(self) -> dict[str, "Scenario"]:
@@ -513,6 +520,8 @@ def resolve_paths(scenario: Scenario, base: Path) -> None:
         for attribute in ("path", "log"):
             if hasattr(device, attribute):
                 setattr(device, attribute, _resolve(getattr(device, attribute), base))
+    for body in scenario.deformables.values():  # a soft body's tetrahedral mesh
+        body.mesh = _resolve(body.mesh, base)
 
 
 def _fail(where: str, field: str, message: str):
@@ -583,6 +592,7 @@ def check_scenario(s: Scenario, where: str = "scenario") -> dict[str, ToolRecord
             "the scale study goes to 128), or 0 for the directives' own",
         )
     _check_scene(s, where)
+    _check_deformables(s, where)
     if s.tools:
         _check_tools(s, where)
     records = tool_records(s, where)
@@ -673,6 +683,22 @@ def _check_scene(s: Scenario, where: str) -> None:
             f"fem needs plant.discrete_contact_approximation sap (Drake's deformable bodies are SAP only); "
             f"it is {s.plant.discrete_contact_approximation!r}: set it to sap, or organs.model: rigid",
         )
+
+
+def _check_deformables(s: Scenario, where: str) -> None:
+    """Each soft body's fields (its mesh is read and checked when the plant is built)."""
+    for name, body in s.deformables.items():
+        if not (isinstance(name, str) and TOOL_NAME.fullmatch(name)):
+            _fail(where, "deformables", f"{name!r}: a soft body's name is lower case letters, digits and _, "
+                  "a letter first, at most 32 (e.g. liver, sponge)")  # fmt: skip
+        try:
+            body.check()
+        except ValueError as e:
+            raise ScenarioError(f"{where}: deformables.{name}.{e}") from None
+        if s.plant.discrete_contact_approximation != "sap":
+            said = s.plant.discrete_contact_approximation
+            _fail(where, f"deformables.{name}", "needs plant.discrete_contact_approximation sap (Drake's "
+                  f"deformable bodies are SAP only); it is {said!r}")  # fmt: skip
 
 
 def _check_tools(s: Scenario, where: str) -> None:

@@ -512,3 +512,163 @@ class Sleep:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"sleep.{name}={value!r} must be ≥ 0 (default {getattr(Sleep, name)!r})")
+
+
+SOFT_SHAPES = ("box", "sphere", "ellipsoid")
+# How many numbers each primitive's size_m takes: box its sides, sphere its radius, ellipsoid its radii.
+SOFT_SIZES = {"box": 3, "sphere": 1, "ellipsoid": 3}
+
+
+@dataclasses.dataclass
+class SoftAttach:
+    """Where a soft body is held (``deformables.NAME.attach``): the vertices of its rest mesh inside
+    the box ``[lower_m, upper_m]`` (in W), or within ``within_m`` of the body ``to``'s origin, fixed
+    to ``to`` (``world``, or a free or jointed body of the directives as ``model::body``) by Drake's
+    ``DeformableModel.AddFixedConstraint``.
+
+    Attributes
+    ----------
+    to : str
+        ``world`` or a free body as ``model::body`` (a body welded to the world cannot hold it:
+        Drake refuses the constraint; give ``world``).
+    lower_m, upper_m : list[float]
+        The box's corners in W (m); both empty with ``within_m``.
+    within_m : float
+        0: the box. Above 0: the vertices this close to ``to``'s origin (a body, not the world).
+    """
+
+    to: str = "world"
+    lower_m: list[float] = dataclasses.field(default_factory=list)
+    upper_m: list[float] = dataclasses.field(default_factory=list)
+    within_m: float = 0.0
+
+    def check(self) -> None:
+        if not (isinstance(self.to, str) and self.to):
+            raise ValueError(f"to: {self.to!r}; give world or a body as model::body")
+        box = bool(self.lower_m or self.upper_m)
+        if box == (self.within_m > 0):
+            raise ValueError(
+                f"lower_m/upper_m {self.lower_m}/{self.upper_m}, within_m {self.within_m!r}: give either "
+                "a box (lower_m and upper_m, 3 numbers each, m in W) or within_m > 0 (m), not both"
+            )
+        if box:
+            for name in ("lower_m", "upper_m"):
+                value = getattr(self, name)
+                if len(value) != 3 or not all(math.isfinite(v) for v in value):
+                    raise ValueError(f"{name}: {value!r} must be 3 finite numbers (m, in W)")
+            if not all(a < b for a, b in zip(self.lower_m, self.upper_m, strict=True)):
+                raise ValueError(f"lower_m {self.lower_m} must be below upper_m {self.upper_m} on every axis")
+        elif self.to == "world":
+            raise ValueError(f"within_m: {self.within_m!r} of the world: give a box, or a body as to")
+        elif not (math.isfinite(self.within_m) and self.within_m <= 1.0):
+            raise ValueError(f"within_m: {self.within_m!r} m must be in (0, 1]")
+
+
+@dataclasses.dataclass
+class SoftBody:
+    """A soft body of the scene (``deformables: {NAME: ...}``): Drake FEM tissue from a tetrahedral
+    mesh file or a primitive, placed at ``xyz_m``/``rpy_deg``, of its material, held where
+    ``attach`` says (docs/guide/own_soft_body.md).
+
+    Attributes
+    ----------
+    mesh : str
+        A tetrahedral volume mesh, legacy-ASCII VTK (cell type 10), relative to the scenario or
+        ``package://godobject_models/...``; its coordinates in m (``scale`` otherwise). Empty:
+        ``shape``.
+    scale : float
+        The mesh's coordinates times this are metres (0.001 for a mesh in millimetres).
+    shape, size_m, resolution_m :
+        A primitive instead of a mesh: ``box`` (``size_m`` its 3 sides), ``sphere`` (its radius),
+        ``ellipsoid`` (its 3 radii), meshed with cells about ``resolution_m`` wide.
+    xyz_m, rpy_deg :
+        The body's pose in W: the mesh's own frame (a primitive's centre) there.
+    youngs_modulus_pa, poissons_ratio, density_kg_m3 :
+        The tissue's material (Pa, –, kg/m³), as :class:`Organs`'s; ν in [0, 0.5).
+    mass_damping_per_s, stiffness_damping_s :
+        Rayleigh damping: α (1/s) and β (s), damping matrix α M + β K.
+    material, friction, relaxation_time_s :
+        Drake's FEM model (as :class:`Organs`'s), the contact's Coulomb friction and SAP's
+        relaxation time of its contact (s).
+    attach : list[SoftAttach]
+        Where it is held. Empty: refused, unless ``free`` (it would fall).
+    free : bool
+        Held by nothing: it rests on something (a table) or falls.
+    glued, glue_size_m :
+        Free bodies of the directives glued to it (grasp sites), each holding its vertices within a
+        cube of ``glue_size_m`` about the body's start.
+    max_slowdown : float
+        The run is refused when this body's FEM step is estimated to take more than this many
+        time steps of wall time (docs/results.md, "A soft body's cost").
+    """
+
+    mesh: str = ""
+    scale: float = 1.0
+    shape: str = ""
+    size_m: list[float] = dataclasses.field(default_factory=list)
+    resolution_m: float = 0.01
+    xyz_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    youngs_modulus_pa: float = 5.0e4
+    poissons_ratio: float = 0.45
+    density_kg_m3: float = 1000.0
+    mass_damping_per_s: float = 0.0
+    stiffness_damping_s: float = 0.01
+    material: str = "linear_corotated"
+    friction: float = 0.2
+    relaxation_time_s: float = 0.01
+    attach: list[SoftAttach] = dataclasses.field(default_factory=list)
+    free: bool = False
+    glued: list[str] = dataclasses.field(default_factory=list)
+    glue_size_m: float = 0.012
+    max_slowdown: float = 20.0
+
+    @property
+    def mesh_youngs_modulus_pa(self) -> float:
+        """The modulus the FEM mesh is given (as :attr:`Organs.mesh_youngs_modulus_pa`)."""
+        return self.youngs_modulus_pa
+
+    def check(self) -> None:
+        """Raise ``ValueError`` as ``"field: value, limit and fix"`` (the mesh itself is checked
+        when it is read: :func:`godobject_drake.systems.soft_body.soft_body_mesh`)."""
+        if bool(self.mesh) == bool(self.shape):
+            raise ValueError(
+                f"mesh {self.mesh!r}, shape {self.shape!r}: give one, a tetrahedral VTK file as mesh or a "
+                f"primitive as shape ({', '.join(SOFT_SHAPES)}) with size_m"
+            )
+        if self.shape:
+            if self.shape not in SOFT_SHAPES:
+                raise ValueError(f"shape: {self.shape!r}; choose one of {SOFT_SHAPES}")
+            n = SOFT_SIZES[self.shape]
+            if len(self.size_m) != n or not all(math.isfinite(v) and v > 0 for v in self.size_m):
+                raise ValueError(f"size_m: {self.size_m!r}; a {self.shape} takes {n} lengths > 0 (m)")
+            if not (math.isfinite(self.resolution_m) and 0 < self.resolution_m <= max(self.size_m)):
+                raise ValueError(
+                    f"resolution_m: {self.resolution_m!r} m must be > 0 and at most the shape's size "
+                    f"({max(self.size_m):g} m)"
+                )
+        if not (math.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"scale: {self.scale!r} must be > 0 (0.001 for a mesh in millimetres)")
+        for name in ("xyz_m", "rpy_deg"):
+            value = getattr(self, name)
+            if len(value) != 3 or not all(math.isfinite(v) for v in value):
+                raise ValueError(f"{name}: {value!r} must be 3 finite numbers")
+        material = Organs(
+            model="fem", youngs_modulus_pa=self.youngs_modulus_pa, poissons_ratio=self.poissons_ratio,
+            density_kg_m3=self.density_kg_m3, mass_damping_per_s=self.mass_damping_per_s,
+            stiffness_damping_s=self.stiffness_damping_s, material=self.material, friction=self.friction,
+            relaxation_time_s=self.relaxation_time_s, glue_size_m=self.glue_size_m,
+        )  # fmt: skip
+        material.check()  # the same limits and words as the organs'
+        if not self.attach and not self.free:
+            raise ValueError(
+                "attach: none, so the body will fall: give attach (a box of its vertices fixed to the "
+                "world or a body), or free: true if it rests on something"
+            )
+        for i, attach in enumerate(self.attach):
+            try:
+                attach.check()
+            except ValueError as e:
+                raise ValueError(f"attach[{i}].{e}") from None
+        if not (math.isfinite(self.max_slowdown) and self.max_slowdown > 0):
+            raise ValueError(f"max_slowdown: {self.max_slowdown!r} must be > 0 (e.g. 20)")

@@ -135,8 +135,19 @@ def _finish(
     if scene.forces is not None:
         scene.forces.connect(builder)  # every tool's forces into the plant
     loggers, tool_loggers = add_loggers(builder, scene.plant, tools, records)
+    soft_loggers, soft_observers = add_soft_body_observers(builder, scene, scenario)
     if meshcat is not None:
         add_visualization(builder, meshcat, scene, tools, scenario, records)
+        period = scenario.visualization.publish_period_s
+        for name, observer in soft_observers.items():  # each soft body drawn deforming
+            body = scene.soft_bodies[name]
+            drawing = builder.AddNamedSystem(
+                f"{name}_soft_body_visualizer", TissueVisualizer(meshcat, body, period)
+            )
+            draw_soft_body_here(scene.plant, scene.scene_graph, body.geometry_id)
+            builder.Connect(
+                observer.GetOutputPort("surface_positions"), drawing.GetInputPort("surface_positions")
+            )
     diagram = builder.Build()
     check_start_overlaps(diagram, scene.plant, scene.scene_graph, scenario.plant.penetration_allowance)
     predicted = []
@@ -152,6 +163,7 @@ def _finish(
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
         max(predicted) if predicted else None, sleeper, tool_loggers, records,
+        soft_loggers=soft_loggers, soft_bodies=scene.soft_bodies,
     )  # fmt: skip
 
 
@@ -171,6 +183,18 @@ def add_loggers(
                 loggers[full].set_name(f"{full}_log")  # named, so GetGraphvizString reads well
             tool_loggers[name][key] = full
     return loggers, tool_loggers
+
+
+def add_soft_body_observers(builder: DiagramBuilder, scene: SceneParts, scenario: sc.Scenario):
+    """Each soft body's observer (its glued sites not counted as what presses it) and a per-step
+    logger of its summary: ``(loggers, observers)``, by the soft body's name."""
+    loggers, observers = {}, {}
+    for name, body in scene.soft_bodies.items():
+        observer = body.connect(builder, scene.plant, scene.scene_graph, ignored_bodies=body.glued_bodies)
+        observers[name] = observer
+        loggers[name] = LogVectorOutput(observer.GetOutputPort("summary"), builder, scene.plant.time_step())
+        loggers[name].set_name(f"{name}_soft_body_log")
+    return loggers, observers
 
 
 def check_penetration_budget(god: GodObject, scene: SceneParts, scenario: sc.Scenario) -> float | None:
@@ -321,6 +345,12 @@ class Station:
     tool_loggers : dict[str, dict[str, str]]
         Each tool's logger names: its own name for a log (``terms``) to the station's
         (``left/terms``).
+    soft_bodies : dict[str, FemSoftBody]
+        The scene's soft bodies (``deformables``), by name
+        (:class:`~godobject_drake.systems.soft_body.FemSoftBody`).
+    soft_loggers : dict[str, VectorLogSink]
+        Each soft body's (``deformables``) :class:`~godobject_drake.systems.soft_body.SoftBodyObserver`
+        summary, per step, by its name; folded into the metrics per soft body.
     records : dict[str, ToolRecord]
         Each tool resolved once (:class:`~godobject_drake.config.scenario.ToolRecord`): its
         scenario view, its device's kind, its names.
@@ -340,6 +370,8 @@ class Station:
     tool_loggers: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
     records: dict[str, sc.ToolRecord] = dataclasses.field(default_factory=dict)
     views: dict[str, "Station"] = dataclasses.field(default_factory=dict, repr=False)
+    soft_loggers: dict[str, VectorLogSink] = dataclasses.field(default_factory=dict)
+    soft_bodies: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if not self.views:

@@ -40,6 +40,7 @@ from godobject_drake.config import scenario as sc
 from godobject_drake.config.scenario import MODELS_DIR
 from godobject_drake.config.scene import CORNER_PREFIX, FLAT_PREFIX, is_proxy, local_name
 from godobject_drake.station.loop import ForceBus
+from godobject_drake.systems.soft_body import FemSoftBody
 from godobject_drake.systems.tissue import FemOrgan, weld_glued
 
 CONTACT_MODELS = ("proxies", "hydroelastic")
@@ -133,6 +134,7 @@ class SceneParts:
     tissue: object = None  # a godobject_drake.systems.tissue.FemOrgan with organs.model fem
     forces: object = None  # the station's loop.ForceBus: every tool's forces into the plant
     tool_names: tuple = ()  # the scenario's tools by name (empty: the one-tool form)
+    soft_bodies: dict = dataclasses.field(default_factory=dict)  # deformables: name → FemSoftBody
 
 
 def add_directives_plant(
@@ -272,6 +274,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
     """The scenario's plant: its config, directives, ``bricks`` and contact settings; finalized."""
 
     tissue = []
+    soft = {}
 
     def before(plant, scene_graph):
         try:
@@ -279,6 +282,8 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
                 tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
             else:
                 weld_glued(plant, scenario.organs)
+            for name, spec in scenario.deformables.items():
+                soft[name] = FemSoftBody(plant, name, spec)
         except ValueError as e:
             raise sc.ScenarioError(str(e)) from None
         if scenario.bricks:
@@ -312,6 +317,7 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
     refuse_replaced_inertia(drake_warnings.messages)
     check_free_bodies(scene.plant)
     scene.tissue = tissue[0] if tissue else None
+    scene.soft_bodies = soft
     scene.forces = ForceBus(scene.plant)
     scene.tool_names = tuple(scenario.tools)
     return scene

@@ -98,7 +98,9 @@ def contact_stiffness(organ: "FemOrgan", origin, direction) -> dict:
     """The FEM organ's stiffness (N/m) where the ray ``origin + t·direction`` first meets its rest
     surface, for a point force along the ray there (a tool tip far smaller than a surface
     triangle: the force goes to the triangle's vertices by the point's barycentric weights, as
-    Drake's contact does). The organ's material and held vertices, linear statics
+    Drake's contact does). ``organ``: a :class:`~godobject_drake.systems.tissue.FemOrgan` or a
+    soft body of one's own (:class:`~godobject_drake.systems.soft_body.FemSoftBody`, its held
+    vertices those its ``attach`` fixes). The organ's material and held vertices, linear statics
     (:func:`linear_stiffness_matrix`). Raises ``ValueError`` if the ray misses the organ.
     """
     hit = ray_surface_hit(organ.rest_W, organ.triangles, origin, direction)
@@ -114,7 +116,9 @@ def contact_stiffness(organ: "FemOrgan", origin, direction) -> dict:
         K = organ._linear_K = linear_stiffness_matrix(
             organ.rest_W, organ_tets(organ), spec.mesh_youngs_modulus_pa, spec.poissons_ratio
         )
-    fixed = organ.rest_W[:, 2] < organ.rest_W[:, 2].max() - spec.attached_below_m
+    fixed = getattr(organ, "held", None)  # a soft body of one's own: the vertices its attach holds
+    if fixed is None:  # the laparoscopy's organ: those below attached_below_m under its top
+        fixed = organ.rest_W[:, 2] < organ.rest_W[:, 2].max() - spec.attached_below_m
     d = np.asarray(direction, float) / np.linalg.norm(direction)
     weights = {int(v): float(x) for v, x in zip(organ.triangles[tri], w, strict=True) if x > 0}
     c = static_compliance(K, fixed, weights, d)

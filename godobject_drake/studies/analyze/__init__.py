@@ -47,6 +47,7 @@ from godobject_drake.studies.analyze.contact import _between_tools, _contact_che
 from godobject_drake.studies.analyze.implicit import IMPLICIT_RATE_FLOOR, implicit_rate
 from godobject_drake.studies.analyze.loops import LOOPS, Loop
 from godobject_drake.studies.analyze.report import verdict_table, write_report
+from godobject_drake.studies.analyze.soft_bodies import _soft_body_checks
 from godobject_drake.studies.analyze.tissue import _tissue_checks
 from godobject_drake.studies.analyze.verify import (
     IMPLICIT_STEP_M,
@@ -100,6 +101,7 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
     checks = loop.checks(station, out)
     checks += _contact_checks(station, s, out)
     checks += _tissue_checks(station, s, out)
+    checks += _soft_body_checks(station, s, out)
     checks += loop.device_checks(station, s, out)
     if verify:
         tol = 0.02 if quick else 0.005

@@ -21,14 +21,14 @@ from godobject_drake.systems.tissue import tool_capsules
 from godobject_drake.systems.tissue_stiffness import contact_stiffness, ray_surface_hit
 
 
-def _tissue_pose(station, q_device: np.ndarray) -> dict | None:
+def _tissue_pose(station, q_device: np.ndarray, organ=None) -> dict | None:
     """The articulated tool at ``q_device`` with its imposed joints (the jaws) at 0 (closed: one
-    contact) against the FEM organ's rest surface: the tube's axis from the tip body's origin
-    (``d``, toward the tip), how far the tool reaches past that origin along it, and where the
-    axis meets the surface; None if the axis misses the organ."""
+    contact) against the FEM organ's rest surface (``organ``, or the tool's organ): the tube's axis
+    from the tip body's origin (``d``, toward the tip), how far the tool reaches past that origin
+    along it, and where the axis meets the surface; None if the axis misses the organ."""
 
     tool, plant = station.coupling.tool, station.plant
-    organ = station.god_object.tissue
+    organ = station.god_object.tissue if organ is None else organ
     q = np.array(q_device, float)
     for k, joint in enumerate(tool.joints):
         if joint.imposed:
