@@ -10,8 +10,8 @@ import numpy as np
 
 from godobject_drake.studies.analyze.common import Check
 from godobject_drake.studies.analyze.tissue import _tissue_pose
-from godobject_drake.studies.tissue_stiffness import contact_stiffness
 from godobject_drake.systems.tissue import capsule_against_surface
+from godobject_drake.systems.tissue_stiffness import contact_stiffness
 
 # A held body's target farther than this from a soft body's surface (m) does not press it.
 REACH_M = 0.05
