@@ -168,3 +168,44 @@ def test_analyze_gives_each_graspers_rows_and_predicts_the_press_drake_simulates
     predicted = summary["tools"]["right"]["tissue"]["predicted_force_n"]
     simulated = fem.metrics["tools"]["right"]["max_tissue_contact_force_N"]
     assert predicted == pytest.approx(simulated, rel=0.15)
+
+
+def _organ_and_site_at(offset) -> np.ndarray:
+    """The bimanual scene's pelvis welded at ``offset`` and its grasp site glued where it sits on
+    the uterus, nothing else; the site's displacement after 0.3 s under gravity (m)."""
+    import yaml
+    from pydrake.common.yaml import yaml_load_typed
+    from pydrake.multibody.parsing import ModelDirectives
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+
+    from godobject_drake.station.plant import add_plant
+
+    offset = [float(c) for c in offset]
+    site_at = [o + p for o, p in zip(offset, (0.032, 0.0, SITE_Z_M), strict=True)]
+    directives = [
+        {"add_model": {"name": "pelvis", "file": "package://godobject_models/laparoscopy/organs.sdf"}},
+        {"add_weld": {"parent": "world", "child": "pelvis::pelvis", "X_PC": {"translation": offset}}},
+        {"add_model": {"name": "edge", "file": "package://godobject_models/laparoscopy/grasp_site.sdf",
+                       "default_free_body_pose": {"site": {"translation": site_at}}}},
+    ]  # fmt: skip
+    loaded = yaml_load_typed(schema=ModelDirectives, data=yaml.safe_dump({"directives": directives}))
+    builder = DiagramBuilder()
+    scenario = replace(shipped_scenario("laparoscopy_bimanual"), directives=loaded.directives)
+    parts = add_plant(builder, scenario)
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(0.3)
+    plant = parts.plant
+    context = plant.GetMyContextFromRoot(simulator.get_context())
+    return plant.EvalBodyPoseInWorld(context, plant.GetBodyByName("site")).translation() - site_at
+
+
+def test_an_organ_away_from_the_origin_holds_its_glued_site_as_at_the_origin():
+    """Drake's fixed constraint takes the organ's registered frame in the site's body (``X_BA``),
+    not the world's: glued with the world's, an organ welded 0.2 m off the origin selected no
+    vertex and Drake refused the scene ("No constraint has been added"). The site, 2 g on the
+    tissue under gravity, sinks by the same few tens of µm wherever the pelvis is: the whole
+    scene moved is the same scene."""
+    at_origin, moved = _organ_and_site_at((0.0, 0.0, 0.0)), _organ_and_site_at((0.2, -0.1, 0.05))
+    assert np.linalg.norm(at_origin) < 2e-4
+    assert np.allclose(moved, at_origin, atol=1e-9)

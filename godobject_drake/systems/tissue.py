@@ -190,7 +190,7 @@ class FemOrgan:
         radii = (shape.a(), shape.b(), shape.c())
         X_BG = inspector.GetPoseInFrame(gid)
         X_WB = _welded_pose(plant, host)
-        X_WG = X_WB @ X_BG
+        X_WG = self.X_WG = X_WB @ X_BG  # the frame the FEM body is registered in
         # The rigid organ stops touching and being drawn; the FEM body takes its place.
         source = plant.get_source_id()
         for role in (Role.kProximity, Role.kIllustration, Role.kPerception):
@@ -244,7 +244,9 @@ class FemOrgan:
 
     def _glue(self, plant: MultibodyPlant, scoped: str) -> int:
         """Fix the organ's vertices within a cube of ``glue_size_m`` about the free body ``scoped``'s
-        start to that body (Drake's deformable fixed constraint); how many are fixed."""
+        start to that body (Drake's deformable fixed constraint); how many are fixed. Drake's
+        ``X_BA`` is the pose in B of the frame the organ was registered in (``X_WG``), not of the
+        world: an organ away from the origin glued with ``X_BW`` would hold the wrong vertices."""
         try:
             body = free_body(plant, scoped)
         except ValueError as e:
@@ -258,7 +260,7 @@ class FemOrgan:
                 f"of the organ within {size * 1e3:g} mm (glue_size_m): move it onto the organ's surface"
             )
         plant.mutable_deformable_model().AddFixedConstraint(
-            self.body_id, body, X_WB.inverse(), Box(size, size, size), RigidTransform()
+            self.body_id, body, X_WB.inverse() @ self.X_WG, Box(size, size, size), RigidTransform()
         )
         return int(inside.sum())
 
