@@ -403,6 +403,13 @@ def test_two_soft_bodies_in_one_scene_each_have_their_metrics_and_drawing(tmp_pa
     station = build_station_with(scenario, make_meshcat(scenario))
     names = {s.get_name() for s in station.diagram.GetSystems()}
     assert {"pad_soft_body_visualizer", "ball_soft_body_visualizer"} <= names
+    # the legend names each soft body (not "the FEM organ": the laparoscopy's uterus alone is one)
+    from godobject_drake.systems.page import page_of
+
+    lines = [text for _, text in page_of(station.meshcat).legend.values()]
+    assert [line for line in lines if line.startswith("pink surface")] == [
+        f"pink surface: {name}, a soft body (FEM), as the tools dent and move it" for name in ("pad", "ball")
+    ]
     m = simulate(station, progress=False).metrics
     assert m["recording_bytes"] > 0
     assert m["pad_steps"] == m["ball_steps"] == 101

@@ -35,6 +35,7 @@ from godobject_drake.systems.drawing import (
     TissueVisualizer,
     add_meshcat_visualization,
     draw_soft_body_here,
+    soft_body_legend,
     start_meshcat,
 )
 from godobject_drake.systems.page import set_view
@@ -142,7 +143,8 @@ def _finish(
         for name, observer in soft_observers.items():  # each soft body drawn deforming
             body = scene.soft_bodies[name]
             drawing = builder.AddNamedSystem(
-                f"{name}_soft_body_visualizer", TissueVisualizer(meshcat, body, period)
+                f"{name}_soft_body_visualizer",
+                TissueVisualizer(meshcat, body, period, soft_body_legend(name)),
             )
             draw_soft_body_here(scene.plant, scene.scene_graph, body.geometry_id)
             builder.Connect(

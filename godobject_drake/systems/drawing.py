@@ -443,7 +443,7 @@ class TissueVisualizer(LeafSystem):
     recordings replay transforms and properties, not moving vertices: Drake issue #23206).
     """
 
-    def __init__(self, meshcat: Meshcat, organ, publish_period_s: float = 1.0 / DEFAULT_FPS):
+    def __init__(self, meshcat: Meshcat, organ, publish_period_s: float = 1.0 / DEFAULT_FPS, legend=None):
         super().__init__()
         self._meshcat, self._prefix = meshcat, f"/{organ.name}_tissue"
         self._surface = self.DeclareVectorInputPort("surface_positions", 3 * len(organ.surface))
@@ -456,9 +456,9 @@ class TissueVisualizer(LeafSystem):
         self.surface = DeformingSurface(
             meshcat, f"{self._prefix}/surface", organ.rest_W[organ.surface], faces, TISSUE_RGBA
         )
-        page_of(meshcat).add(
-            "tissue", swatch(TISSUE_RGBA), "pink surface: the FEM organ, dented and lifted by the tools"
-        )
+        # the legend's line: the laparoscopy's organ, or ``(key, text)`` for a soft body of one's own
+        key, text = legend or ("tissue", "pink surface: the FEM organ, dented and lifted by the tools")
+        page_of(meshcat).add(key, swatch(TISSUE_RGBA), text)
         self.DeclarePeriodicPublishEvent(publish_period_s, 0.0, self._publish)
         self.DeclareInitializationPublishEvent(self._publish)
 
@@ -467,6 +467,12 @@ class TissueVisualizer(LeafSystem):
 
 
 TISSUE_RGBA = Rgba(0.85, 0.45, 0.5, 1.0)
+
+
+def soft_body_legend(name: str) -> tuple[str, str]:
+    """The legend's key and line of the soft body ``name`` (``deformables:``): named, as it is
+    not the laparoscopy's organ (a sponge, a lobe)."""
+    return f"soft:{name}", f"pink surface: {name}, a soft body (FEM), as the tools dent and move it"
 
 
 LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
