@@ -505,6 +505,10 @@ def wait_for_devices(station: Station, clock=time.monotonic) -> None:
         )  # fmt: skip
         t0 = clock()
         if not receiver.wait_first(wait_s, clock):
+            # the run never starts: every device that has a driver (another tool's, paired while
+            # this one was awaited) hears zero and the scene's stop, and its driver ends
+            for other in station.tools.values():
+                other.source.zero_feedback(0.0)
             raise DeviceNotHeardError(
                 f"{who}no sample from the device's driver on {url} (channel {receiver.channel}) in "
                 f"device.wait_s = {wait_s:g} s: start the driver ({command}), check its URL, channel and "

@@ -17,7 +17,13 @@ from godobject_drake.config.scenario import ScenarioError
 from godobject_drake.devices.lcm import LcmDevice, LcmJointDevice
 from godobject_drake.devices.sources import DeviceSource
 from godobject_drake.driver.replay import replay
-from godobject_drake.link.messages import FEEDBACK_CHANNEL, JOINT_CHANNEL, POSE_CHANNEL, pose_message
+from godobject_drake.link.messages import (
+    FEEDBACK_CHANNEL,
+    JOINT_CHANNEL,
+    POSE_CHANNEL,
+    STOP_SUFFIX,
+    pose_message,
+)
 from godobject_drake.realtime import RealtimeLag
 from godobject_drake.simulation import DeviceNotHeardError, simulate
 
@@ -424,8 +430,13 @@ def test_a_scene_whose_driver_never_comes_says_how_to_start_it():
         r"0.2 s: start the driver \(godobject-driver run FAMILY --scene memq:// --allow-unauthenticated "
         r"\(FAMILY: emulated, .*or raise device.wait_s"
     )
+    stops = []  # a driver paired meanwhile (another tool's) hears the stop and ends
+    device = station.device
+    device.lcm.Subscribe(device.feedback_channel + STOP_SUFFIX, stops.append)
     with pytest.raises(DeviceNotHeardError, match=message):
         simulate(station, progress=False)
+    device.lcm.HandleSubscriptions(0)
+    assert len(stops) == 1
     with pytest.raises(ScenarioError, match=r"device.wait_s: -1.0; give the seconds to wait"):
         build_scene("lego", "--device", "lcm", "--lcm-wait", "-1")
 
