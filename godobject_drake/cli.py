@@ -709,6 +709,8 @@ def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
         logger.info("recording written to %s", s.recording.file)
     elif "recording_error" in metrics:  # on stderr too, not only a row of the table
         logger.error("recording not written: %s", metrics["recording_error"])
+    if "meshcat_error" in metrics:
+        logger.error("%s", metrics["meshcat_error"])
     late = [signal.Signals(n).name for n in dict.fromkeys(hold.caught)]
     if late:
         logger.warning(
@@ -723,7 +725,7 @@ def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
         return _exit_code(interrupted.signum) if isinstance(interrupted, Terminated) else 130
     if late:
         return 128 + hold.caught[0]
-    if not written or "recording_error" in metrics:
+    if not written or "recording_error" in metrics or "meshcat_error" in metrics:
         return 1
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
         hold.end(act=False)  # the outputs are written: Ctrl-C ends the wait as Enter does
