@@ -315,12 +315,14 @@ def test_calibrate_refuses_an_out_folder_before_the_sweep(tmp_path, capsys, monk
 
 
 @pytest.mark.slow
-def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path):
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGQUIT], ids=lambda s: signal.Signals(s).name)
+def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path, signum):
     """The scene (``godobject run``, the quick start's !Lcm scene) and a real driver
     (``--exit-on-stop``) as processes; once the run is under way the scene gets SIGHUP (its
-    terminal closed). Before, it died by the signal: no metrics, no STOP (the driver ran on with
-    the last model until its fade). Now it ends as for SIGTERM: the device's STOP (the driver
-    counts it, renders zero and exits 0), the metrics written marked interrupted, exit 129."""
+    terminal closed) or SIGQUIT (Ctrl-\\). Before, it died by the signal (SIGQUIT: a core dump):
+    no metrics, no STOP (the driver ran on with the last model until its fade). Now it ends as for
+    SIGTERM: the device's STOP (the driver counts it, renders zero and exits 0), the metrics
+    written marked interrupted, exit 128 + N (129, 131)."""
     from test_driver import free_port, lcm_scenario, start_driver
 
     from godobject_drake.config import scenario as sc
@@ -335,13 +337,14 @@ def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path):
     driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
     try:
         wait_until("the run is under way", lambda: (tmp_path / "m.json").exists(), timeout_s=240)
-        scene.send_signal(signal.SIGHUP)
+        scene.send_signal(signum)
         scene_err = scene.communicate(timeout=120)[1]
         driver_rc = driver.wait(timeout=60)
     finally:
         scene.kill(), driver.kill()
-    assert scene.returncode == 128 + signal.SIGHUP, scene_err[-3000:]
-    assert "interrupted (SIGHUP) at t = " in scene_err and "metrics written to" in scene_err
+    assert scene.returncode == 128 + signum, scene_err[-3000:]
+    assert f"interrupted ({signal.Signals(signum).name}) at t = " in scene_err
+    assert "metrics written to" in scene_err
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["interrupted"] is True and m["partial"] is True
     assert driver_rc == 0
