@@ -139,3 +139,20 @@ def test_a_bad_frame_on_meshcats_websocket_ends_a_recording_haptic_run_with_its_
     assert "r.html: not made" in m["recording_error"] and not (tmp_path / "r.html").exists()
     assert "recording not written" in err and "metrics written to" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lego.yaml", "m.json"]  # no .tmp or .lock
+
+
+def test_at_exit_only_the_meshcats_made_on_the_exiting_thread_are_asked():
+    """Drake's Meshcat answers only the thread that made it (another's call aborts: a
+    DRAKE_DEMAND). A Meshcat made in a worker thread and alive at exit is left alone by the
+    package's exit check (Drake's own destructor still aborts on it: not this package's to change)."""
+    code = (
+        "import threading\n"
+        "from godobject_drake.systems.drawing import start_meshcat\n"
+        "keep = []\n"
+        "worker = threading.Thread(target=lambda: keep.append(start_meshcat(port=0)))\n"
+        "worker.start(); worker.join()\n"
+        "print('done', flush=True)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout == "done\n", proc.stderr[-2000:]
+    assert "ThrowIfWebsocketThreadExited" not in proc.stderr, proc.stderr[-2000:]

@@ -23,6 +23,7 @@ import gzip
 import html
 import json
 import os
+import threading
 import time
 import weakref
 
@@ -141,7 +142,8 @@ class Page:
     live: bool = True  # someone may watch: the surfaces are re-sent each frame
     recording: bool = False
     max_duration_s: float = np.inf
-    server_thread: int | None = None  # the native id of Meshcat's websocket thread (server_started)
+    server_thread: int | None = None  # the native id of Meshcat's websocket thread (start_server)
+    made_on: int | None = None  # the thread that made the Meshcat (start_server): the only one it answers
     server_failure: str | None = None  # why Meshcat's server stopped (server_stopped), once it has
 
     def start_recording(self, max_duration_s: float = np.inf, live: bool = True) -> None:
@@ -198,7 +200,9 @@ def start_server(make) -> Meshcat:
     before = _tasks()
     meshcat = make()
     new = _tasks() - before
-    page_of(meshcat).server_thread = int(next(iter(new))) if len(new) == 1 else None
+    page = page_of(meshcat)
+    page.server_thread = int(next(iter(new))) if len(new) == 1 else None
+    page.made_on = threading.get_ident()
     return meshcat
 
 
@@ -208,6 +212,8 @@ def server_stopped(meshcat: Meshcat) -> str | None:
     page = page_of(meshcat)
     if page.server_failure is not None:
         return page.server_failure
+    if page.made_on not in (None, threading.get_ident()):  # Drake aborts a call from another thread
+        return None
     try:
         meshcat.port()  # raises once the websocket thread has exited, and lets it end
         return None
@@ -226,8 +232,9 @@ def server_stopped(meshcat: Meshcat) -> str | None:
 def _end_stopped_servers() -> None:
     """At exit, before the interpreter goes: let the thread of any Meshcat whose server stopped end
     (Drake aborts the process otherwise, after everything was written but with exit 134)."""
-    for meshcat in list(_PAGES.keys()):
-        server_stopped(meshcat)
+    for meshcat, page in list(_PAGES.items()):
+        if page.made_on == threading.get_ident():  # made here (start_server): it may be asked here
+            server_stopped(meshcat)
 
 
 def set_view(meshcat: Meshcat, position_m=None, target_m=None) -> None:
