@@ -58,6 +58,18 @@ def through_alias(height: int, at: int) -> str:
     return f"a: &x {'[' * height}{']' * height}\nb: {'[' * at}*x{']' * at}\n"
 
 
+def test_nesting_is_counted_down_each_branch_not_from_the_last_sibling():
+    # 30 sequences, a scalar, then its sibling nested 40 deeper: 71 deep on that branch
+    text = "[" * 30 + "1, " + "[" * 40 + "]" * 40 + "]" * 30 + "\n"
+    with pytest.raises(YamlShapeError) as e:
+        check_yaml(text, "f.yaml")
+    assert str(e.value) == (
+        f"f.yaml: line 1: nested more than {MAX_YAML_DEPTH} deep (the limit, "
+        "godobject_drake.config.yaml_guard.MAX_YAML_DEPTH); a scenario nests a few levels: check the "
+        "brackets and indentation"
+    )
+
+
 def test_nesting_through_an_alias_is_counted_where_the_alias_puts_it():
     height = 40
     at = MAX_YAML_DEPTH - height - 1  # deepest: (at + 2) + height - 1 = MAX_YAML_DEPTH
@@ -90,6 +102,13 @@ def test_aliases_adding_exactly_the_limit_pass_and_one_more_is_refused_with_the_
     )
 
 
+def test_aliases_of_an_anchored_mapping_are_counted_too():
+    mapping = "{" + ", ".join(f"k{i}: {i}" for i in range(499)) + "}"  # 1 + 2 x 499 = 999 nodes
+    text = f"a: &a {mapping}\nb: [" + ", ".join(["*a"] * 101) + "]\n"  # 101 x 999 = 100,899 added
+    with pytest.raises(YamlShapeError, match=r"^f\.yaml: its aliases expand to "):
+        check_yaml(text, "f.yaml")
+
+
 def test_an_alias_inside_its_own_node_is_refused_at_its_line():
     with pytest.raises(YamlShapeError) as e:
         check_yaml("z: 0\na: &a [1, *a]\n", "f.yaml")
@@ -106,6 +125,12 @@ def test_a_key_twice_is_refused_naming_both_lines_and_only_the_same_key_of_the_s
         "f\\x1b.yaml: line 3: the key 'a' is given twice in one mapping (first at line 1)"
     )
     check_yaml("1: x\n'1': y\n? [1]\n: p\n? [1]\n: q\n", "f.yaml")  # an int and a str; keys not scalars
+    with pytest.raises(YamlShapeError) as e:
+        check_yaml("? [1]\n: p\nz: 1\nz: 2\n", "f.yaml")  # after a key that is not a scalar
+    assert str(e.value) == (
+        "f.yaml: line 4: the key 'z' is given twice in one mapping (first at line 3); a mapping takes each "
+        "key once (the loader would keep only the last): remove or rename one"
+    )
     with pytest.raises(YamlShapeError, match="line 4: the key 'b'"):
         check_yaml("a: 1\n---\nb: 1\nb: 2\n", "f.yaml")  # in a later document too
 
@@ -268,7 +293,7 @@ def test_a_vtk_cells_count_is_not_an_index_and_other_sections_are_not_cells(tmp_
     after = VTK.replace("CELL_TYPES 2\n10\n10\n", "12 13\n")  # past the section's 10 numbers
     check_mesh(obj(tmp_path, after, "t.vtk"), "M")
     # a section that ends exactly (a cell of no point last), then a field of numbers
-    exact = VTK.replace("CELLS 2 10\n4 0 1 2 3\n4 3 2 1 0\n", "CELLS 2 4\n2 0 1\n0\n")
+    exact = VTK.replace("CELLS 2 10\n4 0 1 2 3\n4 3 2 1 0\nCELL_TYPES 2\n10\n10\n", "CELLS 2 4\n2 0 1\n0\n")
     check_mesh(obj(tmp_path, exact + "FIELD FieldData 1\nf 3 1 int\n7 7 7\n", "t.vtk"), "M")
 
 
@@ -280,6 +305,16 @@ def test_a_vtk_51_connectivity_is_checked_and_its_offsets_are_not(tmp_path):
     check_mesh(obj(tmp_path, good, "t.vtk"), "M")
     bad = good.replace("0 1 2 3\nCELL", "0 1 2 5\nCELL")
     assert refused(obj(tmp_path, bad, "t.vtk")).startswith("M: line 11: a cell names point 5, but the mesh")
+
+
+def test_a_vtk_51_connectivity_of_one_index_a_line_is_checked_to_its_end(tmp_path):
+    head = "# vtk DataFile Version 5.1\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 float\n"
+    cells = (
+        head + "0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 2 4\nOFFSETS vtktypeint64\n0 4\nCONNECTIVITY vtktypeint64\n"
+    )
+    assert refused(obj(tmp_path, cells + "0\n1\n2\n5\n", "t.vtk")).startswith(
+        "M: line 14: a cell names point 5,"
+    )
 
 
 def test_a_vtk_51_connectivity_line_is_all_indices_and_the_data_sections_end_it(tmp_path):
