@@ -96,6 +96,14 @@ UNITS = {
         "__init__", "heard", "take", "proxy", "request", "_environment", "_account", "rendered", "reserve"}),
     "driver: local model validity": ("driver.local_model", "LocalRenderer", {"alive", "gap", "fade_end",
                                                                               "validity"}),
+    # what no file, key or output may do (issue 55): the YAML bounds, the mesh indices before Drake
+    # reads them, a key given as its path or a missing named key file, the driver's outputs checked
+    # before the device is opened and a log that can no longer grow
+    "config: YAML bounds": ("config.yaml_guard", "*", None),
+    "config: mesh indices": ("config.meshes", "*", None),
+    "link: key checks": ("link.keys", None, {"_not_a_key", "_missing"}),
+    "driver: output checks": ("driver.process", (None, "Driver"), {"open_log_file", "check_summary", "_row",
+                                                                   "_log_failed"}),
 }  # fmt: skip
 KILLED = {"killed", "timeout"}  # a mutant that hangs the tests is caught by the timeout
 NAME = re.compile(r"godobject_drake\.([\w.]+?)\.x(?:ǁ(\w+)ǁ|_)(\w+?)__mutmut_\d+")

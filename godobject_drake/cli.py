@@ -529,20 +529,21 @@ def refuse_input(parser: argparse.ArgumentParser, error: Exception):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP (a closed terminal, a dropped SSH session): the command line ends the run as
-    Ctrl-C does (partial metrics, a whole recording, the device's STOP)."""
+    """SIGTERM, SIGHUP (a closed terminal, a dropped SSH session) or SIGQUIT (Ctrl-\\): the command
+    line ends the run as Ctrl-C does (partial metrics, a whole recording, the device's STOP)."""
 
     def __init__(self, signum: int = signal.SIGTERM):
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
 
 
-# The signals the command line ends a run with, as Ctrl-C: a stop, a closed terminal.
-ENDING = (signal.SIGTERM, signal.SIGHUP)
+# The signals the command line ends a run with, as Ctrl-C: a stop, a closed terminal, Ctrl-\ (whose
+# default, a core dump, would leave the device's driver without its STOP and lose the metrics).
+ENDING = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 class _Ending:
-    """SIGTERM's and SIGHUP's handler for one run: the first raises :class:`Terminated` (the loop
+    """The handler of :data:`ENDING`'s signals for one run: the first raises :class:`Terminated` (the loop
     ends as with Ctrl-C); a later one, before ``hold`` takes over at the loop's end, is noted in
     it instead of raised again into the loop's own ending."""
 
@@ -562,7 +563,7 @@ def _signal_name(e: BaseException) -> str:
 
 
 def _exit_code(signum: int) -> int:
-    return 128 + signum  # as a shell reports a process a signal ended: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP
+    return 128 + signum  # as a shell reports a signal: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP, 131 SIGQUIT
 
 
 USER_ERRORS = (
@@ -655,7 +656,7 @@ def scene_main(scenario: str | Path, argv=None, *, prog: str, description: str |
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``run``: build, simulate, print the metrics table, write what was asked; the output files
     locked from before the build to after the last write (:class:`~godobject_drake.outputs.OutputLock`).
-    SIGTERM and SIGHUP end the run as Ctrl-C does; from the end of its loop to the lock files
+    SIGTERM, SIGHUP and SIGQUIT end the run as Ctrl-C does; from the end of its loop to the lock files
     removed, a signal is held (:class:`~godobject_drake.outputs.SignalsHeld`): the outputs are
     written whole, then the exit says so."""
     main_thread = threading.current_thread() is threading.main_thread()
@@ -691,7 +692,7 @@ def _run_locked(
             result = run_scenario(s, progress=not args.no_progress, records=records, hold=hold)
     except USER_ERRORS as e:
         refuse_input(parser, e)
-    except RunInterrupted as e:  # Ctrl-C, SIGTERM, SIGHUP: what the run produced is written, marked partial
+    except RunInterrupted as e:  # Ctrl-C, SIGTERM, SIGHUP, SIGQUIT: what the run produced, written, partial
         result, interrupted = e.result, e.__cause__ or e
     except KeyboardInterrupt as e:  # before the run's loop ended (simulate holds signals from there)
         logger.warning("interrupted (%s) before the run started", _signal_name(e))
@@ -709,6 +710,8 @@ def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
         logger.info("recording written to %s", s.recording.file)
     elif "recording_error" in metrics:  # on stderr too, not only a row of the table
         logger.error("recording not written: %s", metrics["recording_error"])
+    if "meshcat_error" in metrics:
+        logger.error("%s", metrics["meshcat_error"])
     late = [signal.Signals(n).name for n in dict.fromkeys(hold.caught)]
     if late:
         logger.warning(
@@ -723,7 +726,7 @@ def _outputs(s: sc.Scenario, result, interrupted, hold: SignalsHeld) -> int:
         return _exit_code(interrupted.signum) if isinstance(interrupted, Terminated) else 130
     if late:
         return 128 + hold.caught[0]
-    if not written or "recording_error" in metrics:
+    if not written or "recording_error" in metrics or "meshcat_error" in metrics:
         return 1
     if (s.visualization.serve or result.station.live) and sys.stdin.isatty():
         hold.end(act=False)  # the outputs are written: Ctrl-C ends the wait as Enter does

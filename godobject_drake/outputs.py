@@ -18,7 +18,7 @@ run, :func:`check_output` refuses a folder, a missing folder or a link it would 
 whole run, so a second run given the same file is refused before it starts instead of overwriting
 the first one's finished metrics with its partial checkpoints.
 
-**Signals while writing** (:class:`SignalsHeld`): Ctrl-C, SIGTERM or SIGHUP during a write is held
+**Signals while writing** (:class:`SignalsHeld`): Ctrl-C, SIGTERM, SIGHUP or SIGQUIT during a write is held
 until the file is whole (or the previous one kept), then acted on as its handler would have; a
 temporary file is removed whatever ends the write, and a lock file whatever ends the run but
 SIGKILL. A run holds them from the end of its loop to its last write, so a signal there cannot lose
@@ -36,8 +36,8 @@ import tempfile
 import threading
 from pathlib import Path
 
-# The signals that end a run (Ctrl-C, a stop, a closed terminal): held while an output is written.
-HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# The signals that end a run (Ctrl-C, a stop, a closed terminal, Ctrl-\): held while an output is written.
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 class SignalsHeld:

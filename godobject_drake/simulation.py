@@ -44,7 +44,7 @@ from godobject_drake.safeguards import (
 )
 from godobject_drake.station.build import Station
 from godobject_drake.systems.coupling import TERMS_LAYOUT
-from godobject_drake.systems.page import page_of, save_recording
+from godobject_drake.systems.page import page_of, save_recording, server_stopped
 
 
 @dataclasses.dataclass
@@ -290,7 +290,7 @@ class _Run:
         self.wall = self.folding = self.cpu = (
             0.0  # cpu: the process's CPU time in the loop (load moves it less)
         )
-        self.diagnosis, self.interrupted, self.zeroed = None, None, False
+        self.diagnosis, self.interrupted, self.zeroed, self.viewer_stopped_at = None, None, False, None
         self.hold = SignalsHeld()  # simulate's
 
     def real_time_fold_every(self, cost_s: float) -> int:
@@ -383,6 +383,9 @@ class _Run:
         except DivergenceError:
             self.diagnosis = guard.diagnosis
         except RuntimeError as e:
+            if self.meshcat is not None and server_stopped(self.meshcat) is not None:
+                self.viewer_stopped_at = root.get_time()  # the viewer's, not the simulation's: no diagnosis
+                return
             self.diagnosis = f"Drake stopped at t={root.get_time():.4f} s: {e}"
             found = self.god.diverged_part(root, guard.max_speed)  # the likely cause, when it is ours
             if found is not None:
@@ -439,7 +442,16 @@ class _Run:
             metrics["feedback_zeroed_at_s"] = root.get_time()
         if self.falls.fallen:
             metrics["unsupported_bodies"] = self.falls.fallen
-        if self.record:
+        stopped = server_stopped(self.meshcat) if self.meshcat is not None else None
+        if stopped is not None:  # a client ended it; Drake's drawing raised at its next call to it
+            at = self.viewer_stopped_at
+            metrics["meshcat_error"] = stopped + (
+                "; the run went on to its end without it" if at is None
+                else f"; the run ended at t = {at:.4f} s, when Drake's drawing next called the server"
+            )  # fmt: skip
+        if self.record and stopped is not None:
+            metrics["recording_error"] = f"{self.record}: not made, Meshcat's scene went with its server"
+        elif self.record:
             try:
                 metrics["recording_bytes"] = save_recording(self.meshcat, self.record)
                 metrics["recording_s"] = min(root.get_time(), self.scenario.recording.max_duration_s)

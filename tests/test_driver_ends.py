@@ -14,10 +14,12 @@ loaded machine; each waits on the clock only for the driver to reach a state, ge
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
+from collections import deque
 
 import numpy as np
 import pytest
@@ -315,12 +317,14 @@ def test_calibrate_refuses_an_out_folder_before_the_sweep(tmp_path, capsys, monk
 
 
 @pytest.mark.slow
-def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path):
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGQUIT], ids=lambda s: signal.Signals(s).name)
+def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path, signum):
     """The scene (``godobject run``, the quick start's !Lcm scene) and a real driver
     (``--exit-on-stop``) as processes; once the run is under way the scene gets SIGHUP (its
-    terminal closed). Before, it died by the signal: no metrics, no STOP (the driver ran on with
-    the last model until its fade). Now it ends as for SIGTERM: the device's STOP (the driver
-    counts it, renders zero and exits 0), the metrics written marked interrupted, exit 129."""
+    terminal closed) or SIGQUIT (Ctrl-\\). Before, it died by the signal (SIGQUIT: a core dump):
+    no metrics, no STOP (the driver ran on with the last model until its fade). Now it ends as for
+    SIGTERM: the device's STOP (the driver counts it, renders zero and exits 0), the metrics
+    written marked interrupted, exit 128 + N (129, 131)."""
     from test_driver import free_port, lcm_scenario, start_driver
 
     from godobject_drake.config import scenario as sc
@@ -335,13 +339,14 @@ def test_sighup_to_the_scene_stops_the_device_and_writes_the_metrics(tmp_path):
     driver = start_driver(tmp_path, url, "--exit-on-stop", "--duration", "600")
     try:
         wait_until("the run is under way", lambda: (tmp_path / "m.json").exists(), timeout_s=240)
-        scene.send_signal(signal.SIGHUP)
+        scene.send_signal(signum)
         scene_err = scene.communicate(timeout=120)[1]
         driver_rc = driver.wait(timeout=60)
     finally:
         scene.kill(), driver.kill()
-    assert scene.returncode == 128 + signal.SIGHUP, scene_err[-3000:]
-    assert "interrupted (SIGHUP) at t = " in scene_err and "metrics written to" in scene_err
+    assert scene.returncode == 128 + signum, scene_err[-3000:]
+    assert f"interrupted ({signal.Signals(signum).name}) at t = " in scene_err
+    assert "metrics written to" in scene_err
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["interrupted"] is True and m["partial"] is True
     assert driver_rc == 0
@@ -375,3 +380,81 @@ def test_a_driver_started_under_nohup_keeps_running_through_sighup(tmp_path):
     assert driver.returncode == 0, err[-3000:]
     assert json.loads((tmp_path / "driver.json").read_text())["ended_by"] == "SIGTERM"
     assert log_of(tmp_path)["state"][-1] == "exit"
+
+
+# -- a driver killed and started again while its scene runs -------------------------------------------------
+
+
+class Relay:
+    """A UDP relay on 127.0.0.1 between a driver and a scene's end: each datagram forwarded, and
+    the driver's kept (:attr:`sent`) to be replayed later, as a process that captured them would."""
+
+    def __init__(self, scene_port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.port, self.scene = self.sock.getsockname()[1], ("127.0.0.1", scene_port)
+        self.driver, self.sent, self.running = None, deque(maxlen=500), True
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        while self.running:
+            try:
+                datagram, sender = self.sock.recvfrom(65535)
+            except TimeoutError:
+                continue
+            if sender == self.scene:
+                if self.driver is not None:
+                    self.sock.sendto(datagram, self.driver)
+            else:
+                self.driver = sender
+                self.sent.append(datagram)
+                self.sock.sendto(datagram, self.scene)
+
+    def close(self):
+        self.running = False
+        self.thread.join(timeout=10)
+        self.sock.close()
+
+
+@pytest.mark.slow
+def test_a_killed_driver_started_again_renders_its_scene_and_its_old_sessions_datagrams_are_refused(tmp_path):
+    """Driver A (a process, through a relay that keeps what it sends) renders the scene's push;
+    it is killed (SIGKILL: no goodbye); driver B, started again with the same key, pairs once A has
+    been silent ``DRIVER_SILENT_S`` (1 s) and renders the push; A's datagrams replayed then (its
+    data, of its old session) are refused and counted, and B renders on. Before, B was refused
+    until the scene ended, the tool frozen."""
+    from godobject_drake.link import transport
+
+    scene = PushingScene()
+    relay = Relay(scene.link.port)
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    a = start(tmp_path / "a", f"udp://127.0.0.1:{relay.port}", "--duration", "600")
+    b = None
+    try:
+        wait_until("A renders the push", lambda: pushing(tmp_path / "a"))
+        a.kill()
+        a.wait(timeout=30)
+        killed = time.monotonic()
+        b = start(tmp_path / "b", scene.url, "--duration", "600")
+        wait_until("B renders the push", lambda: pushing(tmp_path / "b"))
+        assert time.monotonic() - killed > transport.DRIVER_SILENT_S  # not before A was silent
+        assert scene.link.counts["udp_pairings"] == 2
+        old = [d for d in relay.sent if d[len(transport.MAGIC) : transport.HEAD] == transport.DRIVER_DATA]
+        assert len(old) >= 100  # A's pose messages, sealed in its session
+        refused = scene.link.counts["udp_refused"]
+        for datagram in old:
+            relay.sock.sendto(datagram, relay.scene)
+        wait_until("the replay refused", lambda: scene.link.counts["udp_refused"] >= refused + len(old), 10)
+        rows = len(log_of(tmp_path / "b")["t"])
+        wait_until("B renders on", lambda: pushing(tmp_path / "b", n=rows + 300))
+        assert scene.link.counts["udp_pairings"] == 2  # no third: the replay paired nothing
+        b.send_signal(signal.SIGTERM)
+        assert b.wait(timeout=30) == 0
+    finally:
+        for proc in (a, b):
+            if proc is not None:
+                proc.kill()
+        relay.close()
+        scene.close()

@@ -971,3 +971,78 @@ def test_any_obj_is_passed_only_when_every_index_names_what_the_file_has(lines):
     assert (refused is not None) == (bad is not None or bool(late)), (refused, lines)
     if refused:
         assert re.match(r"m\.obj: line \d+: a face names ", refused), refused
+
+
+vtk_word = st.one_of(st.integers(-3, 7).map(str), st.sampled_from(["x", "1.5", "-"]))
+
+
+@FUZZ
+@given(
+    points=st.integers(0, 5),
+    cells=st.lists(st.lists(vtk_word, min_size=1, max_size=5), max_size=6),
+    tail=st.lists(st.integers(-9, 99).map(str), max_size=4),
+)
+def test_any_legacy_vtk_is_passed_only_when_every_cell_names_a_point_it_has(points, cells, tail):
+    """check_mesh passes an ASCII legacy VTK exactly when every integer of its CELLS section (each
+    line's first number is the cell's size, not an index) is a point the file has, 0 to POINTS - 1,
+    and refuses it otherwise with a MeshFileError naming the first such line (never another
+    exception); the numbers of the sections after it are not indices."""
+    from godobject_drake.config.meshes import MeshFileError, check_mesh
+
+    words = sum(len(c) for c in cells)
+    lines = [
+        "# vtk DataFile Version 3.0",
+        "t",
+        "ASCII",
+        "DATASET UNSTRUCTURED_GRID",
+        f"POINTS {points} double",
+    ]
+    lines += ["0 0 0"] * points + [f"CELLS {len(cells)} {words}"] + [" ".join(c) for c in cells]
+    lines += [f"CELL_TYPES {len(tail)}", *tail]
+    first_bad = next(
+        (7 + points + k for k, c in enumerate(cells)
+         if any(w.lstrip("-").isdigit() and not 0 <= int(w) < points for w in c[1:])),
+        None,
+    )  # fmt: skip
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.vtk"
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            check_mesh(path, "m.vtk")
+            refused = None
+        except MeshFileError as e:
+            refused = str(e)
+    event("refused" if refused else "passed")
+    assert (refused is None) == (first_bad is None), (refused, lines)
+    if refused:
+        assert refused.startswith(f"m.vtk: line {first_bad}: a cell names point "), (refused, lines)
+
+
+HEX = "0123456789abcdefABCDEF"
+key_like = st.tuples(
+    st.sampled_from(["", " ", "\n", "\t "]),
+    st.text(st.sampled_from(HEX), min_size=28, max_size=40),
+    st.one_of(st.none(), st.tuples(st.integers(0, 40), st.sampled_from("gx/. \n"))),
+    st.sampled_from(["", "\n", " \n"]),
+).map(lambda t: t[0] + (t[1] if t[2] is None else t[1][: t[2][0]] + t[2][1] + t[1][t[2][0] :]) + t[3])
+
+
+@FUZZ
+@given(value=st.one_of(st.text(st.sampled_from(HEX + " \n\t/.kgx"), max_size=80), key_like))
+def test_a_key_files_path_is_refused_exactly_when_it_is_a_key_itself(value):
+    """key_path refuses a value (a given key file, or ``$GODOBJECT_LINK_KEY``) exactly when it is,
+    spaces and line ends aside, 32 or more hex digits and nothing else: a key pasted where its
+    file's path goes; any other value is a path (none is made here)."""
+    from godobject_drake.link.keys import KeyFileError, key_path
+
+    stripped = value.strip()
+    is_key = len(stripped) >= 32 and all(c in HEX for c in stripped)
+    if not value:
+        return  # the default path: not this rule
+    try:
+        key_path(value)
+        refused = False
+    except KeyFileError as e:
+        refused = True
+        assert str(e).startswith(f"the key file holds {len(stripped)} hex digits, a key itself"), str(e)
+    assert refused == is_key, value

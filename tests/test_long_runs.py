@@ -8,6 +8,7 @@ is interrupted or killed still leaves its metrics, marked partial.
 
 import json
 import math
+import resource
 import signal
 import subprocess
 import sys
@@ -114,11 +115,17 @@ def cli(tmp_path, *flags):
     )
     command = [sys.executable, "-m", "godobject_drake", "run", str(tmp_path / "lego.yaml"), "--no-progress",
                "--duration", "60", "--metrics", str(tmp_path / "m.json"), *flags]  # fmt: skip
+
     # A terminal's Ctrl-C, even when the tests themselves run in the background: a job started
     # with `&` by a non-interactive shell inherits SIGINT ignored, and Python then keeps it
     # ignored (no KeyboardInterrupt), so the child gets SIGINT's default disposition back.
+    # No core file either: SIGQUIT's default action, once the run has put its handlers back, dumps one.
+    def child():
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+
     return subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
+                            preexec_fn=child)  # fmt: skip
 
 
 def wait_for(path, timeout_s=60.0):
@@ -181,16 +188,17 @@ def _litter(tmp_path) -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT],
                          ids=lambda s: signal.Signals(s).name)  # fmt: skip
 def test_a_signal_at_any_moment_of_the_end_leaves_whole_outputs_and_says_what_was_written(tmp_path, signum):
     """The signal every 10 ms from inside the run to the process's end: the first ends the run,
     the rest land while the recording is saved, the metrics made and written, the locks removed.
     Before, a second Ctrl-C while the recording was saved said "interrupted before the run started"
     and wrote neither output (a .tmp left); SIGTERM while the metrics were written left .tmp and
-    .lock files; SIGHUP ended the scene with no metrics and no STOP. Now: no temporary or lock
-    file, the metrics and the recording whole, and stderr says each was written and that the run
-    was interrupted; the exit is the signal's (128 + N; or the signal itself, after the last word)."""
+    .lock files; SIGHUP ended the scene with no metrics and no STOP, SIGQUIT likewise with a core
+    dump. Now: no temporary or lock file, the metrics and the recording whole, and stderr says each
+    was written and that the run was interrupted; the exit is the signal's (128 + N; or the signal
+    itself, after the last word)."""
     proc = cli(tmp_path, "--record", "r.html")
     wait_for(tmp_path / "m.json", timeout_s=60.0)
     sent = 0

@@ -393,3 +393,41 @@ def test_each_kind_of_user_has_a_way_in():
     for page in first.values():  # from the install to a first result: each opens with the install
         text = (REPO / "docs" / page).read_text()
         assert text.index("python -m pip install -e .") < text.index("## Next")
+
+
+def guarded_table_tests() -> list[tuple[str, str]]:
+    """Each (test, file) the "What is guarded" table of docs/haptic_devices.md names: a row's last
+    cell names its tests in backticks, in ``tests/test_pairing.py`` unless a file follows them."""
+    text = (REPO / "docs" / "haptic_devices.md").read_text()
+    start = text.index("**What is guarded**")
+    table = text[start : text.index("**What is not guarded**", start)]
+    named = []
+    for row in table.splitlines():
+        if not row.startswith("| ") or row.startswith("|---"):
+            continue
+        cell = row.rstrip(" |").rsplit(" | ", 1)[-1]
+        # "`a`, `b` (`tests/x.py`); `c`": a and b in x, c in tests/test_pairing.py
+        pending = []
+        for token in re.findall(r"`(test_\w+|tests/[\w/]+\.py)`|(;)", cell):
+            name, stop = token
+            if name.startswith("tests/"):
+                named += [(test, name) for test in pending]
+                pending = []
+            elif name:
+                pending.append(name)
+            elif stop:
+                named += [(test, "tests/test_pairing.py") for test in pending]
+                pending = []
+        named += [(test, "tests/test_pairing.py") for test in pending]
+    return named
+
+
+def test_every_test_the_guarded_table_names_is_in_the_file_it_names():
+    named = guarded_table_tests()
+    assert len(named) >= 40  # the table's rows, each naming at least one
+    missing = [
+        f"{name} ({file})"
+        for name, file in named
+        if not re.search(rf"^def {name}\(", (REPO / file).read_text(), flags=re.M)
+    ]
+    assert not missing, f"the table names tests that are not there: {missing}"

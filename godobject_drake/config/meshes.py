@@ -60,13 +60,13 @@ def _check_obj(path: Path, where: str) -> None:
             elif parts[0] in _OBJ_REFERS:
                 for ref in parts[1:]:
                     for kind, text in zip(_OBJ_KINDS, ref.split(b"/"), strict=False):
-                        _obj_index(text, kind, counts, largest, line, path, where)
+                        _obj_index(text, kind, counts, largest, line, where)
     for kind, (index, line) in largest.items():
         if index > counts[kind]:
-            _obj_refuse(path, where, line, kind, index, counts[kind])
+            _obj_refuse(where, line, kind, index, counts[kind])
 
 
-def _obj_index(text, kind, counts, largest, line, path, where) -> None:
+def _obj_index(text, kind, counts, largest, line, where) -> None:
     if not text:
         return
     try:
@@ -77,10 +77,10 @@ def _obj_index(text, kind, counts, largest, line, path, where) -> None:
         if index > largest.get(kind, (0, 0))[0]:
             largest[kind] = (index, line)
     elif index == 0 or -index > counts[kind]:  # 0 names nothing; -k the k-th last so far
-        _obj_refuse(path, where, line, kind, index, counts[kind])
+        _obj_refuse(where, line, kind, index, counts[kind])
 
 
-def _obj_refuse(path: Path, where: str, line: int, kind: bytes, index: int, count: int):
+def _obj_refuse(where: str, line: int, kind: bytes, index: int, count: int):
     what = _OBJ_KINDS[kind]
     raise MeshFileError(
         f"{where}: line {line}: a face names {what} {index}, but the mesh has {count} "

@@ -161,7 +161,10 @@ def check_yaml(text: str, where: str) -> None:
     :class:`YamlShapeError`. Not valid YAML is left to the loader, which says where."""
     if len(text) > MAX_YAML_BYTES:
         _too_large(len(text), where)
-    loader = _BoundedComposer(text, shown(where))
+    try:
+        loader = _BoundedComposer(text, shown(where))  # its reader refuses a control character at once
+    except yaml.YAMLError:
+        return  # the loader names the error
     try:
         roots = []
         while loader.check_node():

@@ -49,7 +49,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from godobject_drake.spatial import pose_from_array
 from godobject_drake.systems.coupling import graspable_bodies
-from godobject_drake.systems.page import DeformingSurface, page_of, swatch
+from godobject_drake.systems.page import DeformingSurface, page_of, start_server, swatch
 
 GHOST_RGBA = Rgba(0.3, 0.6, 1.0, 0.35)
 SPRING_RGBA = Rgba(1.0, 0.8, 0.1, 1.0)
@@ -487,7 +487,7 @@ def start_meshcat(host: str = "localhost", port: int | None = None) -> Meshcat:
     device (its sliders, grasp and Stop) and, with a haptic device, the forces on a hand.
     Any host but a loopback one is therefore announced loudly on stderr.
     """
-    meshcat = Meshcat(MeshcatParams(host=host, port=port))
+    meshcat = start_server(lambda: Meshcat(MeshcatParams(host=host, port=port)))
     if host not in LOOPBACK_HOSTS:
         print(
             f"WARNING: Meshcat is listening on {host} port {meshcat.port()}, reachable from other machines: "

@@ -16,11 +16,15 @@ written into the recording as HTML, top left; :func:`legend_html` is that block.
 
 from __future__ import annotations
 
+import atexit
 import base64
 import dataclasses
 import gzip
 import html
 import json
+import os
+import threading
+import time
 import weakref
 
 import numpy as np
@@ -138,6 +142,9 @@ class Page:
     live: bool = True  # someone may watch: the surfaces are re-sent each frame
     recording: bool = False
     max_duration_s: float = np.inf
+    server_thread: int | None = None  # the native id of Meshcat's websocket thread (start_server)
+    made_on: int | None = None  # the thread that made the Meshcat (start_server): the only one it answers
+    server_failure: str | None = None  # why Meshcat's server stopped (server_stopped), once it has
 
     def start_recording(self, max_duration_s: float = np.inf, live: bool = True) -> None:
         """From now on the surfaces keep their frames (up to ``max_duration_s``); ``live`` False
@@ -164,6 +171,70 @@ def page_of(meshcat: Meshcat) -> Page:
     if page is None:
         page = _PAGES[meshcat] = Page()
     return page
+
+
+# Drake's Meshcat (1.51.1 and 1.58) catches only msgpack's type errors in a websocket message: any
+# other frame it cannot parse (one byte 0xc1, a truncated map) ends its server thread, and with it
+# every client, the page's controls and the recording's HTML (``StaticHtml`` raises). The thread
+# then waits for the main thread to notice (any Meshcat call raises once) and logs through
+# Python's logging: a process that exits before it has done so aborts (std::terminate, exit 134),
+# losing whatever was not yet written. docs/haptic_devices.md "What is guarded".
+SERVER_STOPPED = (
+    "Meshcat's server stopped during the run: a websocket client sent it a frame it could not parse "
+    "(Drake's Meshcat ends its server on any malformed message: any local process or web page can "
+    "send one), so the page and its controls went with it"
+)
+SERVER_END_S = 2.0  # how long a stopped server's thread is given to end (it logs one line)
+
+
+def _tasks() -> set[str]:
+    try:
+        return set(os.listdir("/proc/self/task"))
+    except OSError:  # not Linux: the thread is waited for by time alone (server_stopped)
+        return set()
+
+
+def start_server(make) -> Meshcat:
+    """``make()``'s Meshcat, its websocket thread's native id noted (the one thread its constructor
+    starts) so that :func:`server_stopped` can wait for that thread's end."""
+    before = _tasks()
+    meshcat = make()
+    new = _tasks() - before
+    page = page_of(meshcat)
+    page.server_thread = int(next(iter(new))) if len(new) == 1 else None
+    page.made_on = threading.get_ident()
+    return meshcat
+
+
+def server_stopped(meshcat: Meshcat) -> str | None:
+    """None while ``meshcat``'s server runs; once it has stopped, why, after its thread has ended
+    (so the process can exit without an abort). Said once on the page (:attr:`Page.server_failure`)."""
+    page = page_of(meshcat)
+    if page.server_failure is not None:
+        return page.server_failure
+    if page.made_on not in (None, threading.get_ident()):  # Drake aborts a call from another thread
+        return None
+    try:
+        meshcat.port()  # raises once the websocket thread has exited, and lets it end
+        return None
+    except RuntimeError as e:
+        page.server_failure = f"{SERVER_STOPPED} ({e})"
+    if page.server_thread is None:  # a Meshcat made elsewhere, or not Linux: by time alone
+        time.sleep(0.5)  # releases the GIL: the thread's last act is a line through Python's logging
+    else:
+        task, deadline = f"/proc/self/task/{page.server_thread}", time.monotonic() + SERVER_END_S
+        while os.path.exists(task) and time.monotonic() < deadline:
+            time.sleep(0.005)
+    return page.server_failure
+
+
+@atexit.register
+def _end_stopped_servers() -> None:
+    """At exit, before the interpreter goes: let the thread of any Meshcat whose server stopped end
+    (Drake aborts the process otherwise, after everything was written but with exit 134)."""
+    for meshcat, page in list(_PAGES.items()):
+        if page.made_on == threading.get_ident():  # made here (start_server): it may be asked here
+            server_stopped(meshcat)
 
 
 def set_view(meshcat: Meshcat, position_m=None, target_m=None) -> None:
