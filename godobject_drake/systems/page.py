@@ -178,7 +178,8 @@ def page_of(meshcat: Meshcat) -> Page:
 # every client, the page's controls and the recording's HTML (``StaticHtml`` raises). The thread
 # then waits for the main thread to notice (any Meshcat call raises once) and logs through
 # Python's logging: a process that exits before it has done so aborts (std::terminate, exit 134),
-# losing whatever was not yet written. docs/haptic_devices.md "What is guarded".
+# losing whatever was not yet written. What is guarded: its table in docs/haptic_devices.md
+# "Pairing: only your scene drives your device".
 SERVER_STOPPED = (
     "Meshcat's server stopped during the run: a websocket client sent it a frame it could not parse "
     "(Drake's Meshcat ends its server on any malformed message: any local process or web page can "
