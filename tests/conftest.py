@@ -15,6 +15,7 @@ import logging
 import os
 import re
 import shutil
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,13 @@ from godobject_drake.simulation import RunResult, simulate
 from godobject_drake.station.build import build_station, make_meshcat
 
 REPO = Path(__file__).resolve().parent.parent
+
+# The processes the tests start get SIGHUP's default disposition, as a process started from a
+# terminal does: a suite run under ``nohup`` (SIGHUP ignored, inherited by every child) would
+# otherwise make each scene and driver outlive its SIGHUP, as they rightly do for a user who
+# asked for nohup, and the tests that send SIGHUP to see them end would fail for that alone
+# (seen: three of them, in a CI run started with nohup). The nohup test sets SIG_IGN itself.
+signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 @pytest.fixture(autouse=True)
