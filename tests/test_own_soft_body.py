@@ -105,7 +105,10 @@ def test_a_flat_tetrahedron_exits_2_naming_the_file_and_remeshing(tmp_path):
 
 def test_a_mesh_in_millimetres_exits_2_naming_its_size_and_the_scale(tmp_path):
     V, T = pad_mesh()
-    refused(write_scene(tmp_path, V * 1000, T), "pad.vtk", "is 80 m across", "Give scale: 0.001")
+    refused(
+        write_scene(tmp_path, V * 1000, T), "pad.vtk", "is 80 m across",
+        "267 times the scene's workspace (0.3 m", "Give scale: 0.001",
+    )  # fmt: skip
 
 
 def test_a_mesh_file_that_is_not_there_exits_2_naming_the_field_and_where_paths_start(tmp_path):
@@ -180,8 +183,11 @@ def test_a_primitive_is_meshed_at_its_resolution_and_checked_like_a_file():
     V, T = soft_body_mesh(ball, "deformables.b", 1e-3)
     assert np.linalg.norm(V, axis=1).max() == pytest.approx(0.02)
     huge = SoftBody(shape="box", size_m=[3.0, 0.1, 0.1], resolution_m=0.5, free=True)
-    with pytest.raises(ValueError, match=r"3 m across .* Give scale: 0\.001"):
-        soft_body_mesh(huge, "deformables.b", 1e-3)
+    soft_body_mesh(huge, "deformables.b", 1e-3, workspace_m=0.35)  # 8.6 workspaces: a large scene's body
+    with pytest.raises(
+        ValueError, match=r"3 m across .* 15 times the scene's workspace \(0\.2 m .* scale: 0\.001"
+    ):
+        soft_body_mesh(huge, "deformables.b", 1e-3, workspace_m=0.2)
 
 
 def test_a_mesh_point_in_no_tetrahedron_is_refused_naming_how_many(tmp_path):
@@ -275,7 +281,7 @@ def test_the_guide_shows_the_example_scenario_as_it_is():
 
     page = (REPO / "docs" / "guide" / "own_soft_body.md").read_text()
     blocks = re.findall(r"```yaml\n(.*?)```", page, flags=re.S)
-    assert blocks == [EXAMPLE.read_text()]
+    assert blocks[0] == EXAMPLE.read_text()  # the second: the laparoscopy's organ written out (below)
 
 
 def test_the_example_mesh_is_what_its_script_makes():
@@ -443,3 +449,90 @@ def test_analyze_finds_where_the_articulated_grasper_presses_a_soft_pad_and_its_
     assert press["point_W"] == pytest.approx([0.0, 0.0, 0.036], abs=1e-6)
     assert press["push_m"] == pytest.approx(0.063, abs=2e-3)
     assert row["value"] == press["stiffness_n_m"] and 500 < row["value"] < 5000
+
+
+def test_a_capsule_is_meshed_round_its_axis_to_its_radius_and_length():
+    """The capsule's surface lies at its radius from its axis segment (the cylinder's length), its
+    extent is 2r × 2r × (L + 2r), and its volume tends to π r² L + 4/3 π r³ as its cells shrink."""
+    from godobject_drake.config.scene import SoftBody
+    from godobject_drake.systems.soft_body import soft_body_mesh
+    from godobject_drake.systems.tissue import surface_triangles, tet_volumes
+
+    r, L = 0.01, 0.04
+    volume = np.pi * r * r * L + 4.0 / 3.0 * np.pi * r**3
+    errors = []
+    for cells in (4, 8):
+        spec = SoftBody(shape="capsule", size_m=[r, L], cells=cells, free=True, max_slowdown=np.inf)
+        V, T = soft_body_mesh(spec, "deformables.c", 1e-3)
+        assert np.all(tet_volumes(V, T) > 0)
+        assert np.ptp(V, axis=0) == pytest.approx([2 * r, 2 * r, L + 2 * r])
+        surface = np.unique(surface_triangles(T))
+        z = np.clip(V[surface, 2], -L / 2, L / 2)  # the nearest point of the axis segment
+        to_axis = np.linalg.norm(V[surface] - np.column_stack([0 * z, 0 * z, z]), axis=1)
+        assert to_axis == pytest.approx(np.full(len(surface), r))
+        errors.append(abs(tet_volumes(V, T).sum() - volume) / volume)
+    assert errors[1] < errors[0] / 2 and errors[1] < 0.05  # the inscribed facets' shortfall halves and more
+    with pytest.raises(ValueError, match=r"size_m: \[0\.01\]; a capsule takes 2 lengths"):
+        SoftBody(shape="capsule", size_m=[0.01], free=True).check()
+
+
+def test_a_body_held_below_its_top_keeps_those_vertices_in_place_and_only_to_the_world(tmp_path):
+    """``below_top_m``: Drake's wall boundary condition, the vertices under the cut held exactly
+    (their degrees of freedom gone), the rest hanging from them."""
+    from godobject_drake.simulation import simulate
+
+    V, T = pad_mesh()
+    body = """    mesh: pad.vtk
+    xyz_m: [0.0, -0.08, 0.1]
+    attach: [{below_top_m: 0.02}]"""
+    station = build(load_scenario(write_scene(tmp_path, V, T, body=body, duration=0.2)))
+    (pad,) = [s._body for s in station.diagram.GetSystems() if s.get_name() == "pad_soft_body_observer"]
+    assert pad.attached == 25  # the bottom layer of 5 x 5 (z = 0.085 m, under the cut at 0.095 m)
+    assert np.all(pad.rest_W[pad.held, 2] == pytest.approx(0.085))
+    result = simulate(station, progress=False)
+    context = station.plant.GetMyContextFromRoot(result.context)
+    p = station.plant.get_deformable_body_configuration_output_port().Eval(context).value(pad.geometry_id)
+    moved = np.linalg.norm(np.asarray(p).reshape(-1, 3) - pad.rest_W, axis=1)
+    assert moved[pad.held].max() == 0.0  # not a constraint's small slip: no motion at all
+    assert 1e-7 < moved.max() < 2e-3  # the free part settles onto them
+    bad = body.replace("{below_top_m: 0.02}", "{to: cube_post::cube, below_top_m: 0.02}")
+    refused(
+        write_scene(tmp_path, V, T, body=bad), "attach[0].to: 'cube_post::cube' with below_top_m", "to: world"
+    )
+    deep = body.replace("0.02", "0.05")
+    refused(
+        write_scene(tmp_path, V, T, body=deep), "attach[0]: 0.05 m reaches below the body's bottom", "30.0 mm"
+    )
+
+
+def test_the_laparoscopys_fem_organ_is_its_deformables_entry_written_out_step_for_step():
+    """``organs: {model: fem, ...}`` stands for one ``deformables:`` entry (Organs.soft_body): the
+    bimanual scene with that entry written out (and rigid organs) moves its plant bit for bit as
+    the shipped scene does, its glued site lifted by the left grasper included."""
+
+    from godobject_drake.config.scenario import shipped_scenario
+    from godobject_drake.simulation import simulate
+
+    shipped = replace(shipped_scenario("laparoscopy_bimanual"), **{"simulation.duration_s": 0.6})
+    guide = (REPO / "docs" / "guide" / "own_soft_body.md").read_text()
+    block = (
+        guide.split("Written out, the bimanual scene's uterus reads:")[1]
+        .split("```yaml\n")[1]
+        .split("```")[0]
+    )
+    written = replace(shipped_scenario("laparoscopy_bimanual", block), **{"simulation.duration_s": 0.6})
+    assert (
+        written.deformables["uterus"] == shipped.organs.soft_body()
+    )  # the guide's entry is the short form's
+    states = []
+    for scenario in (shipped, written):
+        station = build(scenario)
+        result = simulate(station, progress=False)
+        plant = station.plant
+        context = plant.GetMyContextFromRoot(result.context)
+        body = station.soft_bodies.get("uterus") or station.tools["left"].tissue
+        p = plant.get_deformable_body_configuration_output_port().Eval(context).value(body.geometry_id)
+        states.append((plant.GetPositionsAndVelocities(context).copy(), np.asarray(p).copy()))
+    (q_a, p_a), (q_b, p_b) = states
+    assert np.array_equal(q_a, q_b) and np.array_equal(p_a, p_b)
+    assert np.abs(p_a.reshape(-1, 3) - body.rest_W).max() > 1e-4  # the organ moved: the check is not of rest

@@ -414,8 +414,45 @@ class Organs:
         """The Young's modulus the FEM mesh is given (Pa): the material's times ``modulus_factor``."""
         return self.youngs_modulus_pa * self.modulus_factor
 
+    @property
+    def name(self) -> str:
+        """The soft body's name: the organ's geometry's (``uterus`` of ``pelvis::uterus``)."""
+        return self.organ.split("::")[-1]
+
+    def soft_body(self) -> "SoftBody":
+        """The ``deformables:`` entry ``model: fem`` stands for: the body that ``replaces`` the organ's
+        ellipsoid, meshed at ``cells`` and ``grading``, held in place below ``attached_below_m``
+        under its top, glued to ``glued``. A scenario that writes this entry itself under
+        ``deformables`` builds the same scene, step for step."""
+        return SoftBody(
+            replaces=self.organ, cells=self.cells, grading=self.grading,
+            youngs_modulus_pa=self.youngs_modulus_pa, modulus_factor=self.modulus_factor,
+            poissons_ratio=self.poissons_ratio, density_kg_m3=self.density_kg_m3,
+            mass_damping_per_s=self.mass_damping_per_s, stiffness_damping_s=self.stiffness_damping_s,
+            material=self.material, friction=self.friction, relaxation_time_s=self.relaxation_time_s,
+            attach=[SoftAttach(below_top_m=self.attached_below_m)], glued=list(self.glued),
+            glue_size_m=self.glue_size_m, threads=self.threads, max_slowdown=math.inf,
+        )  # fmt: skip
+
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        self.check_material()
+        if not (isinstance(self.cells, int) and 2 <= self.cells <= 24 and self.cells % 2 == 0):
+            raise ValueError(
+                f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
+                "and steps far below real time)"
+            )
+        if not (isinstance(self.grading, int | float) and 1.0 <= self.grading <= 3.0):
+            raise ValueError(
+                f"grading: {self.grading!r} must be in [1, 3] (1: cells evenly spaced; 1.5: each cell 1.5 "
+                "times as wide as its neighbour toward the top's centre)"
+            )
+        if not (isinstance(self.attached_below_m, int | float) and math.isfinite(self.attached_below_m)
+                and self.attached_below_m > 0):  # fmt: skip
+            raise ValueError(f"attached_below_m: {self.attached_below_m!r} must be a finite number > 0")
+
+    def check_material(self) -> None:
+        """The material's, contact's and solver's fields (shared with :class:`SoftBody`)."""
         if self.model not in TISSUE_MODELS:
             raise ValueError(
                 f"model: {self.model!r}; choose one of {TISSUE_MODELS} (rigid: the rigid organs with a soft "
@@ -424,7 +461,6 @@ class Organs:
         positive = (
             ("youngs_modulus_pa", self.youngs_modulus_pa),
             ("density_kg_m3", self.density_kg_m3),
-            ("attached_below_m", self.attached_below_m),
             ("relaxation_time_s", self.relaxation_time_s),
         )
         for name, value in positive:
@@ -440,21 +476,11 @@ class Organs:
                 raise ValueError(f"{name}: {value!r} must be a finite number ≥ 0")
         if not (isinstance(self.glue_size_m, int | float) and 0 < self.glue_size_m <= 0.05):
             raise ValueError(f"glue_size_m: {self.glue_size_m!r} m must be in (0, 0.05] (e.g. 0.012)")
-        if not (isinstance(self.cells, int) and 2 <= self.cells <= 24 and self.cells % 2 == 0):
-            raise ValueError(
-                f"cells: {self.cells!r} must be an even integer in [2, 24] (8: 729 vertices; 24 has 15625 "
-                "and steps far below real time)"
-            )
         if not (isinstance(self.modulus_factor, int | float) and 0.05 <= self.modulus_factor <= 1.0):
             raise ValueError(
                 f"modulus_factor: {self.modulus_factor!r} must be in [0.05, 1] (1: the material's modulus; "
                 "below 1 for a mesh coarser than the one it should answer as: python analysis/fem_levers.py "
                 "--calibrate finds it)"
-            )
-        if not (isinstance(self.grading, int | float) and 1.0 <= self.grading <= 3.0):
-            raise ValueError(
-                f"grading: {self.grading!r} must be in [1, 3] (1: cells evenly spaced; 1.5: each cell 1.5 "
-                "times as wide as its neighbour toward the top's centre)"
             )
         if self.material not in TISSUE_MATERIALS:
             raise ValueError(
@@ -465,7 +491,7 @@ class Organs:
         if not (isinstance(self.threads, int) and 1 <= self.threads <= cores):
             raise ValueError(
                 f"threads: {self.threads!r} must be a whole number from 1 to this machine's {cores} cores "
-                "(e.g. --set organs.threads=2)"
+                "(e.g. 2)"
             )
 
 
@@ -514,17 +540,26 @@ class Sleep:
                 raise ValueError(f"sleep.{name}={value!r} must be ≥ 0 (default {getattr(Sleep, name)!r})")
 
 
-SOFT_SHAPES = ("box", "sphere", "ellipsoid")
-# How many numbers each primitive's size_m takes: box its sides, sphere its radius, ellipsoid its radii.
-SOFT_SIZES = {"box": 3, "sphere": 1, "ellipsoid": 3}
+SOFT_SHAPES = ("box", "sphere", "ellipsoid", "capsule")
+# How many numbers each primitive's size_m takes: box its sides, sphere its radius, ellipsoid its radii,
+# capsule its radius and its cylinder's length (along its z).
+SOFT_SIZES = {"box": 3, "sphere": 1, "ellipsoid": 3, "capsule": 2}
 
 
 @dataclasses.dataclass
 class SoftAttach:
-    """Where a soft body is held (``deformables.NAME.attach``): the vertices of its rest mesh inside
-    the box ``[lower_m, upper_m]`` (in W), or within ``within_m`` of the body ``to``'s origin, fixed
-    to ``to`` (``world``, or a free or jointed body of the directives as ``model::body``) by Drake's
-    ``DeformableModel.AddFixedConstraint``.
+    """Where a soft body is held (``deformables.NAME.attach``), in one of three ways:
+
+    - the vertices of its rest mesh inside the box ``[lower_m, upper_m]`` (in W), or
+    - within ``within_m`` of the body ``to``'s origin,
+
+    fixed to ``to`` (``world``, or a free body of the directives as ``model::body``) by Drake's
+    ``DeformableModel.AddFixedConstraint``; or
+
+    - the vertices more than ``below_top_m`` under the body's highest point, held where they are
+      by Drake's wall boundary condition (``SetWallBoundaryCondition``: their degrees of freedom
+      leave the problem, so it costs nothing; ``to: world`` only). The laparoscopy's organ is held
+      so (``organs.attached_below_m``).
 
     Attributes
     ----------
@@ -532,24 +567,32 @@ class SoftAttach:
         ``world`` or a free body as ``model::body`` (a body welded to the world cannot hold it:
         Drake refuses the constraint; give ``world``).
     lower_m, upper_m : list[float]
-        The box's corners in W (m); both empty with ``within_m``.
+        The box's corners in W (m); both empty with ``within_m`` or ``below_top_m``.
     within_m : float
-        0: the box. Above 0: the vertices this close to ``to``'s origin (a body, not the world).
+        Above 0: the vertices this close to ``to``'s origin (a body, not the world).
+    below_top_m : float
+        Above 0: the vertices lower than this under the body's top (m), held in place.
     """
 
     to: str = "world"
     lower_m: list[float] = dataclasses.field(default_factory=list)
     upper_m: list[float] = dataclasses.field(default_factory=list)
     within_m: float = 0.0
+    below_top_m: float = 0.0
 
     def check(self) -> None:
         if not (isinstance(self.to, str) and self.to):
             raise ValueError(f"to: {self.to!r}; give world or a body as model::body")
         box = bool(self.lower_m or self.upper_m)
-        if box == (self.within_m > 0):
+        for name in ("within_m", "below_top_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: {value!r} m must be a finite number ≥ 0 (0: not this way)")
+        if [box, self.within_m > 0, self.below_top_m > 0].count(True) != 1:
             raise ValueError(
-                f"lower_m/upper_m {self.lower_m}/{self.upper_m}, within_m {self.within_m!r}: give either "
-                "a box (lower_m and upper_m, 3 numbers each, m in W) or within_m > 0 (m), not both"
+                f"lower_m/upper_m {self.lower_m}/{self.upper_m}, within_m {self.within_m!r}, below_top_m "
+                f"{self.below_top_m!r}: give one way, a box (lower_m and upper_m, 3 numbers each, m in W), "
+                "within_m > 0 of a body, or below_top_m > 0"
             )
         if box:
             for name in ("lower_m", "upper_m"):
@@ -558,33 +601,53 @@ class SoftAttach:
                     raise ValueError(f"{name}: {value!r} must be 3 finite numbers (m, in W)")
             if not all(a < b for a, b in zip(self.lower_m, self.upper_m, strict=True)):
                 raise ValueError(f"lower_m {self.lower_m} must be below upper_m {self.upper_m} on every axis")
+        elif self.below_top_m > 0:
+            if self.to != "world":
+                raise ValueError(
+                    f"to: {self.to!r} with below_top_m: the vertices are held in place, to the world only; "
+                    "give to: world, or a box or within_m to hold them to a body"
+                )
         elif self.to == "world":
             raise ValueError(f"within_m: {self.within_m!r} of the world: give a box, or a body as to")
-        elif not (math.isfinite(self.within_m) and self.within_m <= 1.0):
+        elif self.within_m > 1.0:
             raise ValueError(f"within_m: {self.within_m!r} m must be in (0, 1]")
 
 
 @dataclasses.dataclass
 class SoftBody:
     """A soft body of the scene (``deformables: {NAME: ...}``): Drake FEM tissue from a tetrahedral
-    mesh file or a primitive, placed at ``xyz_m``/``rpy_deg``, of its material, held where
-    ``attach`` says (docs/guide/own_soft_body.md).
+    mesh file, a primitive or a rigid shape of the directives it replaces, placed at
+    ``xyz_m``/``rpy_deg``, of its material, held where ``attach`` says
+    (docs/guide/own_soft_body.md).
 
     Attributes
     ----------
     mesh : str
-        A tetrahedral volume mesh, legacy-ASCII VTK (cell type 10), relative to the scenario or
+        A tetrahedral volume mesh, VTK (cell type 10), relative to the scenario or
         ``package://godobject_models/...``; its coordinates in m (``scale`` otherwise). Empty:
-        ``shape``.
+        ``shape`` or ``replaces``.
     scale : float
         The mesh's coordinates times this are metres (0.001 for a mesh in millimetres).
     shape, size_m, resolution_m :
         A primitive instead of a mesh: ``box`` (``size_m`` its 3 sides), ``sphere`` (its radius),
-        ``ellipsoid`` (its 3 radii), meshed with cells about ``resolution_m`` wide.
+        ``ellipsoid`` (its 3 radii), ``capsule`` (its radius and its cylinder's length, along its
+        z), meshed with cells about ``resolution_m`` wide.
+    replaces : str
+        A collision geometry of the directives (``model::name``: an Ellipsoid, Sphere or Box on a
+        body welded to the world) this body takes the place of: its shape and pose are the body's
+        (``xyz_m``/``rpy_deg`` are then left out), the rigid one no longer touches or is drawn.
+    cells, grading :
+        A primitive's (or replaced shape's) mesh by count, not ``resolution_m``: ``cells`` (even,
+        2 to 24) across each axis (0: from ``resolution_m``); for an ellipsoid or sphere,
+        ``grading`` > 1 makes the cells finest at its top's centre, each this many times as wide
+        as its neighbour toward there (as ``organs.grading``).
     xyz_m, rpy_deg :
         The body's pose in W: the mesh's own frame (a primitive's centre) there.
     youngs_modulus_pa, poissons_ratio, density_kg_m3 :
         The tissue's material (Pa, –, kg/m³), as :class:`Organs`'s; ν in [0, 0.5).
+    modulus_factor : float
+        The mesh's Young's modulus as a fraction of the material's (as ``organs.modulus_factor``:
+        below 1, a coarse mesh answers as a finer one).
     mass_damping_per_s, stiffness_damping_s :
         Rayleigh damping: α (1/s) and β (s), damping matrix α M + β K.
     material, friction, relaxation_time_s :
@@ -597,9 +660,12 @@ class SoftBody:
     glued, glue_size_m :
         Free bodies of the directives glued to it (grasp sites), each holding its vertices within a
         cube of ``glue_size_m`` about the body's start.
+    threads : int
+        Threads Drake's FEM may use (one setting for all the scene's soft bodies: the most any
+        asks for).
     max_slowdown : float
         The run is refused when this body's FEM step is estimated to take more than this many
-        time steps of wall time (docs/results.md, "A soft body's cost").
+        time steps of wall time (docs/results.md, "A soft body's cost"); ``.inf``: no limit.
     """
 
     mesh: str = ""
@@ -607,9 +673,13 @@ class SoftBody:
     shape: str = ""
     size_m: list[float] = dataclasses.field(default_factory=list)
     resolution_m: float = 0.01
+    replaces: str = ""
+    cells: int = 0
+    grading: float = 1.0
     xyz_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     rpy_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     youngs_modulus_pa: float = 5.0e4
+    modulus_factor: float = 1.0
     poissons_ratio: float = 0.45
     density_kg_m3: float = 1000.0
     mass_damping_per_s: float = 0.0
@@ -621,32 +691,35 @@ class SoftBody:
     free: bool = False
     glued: list[str] = dataclasses.field(default_factory=list)
     glue_size_m: float = 0.012
+    threads: int = 1
     max_slowdown: float = 20.0
 
     @property
     def mesh_youngs_modulus_pa(self) -> float:
         """The modulus the FEM mesh is given (as :attr:`Organs.mesh_youngs_modulus_pa`)."""
-        return self.youngs_modulus_pa
+        return self.youngs_modulus_pa * self.modulus_factor
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"`` (the mesh itself is checked
         when it is read: :func:`godobject_drake.systems.soft_body.soft_body_mesh`)."""
-        if bool(self.mesh) == bool(self.shape):
+        if [bool(self.mesh), bool(self.shape), bool(self.replaces)].count(True) != 1:
             raise ValueError(
-                f"mesh {self.mesh!r}, shape {self.shape!r}: give one, a tetrahedral VTK file as mesh or a "
-                f"primitive as shape ({', '.join(SOFT_SHAPES)}) with size_m"
+                f"mesh {self.mesh!r}, shape {self.shape!r}, replaces {self.replaces!r}: give one, a "
+                f"tetrahedral VTK file as mesh, a primitive as shape ({', '.join(SOFT_SHAPES)}) with size_m, "
+                "or a rigid shape of the directives as replaces (model::name)"
             )
         if self.shape:
-            if self.shape not in SOFT_SHAPES:
-                raise ValueError(f"shape: {self.shape!r}; choose one of {SOFT_SHAPES}")
-            n = SOFT_SIZES[self.shape]
-            if len(self.size_m) != n or not all(math.isfinite(v) and v > 0 for v in self.size_m):
-                raise ValueError(f"size_m: {self.size_m!r}; a {self.shape} takes {n} lengths > 0 (m)")
-            if not (math.isfinite(self.resolution_m) and 0 < self.resolution_m <= max(self.size_m)):
-                raise ValueError(
-                    f"resolution_m: {self.resolution_m!r} m must be > 0 and at most the shape's size "
-                    f"({max(self.size_m):g} m)"
-                )
+            self._check_shape()
+        if self.replaces and "::" not in self.replaces:
+            raise ValueError(f"replaces: {self.replaces!r}; give the collision geometry as model::name")
+        if not (isinstance(self.cells, int) and 0 <= self.cells <= 24 and self.cells % 2 == 0):
+            raise ValueError(
+                f"cells: {self.cells!r} must be 0 (from resolution_m) or an even integer in [2, 24]"
+            )
+        if self.mesh and (self.cells or self.grading != 1.0):
+            raise ValueError(
+                f"cells {self.cells}, grading {self.grading}: a mesh file is meshed already; leave them out"
+            )
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise ValueError(f"scale: {self.scale!r} must be > 0 (0.001 for a mesh in millimetres)")
         for name in ("xyz_m", "rpy_deg"):
@@ -658,8 +731,12 @@ class SoftBody:
             density_kg_m3=self.density_kg_m3, mass_damping_per_s=self.mass_damping_per_s,
             stiffness_damping_s=self.stiffness_damping_s, material=self.material, friction=self.friction,
             relaxation_time_s=self.relaxation_time_s, glue_size_m=self.glue_size_m,
+            modulus_factor=self.modulus_factor, threads=self.threads,
         )  # fmt: skip
-        material.check()  # the same limits and words as the organs'
+        material.check_material()  # the same limits and words as the organs'
+        if self.cells or self.replaces:
+            material.cells, material.grading = self.cells or 2, self.grading
+            material.check()  # the organs' mesh counts
         if not self.attach and not self.free:
             raise ValueError(
                 "attach: none, so the body will fall: give attach (a box of its vertices fixed to the "
@@ -670,5 +747,19 @@ class SoftBody:
                 attach.check()
             except ValueError as e:
                 raise ValueError(f"attach[{i}].{e}") from None
-        if not (math.isfinite(self.max_slowdown) and self.max_slowdown > 0):
-            raise ValueError(f"max_slowdown: {self.max_slowdown!r} must be > 0 (e.g. 20)")
+        if not (self.max_slowdown > 0 and not math.isnan(self.max_slowdown)):
+            raise ValueError(f"max_slowdown: {self.max_slowdown!r} must be > 0 (e.g. 20; .inf: no limit)")
+
+    def _check_shape(self) -> None:
+        if self.shape not in SOFT_SHAPES:
+            raise ValueError(f"shape: {self.shape!r}; choose one of {SOFT_SHAPES}")
+        n = SOFT_SIZES[self.shape]
+        if len(self.size_m) != n or not all(math.isfinite(v) and v > 0 for v in self.size_m):
+            raise ValueError(f"size_m: {self.size_m!r}; a {self.shape} takes {n} lengths > 0 (m)")
+        if not (math.isfinite(self.resolution_m) and 0 < self.resolution_m <= max(self.size_m)):
+            raise ValueError(
+                f"resolution_m: {self.resolution_m!r} m must be > 0 and at most the shape's size "
+                f"({max(self.size_m):g} m)"
+            )
+        if self.grading != 1.0 and self.shape not in ("sphere", "ellipsoid"):
+            raise ValueError(f"grading: {self.grading!r} grades a sphere or an ellipsoid only; leave it at 1")

@@ -24,7 +24,7 @@ from godobject_drake.station.articulated_model import add_articulated_model
 from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
-from godobject_drake.systems.tissue import free_body, tool_capsules
+from godobject_drake.systems.tissue import connect_tissue_observer, free_body, tool_capsules
 
 
 @dataclasses.dataclass
@@ -34,7 +34,8 @@ class ArticulatedGodObject(GodObject):
     Attributes
     ----------
     tissue, tissue_observer :
-        With ``organs.model: fem``: the :class:`~godobject_drake.systems.tissue.FemOrgan` and its
+        With ``organs.model: fem``: the organ (a
+        :class:`~godobject_drake.systems.soft_body.FemSoftBody`) and its
         :class:`~godobject_drake.systems.tissue.TissueObserver` (logged, drawn, folded into the metrics).
     """
 
@@ -361,7 +362,7 @@ def add_articulated(
         if len(scene.tool_names) > 1:  # several: each observer counts its own tool's contacts
             mine = [g for b in plant.GetBodyIndices(tool.model)
                     for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]  # fmt: skip
-        god.tissue_observer = scene.tissue.connect(
-            builder, plant, tool_capsules(plant, scene.scene_graph, tool.model), mine
+        god.tissue_observer = connect_tissue_observer(
+            builder, plant, scene.tissue, tool_capsules(plant, scene.scene_graph, tool.model), mine
         )
     return god

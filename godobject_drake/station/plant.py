@@ -41,7 +41,7 @@ from godobject_drake.config.scenario import MODELS_DIR
 from godobject_drake.config.scene import CORNER_PREFIX, FLAT_PREFIX, is_proxy, local_name
 from godobject_drake.station.loop import ForceBus
 from godobject_drake.systems.soft_body import FemSoftBody
-from godobject_drake.systems.tissue import FemOrgan, weld_glued
+from godobject_drake.systems.tissue import weld_glued
 
 CONTACT_MODELS = ("proxies", "hydroelastic")
 # Drake's discrete contact approximations that work from Python on this scene kind (TAMSI is
@@ -131,7 +131,7 @@ class SceneParts:
     plant: MultibodyPlant
     scene_graph: SceneGraph
     contact: str
-    tissue: object = None  # a godobject_drake.systems.tissue.FemOrgan with organs.model fem
+    tissue: object = None  # with organs.model fem: the organ, a godobject_drake.systems.soft_body.FemSoftBody
     forces: object = None  # the station's loop.ForceBus: every tool's forces into the plant
     tool_names: tuple = ()  # the scenario's tools by name (empty: the one-tool form)
     soft_bodies: dict = dataclasses.field(default_factory=dict)  # deformables: name → FemSoftBody
@@ -270,6 +270,19 @@ def exclude_self_collisions(plant: MultibodyPlant, scene_graph: SceneGraph, mode
     scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
 
 
+# The organs' fields a soft body's error names (Organs.soft_body's entry, written as organs:).
+ORGAN_FIELDS = {"replaces": "organ", "attach": "attached_below_m"}
+
+
+def workspace_diagonal(scenario: sc.Scenario) -> float:
+    """The scene's size (m): the diagonal of the box around its devices' workspaces (each tool's,
+    or the scene's one)."""
+    boxes = [tool.workspace for tool in scenario.tools.values()] or [scenario.workspace]
+    lower = np.min([box.lower_m for box in boxes], axis=0)
+    upper = np.max([box.upper_m for box in boxes], axis=0)
+    return float(np.linalg.norm(upper - lower))
+
+
 def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=None) -> SceneParts:
     """The scenario's plant: its config, directives, ``bricks`` and contact settings; finalized."""
 
@@ -278,12 +291,15 @@ def add_plant(builder: DiagramBuilder, scenario: sc.Scenario, before_finalize=No
 
     def before(plant, scene_graph):
         try:
-            if scenario.organs.model == "fem":
-                tissue.append(FemOrgan(plant, scene_graph, scenario.organs))
+            workspace_m = workspace_diagonal(scenario)
+            organs = scenario.organs
+            if organs.model == "fem":  # the deformables entry it stands for, named as organs' fields
+                tissue.append(FemSoftBody(plant, organs.name, organs.soft_body(), scene_graph, where="organs",
+                                          workspace_m=workspace_m, fields=ORGAN_FIELDS))  # fmt: skip
             else:
-                weld_glued(plant, scenario.organs)
+                weld_glued(plant, organs)
             for name, spec in scenario.deformables.items():
-                soft[name] = FemSoftBody(plant, name, spec)
+                soft[name] = FemSoftBody(plant, name, spec, scene_graph, workspace_m=workspace_m)
         except ValueError as e:
             raise sc.ScenarioError(str(e)) from None
         if scenario.bricks:

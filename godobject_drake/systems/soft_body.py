@@ -25,6 +25,7 @@ import weakref
 from pathlib import Path
 
 import numpy as np
+from pydrake.common import Parallelism
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
     AddContactMaterial,
@@ -34,6 +35,7 @@ from pydrake.geometry import (
     Mesh,
     ProximityProperties,
     QueryObject,
+    Role,
     Sphere,
 )
 from pydrake.math import RigidTransform, RollPitchYaw
@@ -48,15 +50,17 @@ from godobject_drake.systems.tissue import (
     capsule_against_surface,
     ellipsoid_tet_mesh,
     free_body,
+    graded_axis,
     grid_tet_mesh,
     max_tet_strain,
+    orient,
     surface_triangles,
     write_vtk,
 )
 
-# A soft body larger than this (m, its longest side) is taken for a mesh in millimetres: a whole
-# human torso is 0.7 m, the shipped scenes' workspaces 0.3 m.
-MAX_SOFT_BODY_EXTENT_M = 2.0
+# A soft body this many times as wide as the scene's workspace (the boxes its devices move in) is
+# taken for a mesh in millimetres: no tool could reach round it.
+MAX_EXTENT_TO_WORKSPACE = 10.0
 # One soft body's cost a plant step against its vertex count n, fitted to
 # `python analysis/soft_body_cost.py` (docs/results.md, "A soft body's cost"): seconds =
 # COST_S[0] + COST_S[1] n + COST_S[2] n² (Drake's FEM and SAP's Schur complement grow faster than n).
@@ -82,9 +86,11 @@ def pose(spec: SoftBody) -> RigidTransform:
     return RigidTransform(RollPitchYaw(np.radians(spec.rpy_deg)), np.asarray(spec.xyz_m, float))
 
 
-def soft_body_mesh(spec: SoftBody, where: str, time_step: float):
+def soft_body_mesh(spec: SoftBody, where: str, time_step: float, workspace_m: float = 0.35, shape=None):
     """The soft body's rest vertices ``(n, 3)`` in its own frame (m) and tetrahedra ``(m, 4)``,
-    read or meshed, checked (module docstring); ``ValueError`` naming ``where`` and the fix."""
+    read or meshed (``shape``: the primitive a ``replaces`` stands for, as ``(kind, size_m)``),
+    checked (module docstring) against the scene's ``workspace_m`` (the diagonal of its devices'
+    workspaces); ``ValueError`` naming ``where`` and the fix."""
     if spec.mesh:
         if not Path(spec.mesh).is_file():
             raise ValueError(
@@ -101,14 +107,17 @@ def soft_body_mesh(spec: SoftBody, where: str, time_step: float):
                 "tetrahedron (Drake would leave them hanging): remove them"
             )
     else:
-        V, T = primitive_mesh(spec)
+        kind, size = shape or (spec.shape, spec.size_m)
+        V, T = primitive_mesh(kind, size, spec)
     extent = float(np.max(V.max(axis=0) - V.min(axis=0)))
-    if extent > MAX_SOFT_BODY_EXTENT_M:
-        said = f"{spec.mesh}" if spec.mesh else spec.shape
+    if extent > MAX_EXTENT_TO_WORKSPACE * workspace_m:
+        said = f"{spec.mesh}" if spec.mesh else (spec.shape or spec.replaces)
         raise ValueError(
-            f"{where}: {said} is {extent:.4g} m across (scale {spec.scale:g}), past the "
-            f"{MAX_SOFT_BODY_EXTENT_M:g} m a soft body of a haptic scene may be: a mesh in millimetres? "
-            f"Give scale: 0.001 (it would be {extent * 1e-3:.3g} m)"
+            f"{where}: {said} is {extent:.4g} m across (scale {spec.scale:g}), "
+            f"{extent / workspace_m:.3g} times the scene's workspace ({workspace_m:.3g} m across: its "
+            "devices' boxes), past "
+            f"{MAX_EXTENT_TO_WORKSPACE:g}: a mesh in millimetres? Give scale: 0.001 (it would be "
+            f"{extent * 1e-3:.3g} m), or a workspace as large as the scene"
         )
     cost = estimated_step_cost_s(len(V))
     if cost > spec.max_slowdown * time_step:
@@ -122,33 +131,83 @@ def soft_body_mesh(spec: SoftBody, where: str, time_step: float):
     return V, T
 
 
-def primitive_mesh(spec: SoftBody):
-    """A box, sphere or ellipsoid about the origin, cells about ``resolution_m`` wide."""
-    if spec.shape == "box":
-        axes = [np.linspace(-s / 2, s / 2, max(1, round(s / spec.resolution_m)) + 1) for s in spec.size_m]
-        return grid_tet_mesh(*axes)
-    radii = spec.size_m * 3 if spec.shape == "sphere" else spec.size_m
-    cells = max(2, 2 * round(max(radii) / spec.resolution_m))
-    V, T, _ = ellipsoid_tet_mesh(radii, cells)
+def primitive_mesh(kind: str, size, spec: SoftBody):
+    """A box, sphere, ellipsoid or capsule of ``size`` (``SoftBody.size_m``'s meaning) about the
+    origin: ``spec.cells`` cells a side, else cells about ``spec.resolution_m`` wide."""
+    if kind == "box":
+        counts = [spec.cells or max(1, round(s / spec.resolution_m)) for s in size]
+        return grid_tet_mesh(*[np.linspace(-s / 2, s / 2, n + 1) for s, n in zip(size, counts, strict=True)])
+    if kind == "capsule":
+        cells = spec.cells or max(2, 2 * round(size[0] / spec.resolution_m))
+        return capsule_tet_mesh(size[0], size[1], cells)
+    radii = list(size) * 3 if kind == "sphere" else list(size)
+    cells = spec.cells or max(2, 2 * round(max(radii) / spec.resolution_m))
+    V, T, _ = ellipsoid_tet_mesh(radii, cells, spec.grading)
     return V, T
 
 
-class FemSoftBody:
-    """A scenario's soft body registered in ``plant`` (before ``Finalize``): attributes as
-    :class:`~godobject_drake.systems.tissue.FemOrgan`'s (``name``, ``spec``, ``body_id``,
-    ``geometry_id``, ``rest_W``, ``tets``, ``surface``, ``triangles``), ``attached`` the vertices
-    held and ``glued`` each glued body's vertex count."""
+def capsule_tet_mesh(radius: float, length: float, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """A tetrahedral capsule along z (radius, cylinder ``length``, m): the ellipsoid's cube grid
+    (:func:`~godobject_drake.systems.tissue.ellipsoid_tet_mesh`) cut at its equator with layers
+    inserted for the cylinder. The cylinder's layers map each square across it onto the disc
+    (``q ‖q‖∞ / ‖q‖₂`` in x, y); each end's half cube maps onto its hemisphere as the ball's does,
+    so the two maps agree where they meet."""
+    if not (isinstance(cells, int) and cells >= 2 and cells % 2 == 0):
+        raise ValueError(f"cells: {cells!r} must be an even integer ≥ 2")
+    a = 0.5 * length / radius  # the cylinder's half length in radii
+    side = graded_axis(cells, 1.0)
+    half = side[cells // 2 :]  # 0 to 1
+    middle = np.linspace(-a, a, max(1, round(length / (2.0 * radius / cells))) + 1)
+    zs = np.concatenate([-a - half[::-1][:-1], middle, a + half[1:]])
+    V, T = grid_tet_mesh(side, side, zs)
+    q = V.copy()
+    q[:, 2] = np.sign(V[:, 2]) * np.maximum(np.abs(V[:, 2]) - a, 0.0)  # the ends' own cube coordinates
+    inf = np.max(np.abs(q), axis=1)
+    two = np.linalg.norm(q, axis=1)
+    scale = np.divide(inf, two, out=np.zeros_like(inf), where=two > 0)
+    mapped = q * scale[:, None]
+    mapped[:, 2] += np.sign(V[:, 2]) * np.minimum(np.abs(V[:, 2]), a)
+    return mapped * radius, orient(mapped * radius, T)
 
-    def __init__(self, plant: MultibodyPlant, name: str, spec: SoftBody):
-        where = f"deformables.{name}"
-        V, T = soft_body_mesh(spec, where, plant.time_step())
+
+class FemSoftBody:
+    """A scenario's soft body registered in ``plant`` (before ``Finalize``).
+
+    ``scene_graph`` is needed for a body that ``replaces`` a rigid shape (its shape and pose are
+    read, its roles removed); ``workspace_m`` is the scene's size the mesh is checked against;
+    ``where`` and ``fields`` name the scenario's fields in errors (the laparoscopy's ``organs``
+    gives ``organs`` and its own field names, ``{"replaces": "organ", "attach": "attached_below_m"}``).
+
+    Attributes
+    ----------
+    name, spec :
+        Its name and :class:`~godobject_drake.config.scene.SoftBody`.
+    body_id, geometry_id, instance :
+        Drake's deformable body, its geometry and its model instance (``NAME_fem``).
+    X_WG : RigidTransform
+        The frame its mesh is registered in.
+    rest_W, tets, surface, triangles :
+        The rest vertices in W ``(n, 3)``, the tetrahedra, the surface vertices' indices and the
+        surface's outward triangles.
+    held, attached :
+        The vertices its ``attach`` holds (a mask) and how many.
+    glued, glued_bodies :
+        Each glued body's vertex count, and the glued bodies' full names.
+    """
+
+    def __init__(self, plant: MultibodyPlant, name: str, spec: SoftBody, scene_graph=None, *,
+                 workspace_m: float = 0.35, where: str = "", fields=None):  # fmt: skip
+        self.where, self._fields = where or f"deformables.{name}", dict(fields or {})
+        if plant.time_step() <= 0:
+            raise ValueError(f"{self.where}: a soft body needs a discrete SAP plant (plant.time_step > 0)")
+        self.X_WG, shape = self._place(plant, scene_graph, spec)
+        V, T = soft_body_mesh(spec, self.where, plant.time_step(), workspace_m, shape)
         self.name, self.spec, self.tets = name, spec, T
         self.triangles = surface_triangles(T)
         self.surface = np.unique(self.triangles)
-        self.vtk_dir = tempfile.mkdtemp(prefix="godobject_soft_")
+        self.vtk_dir = Path(tempfile.mkdtemp(prefix="godobject_soft_"))
         weakref.finalize(self, shutil.rmtree, self.vtk_dir, True)
         path = write_vtk(f"{self.vtk_dir}/{name}.vtk", V, T)  # what was checked is what Drake reads
-        self.X_WG = pose(spec)
         instance = GeometryInstance(self.X_WG, Mesh(str(path)), f"{name}_fem")
         props = ProximityProperties()
         friction = CoulombFriction(spec.friction, spec.friction)
@@ -156,20 +215,61 @@ class FemSoftBody:
         props.AddProperty("material", "relaxation_time", spec.relaxation_time_s)
         instance.set_proximity_properties(props)
         model = plant.mutable_deformable_model()
+        if spec.threads > 1:  # Drake offers it as a private method only (drake issue 23106)
+            model._set_parallelism(Parallelism(spec.threads))
         self.instance = plant.AddModelInstance(f"{name}_fem")
         self.body_id = model.RegisterDeformableBody(instance, self.instance, body_config(spec), 1.0)
         self.geometry_id = model.GetGeometryId(self.body_id)
         self.rest_W = np.asarray(model.GetReferencePositions(self.body_id)).reshape(-1, 3)
         self.held = np.zeros(len(self.rest_W), bool)
         for i, attach in enumerate(spec.attach):
-            self.held |= self._attach(plant, attach, f"{where}.attach[{i}]")
+            self.held |= self._attach(plant, attach, self._field("attach", i))
         self.attached = int(self.held.sum())
         self.glued_bodies: set[str] = set()  # their full names: not what presses the body
-        self.glued = {body: self._glue(plant, body, where) for body in spec.glued}
+        self.glued = {body: self._glue(plant, body) for body in spec.glued}
 
     @property
     def vertex_count(self) -> int:
         return len(self.rest_W)
+
+    @property
+    def tet_count(self) -> int:
+        return len(self.tets)
+
+    def _field(self, name: str, index: int | None = None) -> str:
+        """The scenario's name of the field ``name`` (``[index]`` of a list), for an error."""
+        said = self._fields.get(name)
+        if said is None:
+            said = name if index is None else f"{name}[{index}]"
+        return f"{self.where}.{said}"
+
+    def _place(self, plant, scene_graph, spec: SoftBody):
+        """``X_WG`` and, for a body that ``replaces`` a rigid shape, that shape as ``(kind,
+        size_m)`` (its roles removed: the soft body touches and is drawn in its place)."""
+        if not spec.replaces:
+            return pose(spec), None
+        where = self._field("replaces")
+        inspector = scene_graph.model_inspector()
+        host, gid = _find_geometry(plant, inspector, spec.replaces, where)
+        found = inspector.GetShape(gid)
+        kind = type(found).__name__
+        sizes = {
+            "Ellipsoid": lambda: ("ellipsoid", [found.a(), found.b(), found.c()]),
+            "Sphere": lambda: ("sphere", [found.radius()]),
+            "Box": lambda: ("box", [found.width(), found.depth(), found.height()]),
+        }
+        if kind not in sizes:
+            raise ValueError(
+                f"{where}: {spec.replaces!r} is a {kind}; a soft body replaces an Ellipsoid, Sphere or Box "
+                "collision geometry: name one, or give the body a mesh"
+            )
+        X_WG = _welded_pose(plant, host, where) @ inspector.GetPoseInFrame(gid)
+        source = plant.get_source_id()
+        for role in (Role.kProximity, Role.kIllustration, Role.kPerception):
+            for other in _geometries_named(plant, inspector, host, inspector.GetName(gid)):
+                if inspector.GetProperties(other, role) is not None:
+                    scene_graph.RemoveRole(source, other, role)
+        return X_WG, sizes[kind]()
 
     def _target(self, plant: MultibodyPlant, scoped: str, where: str):
         """The body ``scoped`` (or the world) and its pose in W."""
@@ -184,15 +284,16 @@ class FemSoftBody:
             ) from None
         return body, plant.GetDefaultFloatingBaseBodyPose(body)
 
-    def _fix(self, plant, body, X_WB, shape, X_WS) -> None:
-        """Drake's fixed constraint of the vertices inside ``shape`` (posed ``X_WS``) to ``body``;
-        ``X_BA`` is the registered geometry frame's pose in B (module docstring)."""
-        X_BW = X_WB.inverse()
+    def _fix(self, plant, body, X_WB, shape, X_BS) -> None:
+        """Drake's fixed constraint of the vertices inside ``shape`` (posed ``X_BS`` in B) to
+        ``body``; ``X_BA`` is the registered geometry frame's pose in B (module docstring)."""
         plant.mutable_deformable_model().AddFixedConstraint(
-            self.body_id, body, X_BW @ self.X_WG, shape, X_BW @ X_WS
+            self.body_id, body, X_WB.inverse() @ self.X_WG, shape, X_BS
         )
 
     def _attach(self, plant, attach, where: str) -> np.ndarray:
+        if attach.below_top_m > 0:
+            return self._hold_below(plant, attach, where)
         body, X_WB = self._target(plant, attach.to, f"{where}.to")
         if attach.within_m > 0:
             inside = np.linalg.norm(self.rest_W - X_WB.translation(), axis=1) <= attach.within_m
@@ -210,19 +311,36 @@ class FemSoftBody:
                 f"{where}: no vertex of the soft body is {what} (the body spans "
                 f"{np.round(low, 4).tolist()} to {np.round(high, 4).tolist()} m in W): move the box onto it"
             )
-        self._fix(plant, body, X_WB, shape, X_WS)
+        self._fix(plant, body, X_WB, shape, X_WB.inverse() @ X_WS)
         return inside
 
-    def _glue(self, plant, scoped: str, where: str) -> int:
-        body, X_WB = self._target(plant, scoped, f"{where}.glued")
+    def _hold_below(self, plant, attach, where: str) -> np.ndarray:
+        """The vertices more than ``below_top_m`` under the top, held in place by Drake's wall
+        boundary condition (zero displacement below the plane z = top − below_top_m)."""
+        top, bottom = float(self.rest_W[:, 2].max()), float(self.rest_W[:, 2].min())
+        cut = top - attach.below_top_m
+        if not cut > bottom:
+            raise ValueError(
+                f"{where}: {attach.below_top_m} m reaches below the body's bottom "
+                f"({(top - bottom) * 1e3:.1f} mm under its top): give less, so some vertices are held"
+            )
+        model = plant.mutable_deformable_model()
+        model.SetWallBoundaryCondition(self.body_id, np.array([0.0, 0.0, cut]), np.array([0.0, 0.0, 1.0]))
+        return self.rest_W[:, 2] < cut
+
+    def _glue(self, plant, scoped: str) -> int:
+        """Fix the vertices within a cube of ``glue_size_m`` about the free body ``scoped``'s start to
+        that body (Drake's deformable fixed constraint); how many are fixed."""
+        where = self._field("glued")
+        body, X_WB = self._target(plant, scoped, where)
         size = self.spec.glue_size_m
         inside = np.all(np.abs(self.rest_W - X_WB.translation()) <= 0.5 * size, axis=1)
         if not inside.any():
             raise ValueError(
-                f"{where}.glued: {scoped} starts at {np.round(X_WB.translation(), 4).tolist()} m, no vertex "
+                f"{where}: {scoped} starts at {np.round(X_WB.translation(), 4).tolist()} m, no vertex "
                 f"within {size * 1e3:g} mm (glue_size_m): move it onto the body's surface"
             )
-        self._fix(plant, body, X_WB, Box(size, size, size), X_WB)
+        self._fix(plant, body, X_WB, Box(size, size, size), RigidTransform())
         self.glued_bodies.add(body.scoped_name().get_full())
         return int(inside.sum())
 
@@ -238,6 +356,61 @@ class FemSoftBody:
         builder.Connect(scene_graph.get_query_output_port(), observer.GetInputPort("query_object"))
         builder.Connect(plant.get_contact_results_output_port(), observer.GetInputPort("contact_results"))
         return observer
+
+
+def _some(names: list[str], n: int = 8) -> str:
+    """At most ``n`` of ``names``, and how many there are."""
+    shown = ", ".join(names[:n])
+    return shown if len(names) <= n else f"{shown}, ... ({len(names)} in all)"
+
+
+def _find_geometry(plant, inspector, scoped: str, where: str):
+    """The body and the id of the collision geometry named ``scoped`` (``model::name``)."""
+    names = []
+    for i in range(plant.num_bodies()):
+        body = plant.get_body(BodyIndex(i))
+        for gid in plant.GetCollisionGeometriesForBody(body):
+            names.append(inspector.GetName(gid))
+            if inspector.GetName(gid) == scoped:
+                return body, gid
+    raise ValueError(
+        f"{where}: {scoped!r} is not a collision geometry of this scene (it has "
+        f"{_some(sorted(names))}); a soft body replaces one of them (the laparoscopy scene's "
+        "pelvis::uterus)"
+    )
+
+
+def _geometries_named(plant, inspector, body, name):
+    """The geometries of ``body`` named ``name`` (each of its roles' own)."""
+    frame = plant.GetBodyFrameIdOrThrow(body.index())
+    return [g for g in inspector.GetGeometries(frame) if inspector.GetName(g) == name]
+
+
+def _welded_pose(plant: MultibodyPlant, body, where: str) -> RigidTransform:
+    """The pose in W of a body welded to the world (through welds only), before Finalize."""
+    X = RigidTransform()
+    b = body
+    world = plant.world_body().index()
+    while b.index() != world:
+        joints = [
+            plant.get_joint(j)
+            for j in plant.GetJointIndices()
+            if plant.get_joint(j).child_body().index() == b.index()
+        ]
+        if not joints or joints[0].type_name() != "weld":
+            raise ValueError(
+                f"{where}: its body {b.name()!r} is not welded to the world; the soft body takes the place "
+                "of a rigid shape that does not move (weld its body in the directives)"
+            )
+        j = joints[0]
+        X = (
+            j.frame_on_parent().GetFixedPoseInBodyFrame()
+            @ j.X_FM()
+            @ j.frame_on_child().GetFixedPoseInBodyFrame().inverse()
+            @ X
+        )
+        b = j.parent_body()
+    return X
 
 
 def moving_geometries(plant: MultibodyPlant, scene_graph, ignored_bodies=()) -> dict:

@@ -1,56 +1,43 @@
-"""Deformable organs: FEM tissue in place of a rigid organ (the laparoscopy scene's uterus).
+"""FEM tissue's meshes, materials and measures, and the laparoscopy's organ seen from its tools.
 
-The rigid scene models an organ as a rigid shape with a soft point-contact
-stiffness: its "penetration" stands for the tissue's indentation, and the organ
-is drawn undeformed. With ``organs.model: fem`` the organ is a Drake FEM
-deformable body instead (linear tetrahedra, Drake's linear corotated material
-unless ``organs.material`` says otherwise, integrated implicitly in SAP), held
-to the pelvis where it attaches, and the tool's contact deforms it.
+The rigid scene models an organ as a rigid shape with a soft point-contact stiffness: its
+"penetration" stands for the tissue's indentation, and the organ is drawn undeformed. With
+``organs.model: fem`` the organ is a Drake FEM deformable body instead (linear tetrahedra, Drake's
+linear corotated material unless ``organs.material`` says otherwise, integrated implicitly in
+SAP): the ``deformables:`` entry :meth:`~godobject_drake.config.scene.Organs.soft_body` stands
+for, built as any soft body is (:class:`~godobject_drake.systems.soft_body.FemSoftBody`): it
+replaces the pelvis's ellipsoid (whose roles are removed), its vertices more than
+``attached_below_m`` under its top held in place by Drake's wall boundary condition. Each tool
+that presses it measures it from its own capsules (:class:`TissueObserver`, the ``tissue_*``
+metrics).
 
-Drake 1.51 meshes a deformable Sphere or Box from a resolution hint but not an
-Ellipsoid ("We don't yet generate deformable meshes for Ellipsoid"), so the
-tetrahedral mesh is made here (:func:`ellipsoid_tet_mesh`): a cube grid of
-``cells`` cells a side, each cell split into Kuhn's six tetrahedra (which
-share its main diagonal, so neighbouring cells' faces match), mapped radially
-onto the unit ball and scaled to the ellipsoid's radii. It is written as a
-legacy VTK file (:func:`write_vtk`), which ``RegisterDeformableBody`` reads
-through a ``Mesh`` shape. The same grid, graded, gives the block of the
-contact-mechanics check (:mod:`godobject_drake.studies.indentation`).
+Drake 1.51 meshes a deformable Sphere or Box from a resolution hint but not an Ellipsoid ("We
+don't yet generate deformable meshes for Ellipsoid"), so the tetrahedral mesh is made here
+(:func:`ellipsoid_tet_mesh`): a cube grid of ``cells`` cells a side, each cell split into Kuhn's six
+tetrahedra (which share its main diagonal, so neighbouring cells' faces match), mapped radially
+onto the unit ball and scaled to the ellipsoid's radii. It is written as a legacy VTK file
+(:func:`write_vtk`), which ``RegisterDeformableBody`` reads through a ``Mesh`` shape. The same
+grid, graded, gives the block of the contact-mechanics check
+(:mod:`godobject_drake.studies.indentation`).
 
-The organ replaces the rigid shape's collision and drawing: its proximity and
-illustration roles are removed from the pelvis's geometry of that name (the
-rigid body and its other organs are untouched), and the FEM body is fixed by
-``AddFixedConstraint`` to the pelvis body (welded to the world by the
-directives) by a zero-displacement wall boundary condition on every vertex
-more than ``attached_below_m`` under the organ's top. (Drake 1.51's
-``AddFixedConstraint`` to the welded pelvis is accepted at build time but stops
-the first step: "Adding constraint to a clique with zero number of velocities
-is not allowed"; to the world body it segfaults.)
+Measured (Drake 1.51): ``AddFixedConstraint`` to the welded pelvis is accepted at build time but
+stops the first step ("Adding constraint to a clique with zero number of velocities is not
+allowed"); the wall boundary condition holds the organ to the pelvis, which does not move.
 """
 
 import math
-import shutil
-import tempfile
-import weakref
 from pathlib import Path
 
 import numpy as np
-from pydrake.common import Parallelism
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
-    AddContactMaterial,
-    Box,
     Capsule,
     GeometryConfigurationVector,
-    GeometryInstance,
-    Mesh,
-    ProximityProperties,
-    Role,
 )
 from pydrake.math import RigidTransform
 from pydrake.multibody.fem import DeformableBodyConfig, MaterialModel
-from pydrake.multibody.plant import ContactResults, CoulombFriction, MultibodyPlant
-from pydrake.multibody.tree import BodyIndex, JointIndex
+from pydrake.multibody.plant import ContactResults, MultibodyPlant
+from pydrake.multibody.tree import JointIndex
 from pydrake.systems.framework import LeafSystem
 
 from godobject_drake.config.scene import Organs
@@ -156,134 +143,6 @@ def surface_triangles(T: np.ndarray) -> np.ndarray:
     return faces[first[counts == 1]]
 
 
-class FemOrgan:
-    """An organ made a FEM deformable body, added to ``plant`` before ``Finalize()``
-    (:func:`~godobject_drake.station.plant.add_plant` does it for ``organs.model: fem``) from a
-    checked ``spec`` (``check_scenario`` checks a scenario's; ``spec.check()`` one made by hand).
-
-    Attributes
-    ----------
-    body_id, geometry_id :
-        The deformable body's and its geometry's ids.
-    rest_W : (n, 3)
-        The mesh's rest vertices in W.
-    surface : np.ndarray
-        Indices of the surface vertices.
-    triangles : (m, 3)
-        The surface's triangles (vertex indices into ``rest_W``), outward.
-    attached : int
-        How many vertices are fixed to the pelvis.
-    """
-
-    def __init__(self, plant: MultibodyPlant, scene_graph, spec: Organs, vtk_dir: str | Path | None = None):
-        if plant.time_step() <= 0:
-            raise ValueError("organs.model: fem needs a discrete SAP plant (plant.time_step > 0)")
-        self.spec = spec
-        inspector = scene_graph.model_inspector()
-        host, gid = _find_geometry(plant, inspector, spec.organ)
-        shape = inspector.GetShape(gid)
-        if type(shape).__name__ != "Ellipsoid":
-            raise ValueError(
-                f"organs.organ: {spec.organ!r} is a {type(shape).__name__}; the FEM organ is meshed from an "
-                "Ellipsoid collision geometry: name one"
-            )
-        radii = (shape.a(), shape.b(), shape.c())
-        X_BG = inspector.GetPoseInFrame(gid)
-        X_WB = _welded_pose(plant, host)
-        X_WG = self.X_WG = X_WB @ X_BG  # the frame the FEM body is registered in
-        # The rigid organ stops touching and being drawn; the FEM body takes its place.
-        source = plant.get_source_id()
-        for role in (Role.kProximity, Role.kIllustration, Role.kPerception):
-            for other in _geometries_named(plant, inspector, host, inspector.GetName(gid)):
-                if inspector.GetProperties(other, role) is not None:
-                    scene_graph.RemoveRole(source, other, role)
-        V, T, self.surface = ellipsoid_tet_mesh(radii, spec.cells, spec.grading)
-        self.tets = T
-        self.triangles = surface_triangles(T)
-        self.tet_count = len(T)
-        if vtk_dir is None:  # a folder of this organ's own, removed with it (or at exit)
-            vtk_dir = tempfile.mkdtemp(prefix="godobject_tissue_")
-            weakref.finalize(self, shutil.rmtree, vtk_dir, True)
-        vtk_dir = Path(vtk_dir)
-        self.vtk_dir = vtk_dir
-        name = spec.organ.split("::")[-1]
-        graded = f"_g{spec.grading:g}" if spec.grading != 1.0 else ""
-        path = write_vtk(vtk_dir / f"{name}_{spec.cells}{graded}.vtk", V, T)
-        instance = GeometryInstance(X_WG, Mesh(str(path)), f"{name}_fem")
-        props = ProximityProperties()
-        friction = CoulombFriction(spec.friction, spec.friction)
-        AddContactMaterial(dissipation=None, point_stiffness=None, friction=friction, properties=props)
-        props.AddProperty("material", "relaxation_time", spec.relaxation_time_s)
-        instance.set_proximity_properties(props)
-        model = plant.mutable_deformable_model()
-        if spec.threads > 1:  # Drake offers it as a private method only (drake issue 23106)
-            model._set_parallelism(Parallelism(spec.threads))
-        self.instance = plant.AddModelInstance(f"{name}_fem")
-        self.body_id = model.RegisterDeformableBody(instance, self.instance, body_config(spec), 1.0)
-        self.geometry_id = model.GetGeometryId(self.body_id)
-        self.rest_W = np.asarray(model.GetReferencePositions(self.body_id)).reshape(-1, 3)
-        # The attachment: a box under the organ, from its bottom to attached_below_m under its top.
-        top = float(self.rest_W[:, 2].max())
-        cut = top - spec.attached_below_m
-        bottom = float(self.rest_W[:, 2].min())
-        if not cut > bottom:
-            raise ValueError(
-                f"organs.attached_below_m: {spec.attached_below_m} m reaches below the organ's bottom "
-                f"({(top - bottom) * 1e3:.1f} mm under its top): give less, so some vertices are held"
-            )
-        # Held by Drake's wall boundary condition (zero displacement below the plane z = cut).
-        # AddFixedConstraint to the welded pelvis builds but fails at the first step in Drake 1.51:
-        # "Adding constraint to a clique with zero number of velocities is not allowed" (a welded
-        # body is in the world's clique); the pelvis does not move, so the wall condition is the same.
-        model.SetWallBoundaryCondition(self.body_id, np.array([0.0, 0.0, cut]), np.array([0.0, 0.0, 1.0]))
-        self.attached = int(np.count_nonzero(self.rest_W[:, 2] < cut))
-        if self.attached == 0:
-            raise ValueError("organs.attached_below_m: no vertex is held; give a larger value")
-        self.name = name
-        self.glued = {body: self._glue(plant, body) for body in spec.glued}
-
-    def _glue(self, plant: MultibodyPlant, scoped: str) -> int:
-        """Fix the organ's vertices within a cube of ``glue_size_m`` about the free body ``scoped``'s
-        start to that body (Drake's deformable fixed constraint); how many are fixed. Drake's
-        ``X_BA`` is the pose in B of the frame the organ was registered in (``X_WG``), not of the
-        world: an organ away from the origin glued with ``X_BW`` would hold the wrong vertices."""
-        try:
-            body = free_body(plant, scoped)
-        except ValueError as e:
-            raise ValueError(f"organs.glued: {e}") from None
-        X_WB = plant.GetDefaultFloatingBaseBodyPose(body)
-        size = self.spec.glue_size_m
-        inside = np.all(np.abs(self.rest_W - X_WB.translation()) <= 0.5 * size, axis=1)
-        if not inside.any():
-            raise ValueError(
-                f"organs.glued: {scoped} starts at {np.round(X_WB.translation(), 4).tolist()} m, no vertex "
-                f"of the organ within {size * 1e3:g} mm (glue_size_m): move it onto the organ's surface"
-            )
-        plant.mutable_deformable_model().AddFixedConstraint(
-            self.body_id, body, X_WB.inverse() @ self.X_WG, Box(size, size, size), RigidTransform()
-        )
-        return int(inside.sum())
-
-    @property
-    def vertex_count(self) -> int:
-        return len(self.rest_W)
-
-    def connect(self, builder, plant, capsules=(), tool_geometries=None, name="") -> "TissueObserver":
-        """Add a :class:`TissueObserver` of the tool's ``capsules`` (:func:`tool_capsules`) and its
-        contact with the tissue (``tool_geometries``; ``None``: every contact); ``name`` prefixes
-        the system's name (one observer per tool)."""
-        observer = builder.AddNamedSystem(
-            f"{name}{self.name}_tissue_observer", TissueObserver(self, capsules, tool_geometries)
-        )
-        builder.Connect(
-            plant.get_deformable_body_configuration_output_port(),
-            observer.GetInputPort("deformable_configuration"),
-        )
-        builder.Connect(plant.get_body_poses_output_port(), observer.GetInputPort("body_poses"))
-        builder.Connect(plant.get_contact_results_output_port(), observer.GetInputPort("contact_results"))
-        return observer
-
-
 def free_body(plant: MultibodyPlant, scoped: str, *, welded_ok: bool = False):
     """The free body ``model::body`` (or a model whose one body it is) of ``plant`` (before
     ``Finalize``); ``welded_ok``: or a body welded to the world (a rigid organ's glued site)."""
@@ -340,57 +199,19 @@ def body_config(organs: Organs) -> DeformableBodyConfig:
     return config
 
 
-def _some(names: list[str], n: int = 8) -> str:
-    """At most ``n`` of ``names``, and how many there are."""
-    shown = ", ".join(names[:n])
-    return shown if len(names) <= n else f"{shown}, ... ({len(names)} in all)"
-
-
-def _find_geometry(plant, inspector, scoped: str):
-    names = []
-    for i in range(plant.num_bodies()):
-        body = plant.get_body(BodyIndex(i))
-        for gid in plant.GetCollisionGeometriesForBody(body):
-            names.append(inspector.GetName(gid))
-            if inspector.GetName(gid) == scoped:
-                return body, gid
-    raise ValueError(
-        f"organs.organ: {scoped!r} is not a collision geometry of this scene (it has "
-        f"{_some(sorted(names))}); organs.model: fem replaces one of them (the laparoscopy scene's "
-        "pelvis::uterus)"
+def connect_tissue_observer(builder, plant, organ, capsules=(), tool_geometries=None, name=""):
+    """Add a :class:`TissueObserver` of ``organ`` (the laparoscopy's soft organ, a
+    :class:`~godobject_drake.systems.soft_body.FemSoftBody`) for one tool: its ``capsules``
+    (:func:`tool_capsules`) and its contact with the tissue (``tool_geometries``; ``None``: every
+    contact); ``name`` prefixes the system's name (one observer per tool)."""
+    observer = builder.AddNamedSystem(
+        f"{name}{organ.name}_tissue_observer", TissueObserver(organ, capsules, tool_geometries)
     )
-
-
-def _geometries_named(plant, inspector, body, name):
-    frame = plant.GetBodyFrameIdOrThrow(body.index())
-    return [g for g in inspector.GetGeometries(frame) if inspector.GetName(g) == name]
-
-
-def _welded_pose(plant: MultibodyPlant, body) -> RigidTransform:
-    """The pose in W of a body welded to the world (through welds only), before Finalize."""
-    X = RigidTransform()
-    b = body
-    world = plant.world_body().index()
-    while b.index() != world:
-        joints = [
-            plant.get_joint(j)
-            for j in plant.GetJointIndices()
-            if plant.get_joint(j).child_body().index() == b.index()
-        ]
-        if not joints or joints[0].type_name() != "weld":
-            raise ValueError(
-                f"organs.organ: its body {b.name()!r} is not welded to the world; the FEM organ is held to a "
-                "welded body (weld it in the directives)"
-            )
-        j = joints[0]
-        X = (
-            j.frame_on_parent().GetFixedPoseInBodyFrame()
-            @ j.X_FM()
-            @ j.frame_on_child().GetFixedPoseInBodyFrame().inverse()
-            @ X
-        )
-        b = j.parent_body()
-    return X
+    configuration = plant.get_deformable_body_configuration_output_port()
+    builder.Connect(configuration, observer.GetInputPort("deformable_configuration"))
+    builder.Connect(plant.get_body_poses_output_port(), observer.GetInputPort("body_poses"))
+    builder.Connect(plant.get_contact_results_output_port(), observer.GetInputPort("contact_results"))
+    return observer
 
 
 class TissueObserver(LeafSystem):
@@ -420,7 +241,7 @@ class TissueObserver(LeafSystem):
 
     SUMMARY = ("max_displacement_m", "max_strain", "tool_penetration_m", "tip_inside", "fx_N", "fy_N", "fz_N")
 
-    def __init__(self, organ: FemOrgan, capsules=(), tool_geometries=None):
+    def __init__(self, organ, capsules=(), tool_geometries=None):
         super().__init__()
         self._organ = organ
         self._tool_geometries = None if tool_geometries is None else frozenset(tool_geometries)
@@ -489,8 +310,9 @@ def tool_capsules(plant: MultibodyPlant, scene_graph, model) -> list:
     return out
 
 
-def max_tet_strain(organ: FemOrgan, p: np.ndarray) -> float:
-    """The largest principal Green strain magnitude over the tetrahedra (rotation-free)."""
+def max_tet_strain(organ, p: np.ndarray) -> float:
+    """The largest principal Green strain magnitude over the tetrahedra of ``organ`` (a
+    :class:`~godobject_drake.systems.soft_body.FemSoftBody`) at positions ``p`` (rotation-free)."""
     cache = getattr(organ, "_strain_cache", None)
     if cache is None:
         T = organ_tets(organ)
@@ -522,7 +344,7 @@ def symmetric_extreme_eigenvalues(A: np.ndarray) -> np.ndarray:
     return np.maximum(np.abs(largest), np.abs(smallest))
 
 
-def organ_tets(organ: FemOrgan) -> np.ndarray:
+def organ_tets(organ) -> np.ndarray:
     return organ.tets
 
 

@@ -4,15 +4,15 @@
 surface: the small-strain stiffness matrix of the organ's tetrahedra with the held vertices fixed
 (:func:`linear_stiffness_matrix`), a point force shared by the surface triangle's vertices as Drake
 applies a contact force (:func:`ray_surface_hit`), and ``k = 1/(wᵀ K⁻¹ w)``
-(:func:`contact_stiffness`); docs/theory.md §8. The FEM body itself is
-:class:`~godobject_drake.systems.tissue.FemOrgan`.
+(:func:`contact_stiffness`); docs/theory.md §8. The FEM body itself is a
+:class:`~godobject_drake.systems.soft_body.FemSoftBody` (the laparoscopy's organ or one's own).
 """
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from godobject_drake.systems.tissue import FemOrgan, organ_tets
+from godobject_drake.systems.tissue import organ_tets
 
 
 def linear_stiffness_matrix(V: np.ndarray, T: np.ndarray, youngs_modulus: float, poissons_ratio: float):
@@ -94,13 +94,24 @@ def ray_surface_hit(V: np.ndarray, triangles: np.ndarray, origin, direction):
     return float(t[i]), i, w / w.sum(), normal / np.linalg.norm(normal)
 
 
-def contact_stiffness(organ: "FemOrgan", origin, direction) -> dict:
+def _held_stiffness(organ):
+    """The organ's small-strain stiffness matrix (kept on it, assembled once) and the mask of the
+    vertices its ``attach`` holds."""
+    K = getattr(organ, "_linear_K", None)
+    if K is None:
+        spec = organ.spec
+        K = organ._linear_K = linear_stiffness_matrix(
+            organ.rest_W, organ_tets(organ), spec.mesh_youngs_modulus_pa, spec.poissons_ratio
+        )
+    return K, organ.held
+
+
+def contact_stiffness(organ, origin, direction) -> dict:
     """The FEM organ's stiffness (N/m) where the ray ``origin + t·direction`` first meets its rest
     surface, for a point force along the ray there (a tool tip far smaller than a surface
     triangle: the force goes to the triangle's vertices by the point's barycentric weights, as
-    Drake's contact does). ``organ``: a :class:`~godobject_drake.systems.tissue.FemOrgan` or a
-    soft body of one's own (:class:`~godobject_drake.systems.soft_body.FemSoftBody`, its held
-    vertices those its ``attach`` fixes). The organ's material and held vertices, linear statics
+    Drake's contact does). ``organ``: a :class:`~godobject_drake.systems.soft_body.FemSoftBody`,
+    its held vertices those its ``attach`` holds. The organ's material and held vertices, linear statics
     (:func:`linear_stiffness_matrix`). Raises ``ValueError`` if the ray misses the organ.
     """
     hit = ray_surface_hit(organ.rest_W, organ.triangles, origin, direction)
@@ -110,15 +121,7 @@ def contact_stiffness(organ: "FemOrgan", origin, direction) -> dict:
             f"{np.round(np.asarray(direction, float), 3).tolist()} misses the organ {organ.name!r}"
         )
     t, tri, w, normal = hit
-    spec = organ.spec
-    K = getattr(organ, "_linear_K", None)
-    if K is None:
-        K = organ._linear_K = linear_stiffness_matrix(
-            organ.rest_W, organ_tets(organ), spec.mesh_youngs_modulus_pa, spec.poissons_ratio
-        )
-    fixed = getattr(organ, "held", None)  # a soft body of one's own: the vertices its attach holds
-    if fixed is None:  # the laparoscopy's organ: those below attached_below_m under its top
-        fixed = organ.rest_W[:, 2] < organ.rest_W[:, 2].max() - spec.attached_below_m
+    K, fixed = _held_stiffness(organ)
     d = np.asarray(direction, float) / np.linalg.norm(direction)
     weights = {int(v): float(x) for v, x in zip(organ.triangles[tri], w, strict=True) if x > 0}
     c = static_compliance(K, fixed, weights, d)
@@ -133,14 +136,8 @@ class OrganCompliance:
     solves (the local model asks it at the scene's rate: docs/local_model.md "An articulated
     tool"). The same linear statics, the same held vertices."""
 
-    def __init__(self, organ: "FemOrgan"):
-        spec = organ.spec
-        K = getattr(organ, "_linear_K", None)
-        if K is None:
-            K = organ._linear_K = linear_stiffness_matrix(
-                organ.rest_W, organ_tets(organ), spec.mesh_youngs_modulus_pa, spec.poissons_ratio
-            )
-        fixed = organ.rest_W[:, 2] < organ.rest_W[:, 2].max() - spec.attached_below_m
+    def __init__(self, organ):
+        K, fixed = _held_stiffness(organ)
         self.organ, self.n = organ, K.shape[0]
         self.free = np.flatnonzero(~np.repeat(fixed, 3))
         self._lu = spla.splu(K[self.free][:, self.free].tocsc())
