@@ -244,9 +244,9 @@ def test_the_example_lobe_pressed_answers_with_analyzes_stiffness_there():
     0.141 mm, 2242 N/m, 0.03 % from analyze's)."""
     from godobject_drake.studies.analyze import analyze
 
-    report = analyze(load_scenario(EXAMPLE), quick=True, verify=False)
-    (row,) = [r for r in report["checks"] if r["subject"] == "probe: lobe"]
-    (lifter,) = [r for r in report["checks"] if r["subject"] == "lifter: lobe"]
+    report = analyze(load_scenario(EXAMPLE), quick=True, verify=True)
+    rows = {(r["section"], r["subject"]): r for r in report["checks"]}
+    row, lifter = rows["soft bodies", "probe: lobe"], rows["soft bodies", "lifter: lobe"]
     assert lifter["value"] is None and "glued to it" in lifter["why"]
     press = report["tools"]["probe"]["soft_bodies"]["lobe"]
     assert press["time_s"] == pytest.approx(1.5) and press["point_W"][:2] == pytest.approx([0.01, 0.004])
@@ -258,6 +258,10 @@ def test_the_example_lobe_pressed_answers_with_analyzes_stiffness_there():
     force = (observer2.contact_force(pressed) - observer.contact_force(before)) @ d
     assert 0.05e-3 < indentation < 3e-3 and force > 0.1, (indentation, force)
     assert force / indentation == pytest.approx(row["value"], rel=0.15)
+    # analyze --verify does the same in Drake, from the last step before the probe touches (1.216 s)
+    verified = rows["verify", "probe: lobe"]
+    assert verified["verdict"] == "ok" and verified["predicted"] == row["value"]
+    assert verified["simulated"] == pytest.approx(force / indentation, rel=0.02)
 
 
 @pytest.mark.slow

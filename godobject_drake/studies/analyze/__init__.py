@@ -47,7 +47,7 @@ from godobject_drake.studies.analyze.contact import _between_tools, _contact_che
 from godobject_drake.studies.analyze.implicit import IMPLICIT_RATE_FLOOR, implicit_rate
 from godobject_drake.studies.analyze.loops import LOOPS, Loop
 from godobject_drake.studies.analyze.report import verdict_table, write_report
-from godobject_drake.studies.analyze.soft_bodies import _soft_body_checks
+from godobject_drake.studies.analyze.soft_bodies import _soft_body_checks, _verify_soft_bodies
 from godobject_drake.studies.analyze.tissue import _tissue_checks
 from godobject_drake.studies.analyze.verify import (
     IMPLICIT_STEP_M,
@@ -110,6 +110,7 @@ def analyze(scenario: sc.Scenario, *, quick: bool = False, verify: bool | None =
             if row is not None:
                 checks.append(row)
         checks += _verify_tissue(station, s, out)
+        checks += _verify_soft_bodies(station, s, out)
     order = {"fail": 3, "warn": 2, "ok": 1, "info": 0}
     out.pop("_tissue_press", None)
     out["checks"] = [c.as_dict() for c in checks]

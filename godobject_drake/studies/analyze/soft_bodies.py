@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from godobject_drake.studies.analyze.common import Check
+from godobject_drake.config import scenario as sc
+from godobject_drake.studies.analyze.common import Check, _probe, _quiet_build, analysis_scenario
 from godobject_drake.studies.analyze.tissue import _tissue_pose
 from godobject_drake.systems.tissue import capsule_against_surface
 from godobject_drake.systems.tissue_stiffness import contact_stiffness
@@ -98,7 +99,8 @@ def _soft_body_checks(station, scenario, out: dict) -> list[Check]:
             continue
         k, distance, d = press
         stiffness = contact_stiffness(body, points[k] - 0.05 * d, d)
-        found[name] = {"time_s": float(times[k]), "target_m": points[k].tolist(), **stiffness}
+        found[name] = {"time_s": float(times[k]), "target_m": points[k].tolist(), "direction": d.tolist(),
+                       **stiffness}  # fmt: skip
         rows.append(Check(
             "soft bodies", f"stiffness where the tool presses it (linear FEM of its {body.vertex_count} "
             "vertices, its attached ones held, point force)", name, "info", stiffness["stiffness_n_m"], None,
@@ -108,3 +110,78 @@ def _soft_body_checks(station, scenario, out: dict) -> list[Check]:
         ))  # fmt: skip
     out["soft_bodies"] = found
     return rows
+
+
+# The verification's indentation is measured this long before the end of the path's deepest hold
+# (s), where the tissue has settled under the held body (its Rayleigh damping's force gone).
+SETTLE_S = 0.05
+# The verification's reference state: the last step before the press whose contact force on the
+# soft body is under this (N): the body settled, not yet touched.
+UNTOUCHED_N = 1e-3
+
+
+def _verify_soft_bodies(station, scenario, out: dict) -> list[Check]:
+    """Each soft body's stiffness where the device presses it (:func:`_soft_body_checks`) checked in
+    Drake, as the laparoscopy organ's is: the scene run on its own path to the end of the deepest
+    hold, and to its last step before the press with no contact force on the soft body; the
+    contact force's change over the indentation between the two (the surface triangle's vertices'
+    displacement along the press, by the point force's weights), against the linear FEM's
+    stiffness, within 15 %."""
+    found = out.get("soft_bodies") or {}
+    if not found or station.god_object.device_space != "pose":
+        return []
+    samples = station.device.samples(scenario.simulation.duration_s)
+    held = [(t, s[0]) for t, s in samples if s is not None and s[2]]
+    times = np.array([t for t, _ in held])
+    points = np.array([p for _, p in held]).reshape(-1, 3)
+    h = station.plant.time_step()
+    checks = []
+    for name, press in found.items():
+        d = np.asarray(press["direction"], float)
+        k = int(np.argmin(np.abs(times - press["time_s"])))
+        end = k
+        while end + 1 < len(points) and np.linalg.norm(points[end + 1] - points[k]) < 1e-9:
+            end += 1
+        pressed = _soft_state(scenario, name, float(times[end]) - SETTLE_S)
+        force = np.linalg.norm(pressed[2][:, 4:7], axis=1)
+        untouched = np.flatnonzero(force[: round(times[k] / h)] < UNTOUCHED_N)
+        pressing = pressed[2][-1, 4:7] @ d > 10 * UNTOUCHED_N
+        if times[end] - times[k] < 2 * SETTLE_S or not len(untouched) or not pressing:
+            why = (
+                "not checked: the device's path holds no press there (a hold at the deepest target, "
+                "reached from out of contact)"
+            )
+            checks.append(Check("verify", "soft body's stiffness where the tool presses it", name, "info",
+                                None, None, "", "", why=why))  # fmt: skip
+            continue
+        before = _soft_state(scenario, name, untouched[-1] * h)
+        moved = pressed[0] - before[0]
+        indentation = sum(w * moved[v] @ d for v, w in zip(press["vertices"], press["weights"], strict=True))
+        force = float((pressed[1] - before[1]) @ d)
+        k_fem = press["stiffness_n_m"]
+        simulated = force / indentation if indentation > 1e-6 else float("nan")
+        err = abs(simulated / k_fem - 1.0) if np.isfinite(simulated) else float("inf")
+        out.setdefault("verify_soft_bodies", {})[name] = {
+            "times_s": [float(untouched[-1] * h), float(times[end]) - SETTLE_S],
+            "indentation_m": float(indentation), "force_n": force, "stiffness_n_m": float(simulated),
+            "predicted_stiffness_n_m": k_fem,
+        }  # fmt: skip
+        checks.append(Check(
+            "verify", f"soft body's stiffness where the tool presses it: Drake's force / indentation at "
+            f"{indentation * 1e3:.2g} mm against the linear FEM", name, "ok" if err <= 0.15 else "warn",
+            float(err), 0.15, "relative error", "", why="model and Drake agree" if err <= 0.15 else
+            "Drake's corotated tissue under contact departs from linear statics (or the press is too "
+            "shallow to measure): trust Drake's force", predicted=k_fem, simulated=float(simulated),
+        ))  # fmt: skip
+    return checks
+
+
+def _soft_state(scenario, name: str, t: float):
+    """The soft body ``name``'s vertex positions (W), the contact force on it (N, W) at ``t`` of the
+    scene's own path, run in Drake, and its summary rows (every step to ``t``)."""
+    s = sc.replace(analysis_scenario(scenario), **{"simulation.duration_s": t})
+    station = _quiet_build(s)
+    result = _probe(station)
+    (observer,) = [x for x in station.diagram.GetSystems() if x.get_name() == f"{name}_soft_body_observer"]
+    context = observer.GetMyContextFromRoot(result.context)
+    return observer.positions(context), observer.contact_force(context), result.data[f"{name}_soft_body"]
