@@ -313,6 +313,7 @@ SHIPPED = (
     "laparoscopy_bimanual",
     "lego_driver",
     "laparoscopy_bimanual_drivers",
+    "peg_transfer",
 )
 
 
