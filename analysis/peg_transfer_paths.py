@@ -41,8 +41,8 @@ LEFT_PEGS = [
 PEGS = {"left": LEFT_PEGS, "right": [(-x, y) for x, y in LEFT_PEGS]}
 ORDER = (5, 4, 3, 2, 1, 0)  # the rings nearest the trocars first: the tools pass over the pegs behind
 GRASP_POINT_M = 0.014  # the grasp point past the jaws' hinge along the tool (god_object.grasp.point_m)
-RING_APOTHEM_M = 0.006 * math.cos(math.pi / 6)  # a side's middle from the ring's centre
-RING_REST_Z = 0.0012  # the ring's centre lying on the board
+RING_APOTHEM_M = 0.0056  # a bead on the ring's side (every 30°) from its centre
+RING_REST_Z = 0.0013  # the ring's centre lying on the board
 PICK_Z = 0.004  # the grasp point's height closing on a ring that lies on the board
 LIFT_Z = 0.032  # the ring's centre carried clear of the pegs (their tops at 0.022)
 HANDOFF = np.array([0.0, 0.02, 0.03])  # the ring's centre at the hand-off
@@ -188,7 +188,7 @@ def session(clumsy: bool) -> dict[str, Path_]:
         right.go(0.9 * slow, carry("right", right.q, held_r, at(target, 0, 0, LIFT_Z)))  # over its peg
         right.go(0.6 * slow, carry("right", right.q, held_r, at(target, 0, 0, PLACE_Z)))  # down the peg
         if clumsy:  # pressed onto the board, past where it rests: the harder press
-            right.go(0.5, carry("right", right.q, held_r, at(target, 0, 0, RING_REST_Z - 0.003)))
+            right.go(0.5, carry("right", right.q, held_r, at(target, 0, 0, RING_REST_Z - 0.001)))
             right.go(0.4)
         right.go(0.2, jaw=OPEN)
         right.go(0.5, reach("right", at(tool_pose("right", right.q)[1], -0.008, 0.01, 0.018), right.q[3]))
