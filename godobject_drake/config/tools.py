@@ -242,7 +242,8 @@ class JawGrasp:
     closed_below_rad : float
         The jaws are closed below this opening (rad).
     reach_m : float
-        A body whose origin is within this of the grasp point is taken when the jaws close (m).
+        A body within this of the grasp point is taken when the jaws close (m): its origin with
+        ``hold: point``, its collision geometry with ``hold: pose``.
     point_m : list[float]
         The grasp point in the tip body's frame (m; the grasper's: between its jaws).
     hold : str
