@@ -194,6 +194,14 @@ def test_a_grasp_hold_of_no_kind_is_refused():
         build_station(s)
 
 
+def test_a_pose_hold_needs_a_body_with_geometry():
+    """The bimanual scene's grasp site has no geometry: a pose hold could never reach it."""
+    s = shipped_scenario("laparoscopy_bimanual", "organs: {model: rigid, glued: []}")  # the site free
+    s.tools["left"].god_object.grasp.hold = "pose"
+    with pytest.raises(ScenarioError, match=r"'edge::site' has no collision geometry, and hold: pose"):
+        build_station(s)
+
+
 def test_a_scene_without_a_task_has_no_task_score():
     s = replace(shipped_scenario("peg_transfer"), task=Task(), **{"simulation.duration_s": 0.2})
     metrics = simulate(build_station(s), progress=False).metrics

@@ -70,6 +70,12 @@ class ArticulatedGodObject(GodObject):
             except ValueError as e:
                 where = f"tools.{name}." if name else ""
                 raise sc.ScenarioError(f"{where}god_object.grasp.bodies: {e}") from None
+            if grasp.hold == "pose" and not plant.GetCollisionGeometriesForBody(body):
+                where = f"tools.{name}." if name else ""
+                raise sc.ScenarioError(
+                    f"{where}god_object.grasp.bodies: {scoped!r} has no collision geometry, and hold: pose "
+                    "takes a body by its geometry (reach_m from its surface); give it one, or use hold: point"
+                )
             constraints[body.scoped_name().get_full()] = (
                 plant.AddBallConstraint(tip, point, body, np.zeros(3)) if grasp.hold == "point" else None,
                 body.index(),
