@@ -63,6 +63,8 @@ PICTURES = (
     # the two hands apart (1 s: the right hand lifts brick_1 over), then the right's brick laid on the left's
     Picture("browser_recording_two_hands", "lego_two_hands", 3.6, at_s=(1.0, 3.5)),
     Picture("browser_recording_tissue", "laparoscopy", 0.9, PRESS, at_s=(0.0, None)),
+    # the left grasper lifting the first ring, then the right one lowering it onto its peg
+    Picture("browser_recording_peg_transfer", "peg_transfer", 5.2, at_s=(2.6, 5.0)),
     Picture("browser_force_cue_tracking", "lego", 4.0, at_s=(1.0,)),
     Picture("browser_force_cue_at_wall", "lego", 4.0, at_s=(3.1,)),
     Picture("browser_mouse_untethered", "lego", 2.2, MOUSE, (2.0,)),

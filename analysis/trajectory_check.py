@@ -56,6 +56,8 @@ VARIANTS = {
     "laparoscopy_h10": ("laparoscopy", "", None),
     "laparoscopy_fem": ("laparoscopy", "organs: {model: fem}", None),
     "laparoscopy_bimanual": ("laparoscopy_bimanual", "", 3.0),  # its FEM uterus and glued grasp site
+    # the first ring lifted by the left jaws (a pose hold) and handed to the right ones, the task scored
+    "peg_transfer": ("peg_transfer", "", 6.0),
     "laparoscopy_joint_pd": ("laparoscopy", H1 + "god_object: !Articulated {model: grasper, device_joints: "
                              "[yaw, pitch, insertion, roll, jaw_upper, jaw_lower], coupling: joint_pd, "
                              "imposed_joints: [jaw_upper, jaw_lower], gains: {omega_n: 20.0, zeta: 1.0}, "

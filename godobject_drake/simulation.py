@@ -45,6 +45,7 @@ from godobject_drake.safeguards import (
 from godobject_drake.station.build import Station
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.page import page_of, save_recording, server_stopped
+from godobject_drake.task_score import TaskFold
 
 
 @dataclasses.dataclass
@@ -283,6 +284,8 @@ class _Run:
             self.metrics_error = None
         except Exception as e:  # a scene the metrics cannot measure still runs, and says why
             self.measured, self.metrics_error = None, f"{type(e).__name__}: {e}"
+        # the task's score (scenario.task), folded from the state rows like the tools' metrics
+        self.task = TaskFold(station.task, scenario.task, h) if station.task is not None else None
         self.n_steps = round(duration / h)
         self.fold_every = max(
             self.guard.every, round((REAL_TIME_FOLD_PERIOD_S if rate > 0 else FOLD_PERIOD_S) / h)
@@ -319,6 +322,8 @@ class _Run:
                 with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                     for name, chunk in chunks.items():
                         self.measured[name].update(chunk)
+                    if self.task is not None and chunks:
+                        self.task.update(next(iter(chunks.values()))["state"])
             except Exception as e:  # reported, never lost: the common metrics and the logs stand
                 self.metrics_error = f"{type(e).__name__}: {e}"
 
@@ -422,6 +427,18 @@ class _Run:
             flat["metrics_error"] = "; ".join(errors)
         return flat
 
+    def task_score(self) -> dict:
+        """The task's score (:mod:`godobject_drake.task_score`) from every tool's grasp events; a
+        score that fails is reported, never the run's metrics lost."""
+        events = []
+        for tool in self.station.tools.values():
+            hold = getattr(tool, "grasp", None)  # an articulated tool's jaws (JawHold)
+            events += list(getattr(hold, "events", []))
+        try:
+            return self.task.result(events)
+        except Exception as e:
+            return {"metrics_error": f"task score: {type(e).__name__}: {e}"}
+
     def finish(self) -> RunResult:
         """The metrics of what ran (the recording saved first: a metric that fails must not lose
         it), the result; Ctrl-C raises :class:`RunInterrupted` carrying it."""
@@ -461,6 +478,8 @@ class _Run:
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
         metrics.update(self.tool_metrics(with_devices=True))
+        if self.task is not None and self.metrics_error is None:
+            metrics.update(self.task_score())
         for name, (_, measured) in self.soft.items():  # each soft body's, its name first
             metrics.update({f"{name}_{k}": v for k, v in soft_body_result(measured).items()})
             if isinstance(metrics.get("max_penetration_m"), float):  # a tool in a soft body is in the budget

@@ -79,6 +79,7 @@ from godobject_drake.config.scene import (  # noqa: F401
     Workspace,
     default_plant_config,
 )
+from godobject_drake.config.task import OnPeg, Task  # noqa: F401
 from godobject_drake.config.tools import (  # noqa: F401
     ARTICULATED_COUPLINGS,
     RIGID_COUPLINGS,
@@ -187,6 +188,10 @@ class Scenario:
         A scene of several tools: each a name (lower case, digits, ``_``) and its own
         ``god_object``, ``device``, ``feedback``, ``haptic`` and ``workspace``; the top-level ones
         then stay unset. Empty (the default): one tool, the top-level fields.
+    task : Task
+        A task's success rules (which object must end on which peg) and score: task time,
+        transfers, drops, the FLS score (:mod:`godobject_drake.task_score`;
+        docs/guide/peg_transfer.md). Empty (the default): no task score.
     """
 
     name: str = "scene"
@@ -208,6 +213,7 @@ class Scenario:
     organs: Organs = dataclasses.field(default_factory=Organs)
     deformables: dict[str, SoftBody] = dataclasses.field(default_factory=dict)
     tools: dict[str, Tool] = dataclasses.field(default_factory=dict)
+    task: Task = dataclasses.field(default_factory=Task)
 
     def per_tool(self) -> dict[str, "Scenario"]:
         """Each tool's view of the scene, by name: the scenario itself under ``""`` for a scene of one
@@ -313,6 +319,7 @@ SHIPPED = (
     "laparoscopy_bimanual",
     "lego_driver",
     "laparoscopy_bimanual_drivers",
+    "peg_transfer",
 )
 
 
@@ -530,7 +537,7 @@ def _fail(where: str, field: str, message: str):
 
 # The scenario's parts that check themselves, in the order a user reads them: the scene's, then each
 # tool's (the top-level ones in a scene of one tool).
-SCENE_PARTS = ("contact", "simulation", "visualization", "recording", "metrics", "organs")
+SCENE_PARTS = ("contact", "simulation", "visualization", "recording", "metrics", "organs", "task")
 TOOL_PARTS = ("haptic", "device", "god_object", "workspace")
 
 

@@ -221,6 +221,9 @@ class Rigid:
             )
 
 
+GRASP_HOLDS = ("point", "pose")  # JawGrasp.hold
+
+
 @dataclasses.dataclass
 class JawGrasp:
     """What an articulated tool's jaws hold when they close on it (``god_object.grasp``).
@@ -239,9 +242,17 @@ class JawGrasp:
     closed_below_rad : float
         The jaws are closed below this opening (rad).
     reach_m : float
-        A body whose origin is within this of the grasp point is taken when the jaws close (m).
+        A body within this of the grasp point is taken when the jaws close (m): its origin with
+        ``hold: point``, its collision geometry with ``hold: pose``.
     point_m : list[float]
         The grasp point in the tip body's frame (m; the grasper's: between its jaws).
+    hold : str
+        ``point``: a ball constraint holds the body's origin at the grasp point (a grasp site; the
+        body may turn about it), ``reach_m`` measured to its origin. ``pose``: the body is held as
+        it is when the jaws close, where they close on it, turning with the jaws (an object the
+        jaws pinch: a ring, a needle), ``reach_m`` measured to its collision geometry; six distance
+        constraints between three points of the tip body and three of the body (a rigid
+        octahedron), set when the jaws close.
     """
 
     bodies: list[str] = dataclasses.field(default_factory=list)
@@ -249,6 +260,7 @@ class JawGrasp:
     closed_below_rad: float = 0.1
     reach_m: float = 0.008
     point_m: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, -0.010])
+    hold: str = "point"
 
     def check(self, tool: "Articulated") -> None:
         """Raise ``ValueError`` as ``"god_object.grasp.field: value, limit and fix"``."""
@@ -265,6 +277,11 @@ class JawGrasp:
                 raise ValueError(f"god_object.grasp.{name}: {value!r} must be a finite number > 0")
         if len(self.point_m) != 3:
             raise ValueError(f"god_object.grasp.point_m: {self.point_m!r}; give x, y, z in m")
+        if self.hold not in GRASP_HOLDS:
+            raise ValueError(
+                f"god_object.grasp.hold: {self.hold!r}; choose one of {GRASP_HOLDS} (point: a grasp site's "
+                "origin, free to turn; pose: the body held as the jaws take it)"
+            )
 
 
 @dataclasses.dataclass

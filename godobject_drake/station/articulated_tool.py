@@ -11,7 +11,7 @@ import dataclasses
 from typing import ClassVar
 
 import numpy as np
-from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.plant import DistanceConstraintParams, MultibodyPlant
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
@@ -66,16 +66,26 @@ class ArticulatedGodObject(GodObject):
         point = np.asarray(grasp.point_m, float)
         constraints = {}
         for scoped in grasp.bodies:
-            try:
-                body = free_body(plant, scoped, welded_ok=True)  # rigid organs weld their glued sites
+            try:  # rigid organs weld their glued sites; a body held as it is taken must move
+                body = free_body(plant, scoped, welded_ok=grasp.hold == "point")
             except ValueError as e:
                 where = f"tools.{name}." if name else ""
                 raise sc.ScenarioError(f"{where}god_object.grasp.bodies: {e}") from None
+            if grasp.hold == "pose" and not plant.GetCollisionGeometriesForBody(body):
+                where = f"tools.{name}." if name else ""
+                raise sc.ScenarioError(
+                    f"{where}god_object.grasp.bodies: {scoped!r} has no collision geometry, and hold: pose "
+                    "takes a body by its geometry (reach_m from its surface); give it one, or use hold: point"
+                )
             constraints[body.scoped_name().get_full()] = (
-                plant.AddBallConstraint(tip, point, body, np.zeros(3)),
+                plant.AddBallConstraint(tip, point, body, np.zeros(3)) if grasp.hold == "point" else None,
                 body.index(),
             )
-        return {"grasp": JawHold(grasp, tip.index(), constraints)}
+        truss = []
+        if grasp.hold == "pose":  # six rods, their bodies and points set when the jaws close
+            first = plant.get_body(next(iter(constraints.values()))[1])
+            truss = [plant.AddDistanceConstraint(tip, point, first, np.zeros(3), 0.01) for _ in TRUSS]
+        return {"grasp": JawHold(grasp, tip.index(), constraints, truss)}
 
     @classmethod
     def build(cls, builder, scene, scenario, device, added: dict, *, check_gains=True):
@@ -201,42 +211,96 @@ def pose_to_joints(plant, scenario, pose_device: DeviceSource) -> PoseJointDevic
         raise sc.ScenarioError(f"device: {e}") from None
 
 
+# The pose hold's rods (JawGrasp.hold pose): three points of the tip body about the grasp point
+# (a triangle of TRUSS_RADIUS_M across the tool's axis) and three of the held body (the triangle
+# turned by 60° and TRUSS_OFFSET_M along the axis), each of the body's joined to two of the tip's:
+# a triangular antiprism, rigid, so the body keeps its pose in the jaws.
+TRUSS_RADIUS_M = 0.004
+TRUSS_OFFSET_M = 0.003
+TRUSS = ((0, 0), (1, 0), (1, 1), (2, 1), (2, 2), (0, 2))  # (tip point, body point) of each rod
+
+
+def _triangle(turn: float) -> np.ndarray:
+    a = turn + np.arange(3) * 2 * np.pi / 3
+    return TRUSS_RADIUS_M * np.stack([np.cos(a), np.sin(a), np.zeros(3)], axis=1)
+
+
 class JawHold:
     """The jaws' grasp at run time (:class:`~godobject_drake.config.tools.JawGrasp`): which ball
-    constraint is on, switched before a plant step as the jaws close and open, and when."""
+    constraint (or, holding a pose, which body the rods hold) is on, switched before a plant step as
+    the jaws close and open, and when."""
 
-    def __init__(self, config, tip_index, constraints: dict):
+    def __init__(self, config, tip_index, constraints: dict, truss: list | None = None):
         self.config, self.tip_index, self.constraints = config, tip_index, constraints
+        self.truss = list(truss or [])
         self.jaw_index = 0
         self.holding: dict[str, object] = {}  # body name -> BodyIndex, while held
         self.events: list[tuple[float, str, bool]] = []  # (t, body, taken or let go)
 
+    def _switch(self, plant, plant_context, name: str, on: bool) -> None:
+        ids = self.truss if self.truss else [self.constraints[name][0]]
+        for cid in ids:
+            plant.SetConstraintActiveStatus(plant_context, cid, on)
+
     def release_all(self, plant, plant_context) -> None:
-        for cid, _ in self.constraints.values():
+        for cid in self.truss or [c for c, _ in self.constraints.values()]:
             plant.SetConstraintActiveStatus(plant_context, cid, False)
         self.holding, self.events = {}, []
+
+    def _nearest_origin(self, plant, plant_context, p_WP):
+        best, best_d = None, self.config.reach_m
+        for name, (_, index) in self.constraints.items():
+            X_WB = plant.EvalBodyPoseInWorld(plant_context, plant.get_body(index))
+            d = float(np.linalg.norm(X_WB.translation() - p_WP))
+            if d <= best_d:
+                best, best_d = name, d
+        return best
+
+    def _nearest_surface(self, plant, plant_context, p_WP):
+        """The listed body whose collision geometry comes nearest the grasp point, within reach."""
+        query = plant.get_geometry_query_input_port().Eval(plant_context)
+        inspector = query.inspector()
+        names = {int(index): name for name, (_, index) in self.constraints.items()}
+        best, best_d = None, self.config.reach_m
+        for found in query.ComputeSignedDistanceToPoint(p_WP, self.config.reach_m):
+            body = plant.GetBodyFromFrameId(inspector.GetFrameId(found.id_G))
+            name = names.get(int(body.index())) if body is not None else None
+            if name is not None and found.distance <= best_d:
+                best, best_d = name, float(found.distance)
+        return best
+
+    def _hold_pose(self, plant, plant_context, name: str, X_WT) -> None:
+        """Set the rods from the tip to ``name`` as the two are now."""
+        tip, body = plant.get_body(self.tip_index), plant.get_body(self.constraints[name][1])
+        X_BW = plant.EvalBodyPoseInWorld(plant_context, body).inverse()
+        point = np.asarray(self.config.point_m, float)
+        on_tip = point + _triangle(0.0)
+        on_body = point + _triangle(np.pi / 3) + [0.0, 0.0, TRUSS_OFFSET_M]
+        for cid, (i, j) in zip(self.truss, TRUSS, strict=True):
+            p_WQ = X_WT.multiply(on_body[j])
+            length = float(np.linalg.norm(X_WT.multiply(on_tip[i]) - p_WQ))
+            params = DistanceConstraintParams(tip.index(), on_tip[i], body.index(), X_BW.multiply(p_WQ),
+                                              length, np.inf, 0.0)  # fmt: skip
+            plant.SetDistanceConstraintParams(plant_context, cid, params)
 
     def update(self, plant, plant_context, opening: float) -> None:
         closed = opening < self.config.closed_below_rad
         if closed and not self.holding:
             X_WT = plant.EvalBodyPoseInWorld(plant_context, plant.get_body(self.tip_index))
             p_WP = X_WT.multiply(np.asarray(self.config.point_m, float))
-            best, best_d = None, self.config.reach_m
-            for name, (_, index) in self.constraints.items():
-                d = float(
-                    np.linalg.norm(
-                        plant.EvalBodyPoseInWorld(plant_context, plant.get_body(index)).translation() - p_WP
-                    )
-                )
-                if d <= best_d:
-                    best, best_d = name, d
+            if self.truss:
+                best = self._nearest_surface(plant, plant_context, p_WP)
+            else:
+                best = self._nearest_origin(plant, plant_context, p_WP)
             if best is not None:
-                plant.SetConstraintActiveStatus(plant_context, self.constraints[best][0], True)
+                if self.truss:
+                    self._hold_pose(plant, plant_context, best, X_WT)
+                self._switch(plant, plant_context, best, True)
                 self.holding[best] = self.constraints[best][1]
                 self.events.append((plant_context.get_time(), best, True))
         elif not closed and self.holding:
             for name in list(self.holding):
-                plant.SetConstraintActiveStatus(plant_context, self.constraints[name][0], False)
+                self._switch(plant, plant_context, name, False)
                 self.events.append((plant_context.get_time(), name, False))
             self.holding = {}
 

@@ -39,6 +39,7 @@ from godobject_drake.systems.drawing import (
     start_meshcat,
 )
 from godobject_drake.systems.page import set_view
+from godobject_drake.task_score import TaskError, resolve_task
 
 
 def build_station(
@@ -133,6 +134,12 @@ def _finish(
     records: dict[str, sc.ToolRecord],
 ) -> "Station":
     """:func:`finish`, given each tool's record."""
+    task = None
+    if scenario.task.objects:  # its names checked against the plant before anything is built on it
+        try:
+            task = resolve_task(scene.plant, scenario.task)
+        except TaskError as e:
+            raise sc.ScenarioError(str(e)) from None
     if scene.forces is not None:
         scene.forces.connect(builder)  # every tool's forces into the plant
     loggers, tool_loggers = add_loggers(builder, scene.plant, tools, records)
@@ -165,7 +172,7 @@ def _finish(
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
         max(predicted) if predicted else None, sleeper, tool_loggers, records,
-        soft_loggers=soft_loggers, soft_bodies=scene.soft_bodies,
+        soft_loggers=soft_loggers, soft_bodies=scene.soft_bodies, task=task,
     )  # fmt: skip
 
 
@@ -358,6 +365,9 @@ class Station:
         scenario view, its device's kind, its names.
     views : dict[str, Station]
         Each tool's station (:meth:`for_tool`), made once with this one.
+    task : tuple | None
+        The scenario's task resolved on the plant (:func:`~godobject_drake.task_score.resolve_task`):
+        what the run's task score reads; None without a task.
     """
 
     scenario: sc.Scenario
@@ -374,6 +384,7 @@ class Station:
     views: dict[str, "Station"] = dataclasses.field(default_factory=dict, repr=False)
     soft_loggers: dict[str, VectorLogSink] = dataclasses.field(default_factory=dict)
     soft_bodies: dict = dataclasses.field(default_factory=dict)
+    task: tuple | None = None
 
     def __post_init__(self):
         if not self.views:
