@@ -130,6 +130,12 @@ COMMON_FLAGS = (
          "(N·s/m); 0: off", type=float),
     Flag("--record", "recording.file", "write a self-contained Meshcat HTML recording", type=Path,
          value=_as_str),
+    Flag("--record-devices", "recording.device_log",
+         "write each tool's device, as it was sampled tick by tick, to this CSV (several tools: one file "
+         "each, the tool's name before the suffix), for --replay-devices", type=Path, value=_as_str),
+    Flag("--replay-devices", None,
+         "replay each tool's device from the logs --record-devices wrote (this file, or its stem and each "
+         "tool's name): the same samples at the same ticks, so the same run", type=Path),
     Flag("--meshcat", "visualization.serve", "serve the run live in Meshcat, at real-time rate",
          action="store_true"),
     Flag("--meshcat-host", "visualization.host",
@@ -177,7 +183,7 @@ RUN_ONLY_FLAGS = frozenset({
     "--record", "--meshcat", "--meshcat-host", "--trust-local-pages", "--force-cue", "--metrics",
     "--no-progress", "--device", "--lcm-wait",
     "--device-log", "--lcm-url", "--device-interpolation", "--max-device-speed", "--device-noise", "--seed",
-    "--tether", "--tether-angle", "--cd-ratio", "--cd-onset",
+    "--tether", "--tether-angle", "--cd-ratio", "--cd-onset", "--record-devices",
 })  # fmt: skip
 
 
@@ -361,6 +367,10 @@ def _applied(scenario: sc.Scenario, args: argparse.Namespace) -> tuple[sc.Scenar
     given = flags_given(args)
     names = {f.name for f in given}
     s = copy.deepcopy(scenario)
+    if "--replay-devices" in names:
+        if "--device" in names:
+            raise sc.ScenarioError("--replay-devices sets every tool's device: leave out --device")
+        s = sc.replaying_devices(s, args.replay_devices)
     if "--device" in names:
         s.device = switch_device(s, args.device, getattr(args, "device_log", None))
     elif "--device-log" in names:

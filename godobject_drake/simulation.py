@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
+from godobject_drake.config import scenario as sc
 from godobject_drake.metrics import (
     SceneMetrics,
     TissueMetrics,
@@ -273,6 +274,7 @@ class _Run:
             self.recording_steps = round(scenario.recording.max_duration_s / h)
             if station.sleeper is not None:
                 station.sleeper.draw_marks(0.0)  # every body awake in the first frame
+        self.device_logs = record_devices(station)  # before Initialize: its update at t = 0 is a tick
         wait_for_devices(station)  # the run's clock starts when its devices are first heard
         self.simulator.Initialize()
         self.logs = _Logs(station, root, keep_logs)
@@ -474,6 +476,11 @@ class _Run:
                 metrics["recording_s"] = min(root.get_time(), self.scenario.recording.max_duration_s)
             except OSError as e:  # outputs.OutputError names the file and keeps the last complete one
                 metrics["recording_error"] = str(e)
+        if self.device_logs:  # each tool's device log closed, what it holds said
+            for recorder in self.device_logs.values():
+                recorder.close()
+            metrics["device_logs"] = ", ".join(str(r.path) for r in self.device_logs.values())
+            metrics["device_log_rows"] = sum(r.rows for r in self.device_logs.values())
         t0 = time.perf_counter()
         self.fold()
         metrics["metrics_time_s"] = self.folding + time.perf_counter() - t0
@@ -491,6 +498,24 @@ class _Run:
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
         return result
+
+
+def record_devices(station: Station) -> dict:
+    """Each tool's device written to its device log as it is sampled (``recording.device_log``):
+    its :class:`~godobject_drake.devices.sources.SampleRecorder` by tool name; none without."""
+    recording = station.scenario.recording
+    if not recording.device_log:
+        return {}
+    out = {}
+    for name, tool in station.tools.items():
+        try:
+            out[name] = tool.source.record_to(recording.device_log_for(name))
+        except OSError as e:
+            raise sc.ScenarioError(
+                f"recording.device_log: {recording.device_log_for(name)}: cannot be written ({e.strerror}): "
+                "give a file in a folder that exists and can be written"
+            ) from None
+    return out
 
 
 class DeviceNotHeardError(RuntimeError):

@@ -31,8 +31,11 @@ def session(name: str, **changes):
 
 
 @pytest.fixture(scope="module")
-def expert():
-    return simulate(build_station(shipped_scenario("peg_transfer")), progress=False)
+def expert(tmp_path_factory):
+    """The expert session, its devices recorded (``recording.device_log``: one log per grasper)."""
+    logs = tmp_path_factory.mktemp("expert") / "expert.csv"
+    s = replace(shipped_scenario("peg_transfer"), **{"recording.device_log": str(logs)})
+    return simulate(build_station(s), progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -268,3 +271,25 @@ def test_the_clumsy_session_drops_one_and_scores_worse(expert, clumsy):
     assert c["task_time_s"] > e["task_time_s"] + 10.0
     assert c["task_fls_score"] == pytest.approx(300.0 - c["task_time_s"] - 10.0)
     assert c["task_fls_score"] < e["task_fls_score"] - 10.0
+
+
+@pytest.mark.slow(seconds=25)
+def test_the_expert_sessions_device_logs_replayed_give_the_same_score_to_the_last_digit(expert):
+    """Each grasper's device, recorded tick by tick (60 Hz, 32 s: 1920 rows of t and 5 channels),
+    replayed (``--replay-devices``: ReplayJoints at the same rate): the same task score, every
+    field, and the same plant state at every step, bit for bit."""
+    from pathlib import Path
+
+    from godobject_drake.config.scenario import replaying_devices
+
+    logs = expert.station.scenario.recording.device_log
+    for side in ("left", "right"):
+        rows = Path(logs).with_name(f"expert.{side}.csv").read_text().splitlines()
+        assert rows[0] == "t,yaw,pitch,insertion,roll,jaw" and len(rows) == 1 + 32 * 60
+    assert expert.metrics["device_log_rows"] == 2 * 32 * 60
+    replay = replaying_devices(replace(shipped_scenario("peg_transfer")), logs)
+    assert {type(t.device).__name__ for t in replay.tools.values()} == {"ReplayJoints"}
+    again = simulate(build_station(replay), progress=False)
+    task = {k: v for k, v in expert.metrics.items() if k.startswith("task_")}
+    assert task["task_transfers"] == 6 and {k: again.metrics[k] for k in task} == task
+    assert np.array_equal(expert.data["state"], again.data["state"])

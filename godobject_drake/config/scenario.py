@@ -491,6 +491,32 @@ _AnyTagLoader.add_multi_constructor(
 PACKAGE_URL = "package://godobject_models/"
 
 
+def replaying_devices(s: "Scenario", log: str | Path) -> "Scenario":
+    """``s`` with each tool's device the replay of its recorded device log (``--replay-devices``:
+    ``recording.device_log``'s files, ``log`` for a scene of one tool, ``log``'s stem and the
+    tool's name for several): a pose device a :class:`Replay`, a joint device a
+    :class:`ReplayJoints`, each keeping the old one's period, interpolation, guard, channels, mix
+    and limits, with no latency or noise (the log holds the samples as they were reported)."""
+    s = copy.deepcopy(s)
+    paths = Recording(device_log=str(absolute(log)))
+    for name, device in [("", s.device)] if not s.tools else [(n, t.device) for n, t in s.tools.items()]:
+        space = kind_of(device).space
+        cls = Replay if space == "pose" else ReplayJoints
+        keep = {f.name: getattr(device, f.name) for f in dataclasses.fields(cls) if hasattr(device, f.name)}
+        for field in ("path", "waypoints", "log", "start_xyz", "start_rpy_deg", "start"):
+            keep.pop(field, None)
+        replay = cls(**keep)
+        replay.log = str(paths.device_log_for(name))
+        replay.latency_s = 0.0
+        if space == "pose":
+            replay.noise_m = 0.0
+        if name:
+            s.tools[name].device = replay
+        else:
+            s.device = replay
+    return s
+
+
 def absolute(path: str | Path) -> Path:
     """``path`` made absolute, its links resolved where they can be: a symlink loop is kept as it is
     written (``Path.resolve`` raised ``RuntimeError``), for :func:`check_inputs` to name it."""

@@ -11,6 +11,7 @@ field types at run time.
 import dataclasses
 import math
 import os
+from pathlib import Path
 
 from pydrake.multibody.plant import MultibodyPlantConfig
 
@@ -277,14 +278,27 @@ class Recording:
         The recording covers the run's first this many seconds (the rest runs unrecorded), so its
         size is known in advance: about 2.2 MB of viewer plus the frames, some 0.1 MB per second
         for the brick scene at 64 frames per second (docs/guide/visual.md).
+    device_log : str
+        Write each tool's device as it was sampled, tick by tick, to this CSV (``--record-devices``):
+        the device log its replay reads (``--replay-devices``), so a session replayed gives the
+        same run, bit for bit. A scene of several tools writes one per tool, the tool's name before
+        the suffix (``session.left.csv``). Empty: none.
     """
 
     file: str = ""
     frames_per_second: float = 64.0
     max_duration_s: float = 300.0
+    device_log: str = ""
+
+    def device_log_for(self, tool: str) -> Path:
+        """The device log of the tool ``tool`` (``""``: a scene of one tool)."""
+        path = Path(self.device_log)
+        return path if not tool else path.with_name(f"{path.stem}.{tool}{path.suffix or '.csv'}")
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
+        if self.device_log and self.device_log == self.file:
+            raise ValueError(f"device_log: {self.device_log!r} is the recording's own file: give another")
         fps = self.frames_per_second
         if not (math.isfinite(fps) and 0 < fps <= MAX_FRAMES_PER_SECOND):
             raise ValueError(

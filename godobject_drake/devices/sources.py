@@ -12,6 +12,7 @@ linear in position and slerp in orientation) and :class:`ReplayDevice`
 (a CSV log ``t,x,y,z,qw,qx,qy,qz,grasp``).
 """
 
+import csv
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
@@ -25,6 +26,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.trajectories import PiecewisePolynomial, PiecewiseQuaternionSlerp
 
 from godobject_drake.config.device_files import (
+    CSV_HEADER,
     DEFAULT_DEVICE_RATE_HZ,
     DEVICE_STATUS_KEYS,
     INTERPOLATIONS,
@@ -56,6 +58,32 @@ _QN, _PN, _NCAND, _GAP, _TLAST = slice(14, 18), slice(18, 21), 21, 22, 23
 _STATUS = slice(24, 31)
 _QR, _PR = slice(31, 35), slice(35, 38)  # the last raw sample, when RelativeAids move the target
 _N_STATE = 38
+
+
+class SampleRecorder:
+    """What a device reported at each of its ticks, written row by row to a CSV device log as the
+    run goes (``recording.device_log``): the replay devices (:class:`ReplayDevice`,
+    :class:`ReplayJointDevice`) read it back, and hold each row from its tick, so a replay at the
+    same period gives the scene the same samples, bit for bit. Values are written with ``repr``;
+    the file is flushed every second of device time, so a run that fails late keeps its log."""
+
+    def __init__(self, path: str | Path, header: Sequence[str], period_s: float):
+        self.path = Path(path)
+        self._file = self.path.open("w", newline="")
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(header)
+        self._flush_every = max(1, round(1.0 / period_s))
+        self.rows = 0
+
+    def write(self, t: float, values, tail=()) -> None:
+        self._writer.writerow([repr(float(t)), *(repr(float(v)) for v in values), *tail])
+        self.rows += 1
+        if self.rows % self._flush_every == 0:
+            self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
 
 
 class DeviceSource(LeafSystem):
@@ -177,6 +205,22 @@ class DeviceSource(LeafSystem):
         )
         if self.aids is not None:
             self._aid_ports = [self.DeclareVectorInputPort(name, 7) for name in ("pose_WT", "pose_WG")]
+        self.recorder: SampleRecorder | None = None
+
+    def record_to(self, path: str | Path) -> SampleRecorder:
+        """Write every sample the device reports (its latency and noise applied, before the
+        :class:`SampleGuard`) to the device log ``path`` (``t,x,y,z,qw,qx,qy,qz,grasp``); a tick
+        with no sample (a dropout) writes no row. Its replay at this period, with no latency or
+        noise, reports the same samples. A relative device's tether or control/display ratio
+        moves the target off its samples, so it is refused."""
+        if self.aids is not None:
+            raise ValueError(
+                f"recording.device_log: {path}: this device's tether or control/display ratio moves the "
+                "target off the samples a replay would report; record without the aids, or keep the run's "
+                "own relative log (device.log) to replay it"
+            )
+        self.recorder = SampleRecorder(path, CSV_HEADER, self.period_s)
+        return self.recorder
 
     def _sample(self, t: float) -> Sample | None:
         raw = self._sampler(max(0.0, t - self.latency_s))
@@ -210,6 +254,8 @@ class DeviceSource(LeafSystem):
         status[0] += 1
         x[_TLAST] = context.get_time()
         sample = self._sample(context.get_time())
+        if self.recorder is not None and sample is not None:
+            self.recorder.write(context.get_time(), [*sample[0], *sample[1]], (sample[2],))
         accepted = False
         if sample is None:
             status[2] += 1
@@ -570,6 +616,14 @@ class JointDevice(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._update)
         self.DeclareVectorOutputPort("q_device", self._nq, self._calc_q, {self.xd_ticket()})
         self.DeclareVectorOutputPort("v_device", self._nq, self._calc_v, {self.xd_ticket()})
+        self.recorder: SampleRecorder | None = None
+
+    def record_to(self, path: str | Path) -> SampleRecorder:
+        """Write the channels the device reports at each tick (its latency applied) to the joint
+        log ``path`` (``t,<channels>``), which :class:`ReplayJointDevice` replays at this period,
+        with no latency, as the same samples."""
+        self.recorder = SampleRecorder(path, ("t", *self.channels), self.period_s)
+        return self.recorder
 
     def channel_values(self, t: float) -> np.ndarray:
         """The channels the device reports at time ``t`` (latency applied)."""
@@ -608,7 +662,10 @@ class JointDevice(LeafSystem):
 
     def _update(self, context, discrete_state):
         x = context.get_discrete_state(self._state).get_value()
-        q = self.sample(context.get_time())
+        u = self.channel_values(context.get_time())
+        if self.recorder is not None:
+            self.recorder.write(context.get_time(), u)
+        q = self.mix @ u  # as sample(t)
         discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([q, x[: self._nq]]))
 
     def _calc_q(self, context, output):

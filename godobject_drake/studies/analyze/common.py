@@ -86,7 +86,15 @@ def _probe(station):
 def analysis_scenario(scenario: sc.Scenario) -> sc.Scenario:
     """``scenario`` made headless: no recording, no page served, a live or LCM device replaced
     by a scripted one standing at its start (the analysis needs no browser and no driver)."""
-    s = sc.replace(scenario, **{"recording.file": "", "visualization.serve": False, "metrics.file": ""})
+    s = sc.replace(
+        scenario,
+        **{
+            "recording.file": "",
+            "recording.device_log": "",
+            "visualization.serve": False,
+            "metrics.file": "",
+        },
+    )
     s.device = s.device.stand_in()  # the device kind's own (device_kinds): no browser, no driver
     for tool in s.tools.values():
         tool.device = tool.device.stand_in()
