@@ -1,16 +1,18 @@
-"""Soft bodies of the user's own (``deformables:``): Drake FEM bodies from a tetrahedral mesh file
-or a primitive, in any scene.
+"""Soft bodies (``deformables:``): Drake FEM bodies from a tetrahedral mesh file, a primitive or a
+rigid shape of the directives they replace, in any scene; the laparoscopy's FEM organ is one
+(``organs: {model: fem}`` stands for its entry: :meth:`~godobject_drake.config.scene.Organs.soft_body`).
 
-:func:`soft_body_mesh` reads a scenario's soft body (a legacy-ASCII VTK volume mesh, checked by
-:mod:`godobject_drake.config.meshes`, or a box, sphere or ellipsoid meshed here by
-:func:`~godobject_drake.systems.tissue.grid_tet_mesh` and
-:func:`~godobject_drake.systems.tissue.ellipsoid_tet_mesh`) and refuses, before the run, a mesh
-whose size says millimetres, one whose step would cost too much (:func:`estimated_step_cost_s`)
-and an attachment that holds no vertex. :class:`FemSoftBody` registers it with Drake's
-``DeformableModel`` and fixes its held vertices with ``AddFixedConstraint`` (to the world or a
-free body); :class:`SoftBodyObserver` measures it every step from the tools' own collision
-geometry (SceneGraph's signed distance from each deformed surface vertex to every rigid geometry
-that moves), and its summary is folded per soft body into the metrics.
+:func:`soft_body_mesh` reads a scenario's soft body (a VTK volume mesh, checked by
+:mod:`godobject_drake.config.meshes`, or a box, sphere, ellipsoid or capsule meshed here by
+:func:`~godobject_drake.systems.tissue.grid_tet_mesh`,
+:func:`~godobject_drake.systems.tissue.ellipsoid_tet_mesh` and :func:`capsule_tet_mesh`) and
+refuses, before the run, a mesh whose size against the scene's says millimetres, one whose step
+would cost too much (:func:`estimated_step_cost_s`) and an attachment that holds no vertex.
+:class:`FemSoftBody` registers it with Drake's ``DeformableModel`` and holds its vertices: with
+``AddFixedConstraint`` (to the world or a free body), or in place with the wall boundary
+condition (``below_top_m``); :class:`SoftBodyObserver` measures it every step from the tools' own
+collision geometry (SceneGraph's signed distance from each deformed surface vertex to every rigid
+geometry that moves), and its summary is folded per soft body into the metrics.
 
 Measured (Drake 1.51.1 and 1.58): ``AddFixedConstraint``'s ``X_BA`` is the pose in B of the frame
 the deformable geometry was registered in (its ``X_WG``), not of the world: a sphere registered at
