@@ -211,6 +211,18 @@ def test_a_mesh_point_in_no_tetrahedron_is_refused_naming_how_many(tmp_path):
         ("{mesh: a.vtk, shape: box, free: true}", "give one, a tetrahedral VTK file as mesh"),
         ("{shape: sphere, size_m: [0.1], poissons_ratio: 0.5, free: true}", "poissons_ratio: 0.5"),
         ("{shape: sphere, size_m: [0.1], attach: [{within_m: 0.01}]}", "of the world: give a box"),
+        ("{replaces: pelvis::uterus, xyz_m: [0, 0, 0.1], free: true}", "takes the replaced shape's pose"),
+        ("{replaces: uterus, free: true}", "replaces: 'uterus'; give the collision geometry as model::name"),
+        ("{mesh: a.vtk, cells: 4, free: true}", "a mesh file is meshed already"),
+        (
+            "{shape: box, size_m: [0.1, 0.1, 0.1], grading: 1.5, free: true}",
+            "grades a sphere or an ellipsoid",
+        ),
+        ("{shape: box, size_m: [0.1, 0.1, 0.1], cells: 3, free: true}", "cells: 3 must be 0"),
+        (
+            "{shape: box, size_m: [0.1, 0.1, 0.1], attach: [{below_top_m: 0.01, within_m: 0.01}]}",
+            "give one way",
+        ),
     ],
 )
 def test_a_soft_bodys_fields_are_checked_naming_the_field(body, said):
@@ -540,3 +552,21 @@ def test_the_laparoscopys_fem_organ_is_its_deformables_entry_written_out_step_fo
     (q_a, p_a), (q_b, p_b) = states
     assert np.array_equal(q_a, q_b) and np.array_equal(p_a, p_b)
     assert np.abs(p_a.reshape(-1, 3) - body.rest_W).max() > 1e-4  # the organ moved: the check is not of rest
+
+
+def test_the_guides_own_vtk_writer_writes_what_the_reader_takes_back_exactly(tmp_path):
+    """The guide's few lines for writing a mesh from numpy arrays (its python block): the points and
+    tetrahedra read back bit for bit, and checked as a scenario's mesh is."""
+    import re
+
+    from godobject_drake.config.meshes import check_tetrahedra, read_tet_vtk
+
+    page = (REPO / "docs" / "guide" / "own_soft_body.md").read_text()
+    (code,) = re.findall(r"```python\n(.*?)```", page, flags=re.S)
+    space: dict = {}
+    exec(code, space)
+    V, T = pad_mesh()
+    space["write_tet_vtk"](tmp_path / "own.vtk", V * (1 + 1e-9), T)  # not round numbers
+    V2, T2 = read_tet_vtk(tmp_path / "own.vtk", "own.vtk")
+    check_tetrahedra(V2, T2, "own.vtk")
+    assert np.array_equal(V2, V * (1 + 1e-9)) and np.array_equal(T2, T)

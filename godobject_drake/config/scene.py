@@ -726,6 +726,11 @@ class SoftBody:
             self._check_shape()
         if self.replaces and "::" not in self.replaces:
             raise ValueError(f"replaces: {self.replaces!r}; give the collision geometry as model::name")
+        if self.replaces and (any(self.xyz_m) or any(self.rpy_deg)):
+            raise ValueError(
+                f"xyz_m {self.xyz_m}, rpy_deg {self.rpy_deg} with replaces {self.replaces!r}: the body takes "
+                "the replaced shape's pose; leave them out (move the shape in the directives instead)"
+            )
         if not (isinstance(self.cells, int) and 0 <= self.cells <= 24 and self.cells % 2 == 0):
             raise ValueError(
                 f"cells: {self.cells!r} must be 0 (from resolution_m) or an even integer in [2, 24]"

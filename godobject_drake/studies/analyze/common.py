@@ -10,6 +10,7 @@ import warnings
 from godobject_drake.config import scenario as sc
 from godobject_drake.config.gains import CouplingGainWarning
 from godobject_drake.metrics import PenetrationBudgetWarning
+from godobject_drake.safeguards import UnsupportedBodyWarning
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.station.rigid_tool import grasped_bodies
@@ -77,9 +78,12 @@ def _quiet_build(scenario: sc.Scenario):
 
 def _probe(station):
     """One of the analysis's own runs in Drake: they push into obstacles and past the limits on
-    purpose, so the run-end :class:`PenetrationBudgetWarning` (meant for the user's run) is not said."""
+    purpose, so the run-end :class:`PenetrationBudgetWarning` (meant for the user's run) is not said;
+    and they run each tool of a scene alone, where a body another tool holds falls, so neither is
+    :class:`UnsupportedBodyWarning`."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PenetrationBudgetWarning)
+        warnings.simplefilter("ignore", UnsupportedBodyWarning)
         return simulate(station, progress=False)
 
 
