@@ -29,6 +29,7 @@ LAYERS = (
     ("godobject_drake.systems", 2),
     ("godobject_drake.devices", 2),
     ("godobject_drake.metrics", 2),
+    ("godobject_drake.task_metrics", 2),
     ("godobject_drake.safeguards", 2),
     ("godobject_drake.realtime", 2),
     ("godobject_drake.sleeping", 2),
