@@ -1,10 +1,12 @@
 """The motion, force and safety scores (godobject_drake.task_metrics), each against a number a person
 can compute by hand, a second method where one exists, and a real run of the shipped scenes."""
 
+import json
 import math
 
 import numpy as np
 import pytest
+from conftest import load_script
 from scipy.integrate import quad
 
 from godobject_drake.config.scenario import load_scenario
@@ -264,3 +266,28 @@ def test_two_hands_bricks_touching_is_an_instrument_collision():
     columns = result.station.contact_meter.pair_columns("left")
     touching = result.data["contacts"][:, columns].max(axis=1) > 0.5
     assert m["instrument_collision_time_s"] == pytest.approx(touching.sum() * 1e-3)
+
+
+def test_compare_runs_prints_both_sessions_and_plots_them(tmp_path, capsys):
+    compare = load_script("analysis/compare_runs.py")
+    out = tmp_path / "cmp"
+    argv = ["lego", "lego", "--set-b", "device.noise_m=0.002", "--names", "clean", "shaky",
+            "--duration", "1.0", "--out", str(out)]  # fmt: skip
+    assert compare.main(argv) == 0
+    table = capsys.readouterr().out
+    scores = json.loads((out / "scores.json").read_text())
+    clean, shaky = scores["clean"], scores["shaky"]
+    line = next(row for row in table.splitlines() if " tip_path_m " in row)
+    assert line.split()[-2:] == [f"{clean['tip_path_m']:.4g}", f"{shaky['tip_path_m']:.4g}"]
+    assert shaky["tip_path_m"] > clean["tip_path_m"]  # the shaky hand's noise lengthens the path
+    for png in ("tip_paths.png", "forces.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # two metrics files: the same table from what the runs wrote
+    for name in ("clean", "shaky"):
+        (tmp_path / f"{name}.json").write_text(json.dumps(scores[name]))
+    assert compare.main([str(tmp_path / "clean.json"), str(tmp_path / "shaky.json"), "--names", "clean",
+                         "shaky"]) == 0  # fmt: skip
+    assert line in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        compare.main(["lego", str(tmp_path / "clean.json")])
+    assert "give two scenarios, or two metrics JSON files, not one of each" in capsys.readouterr().err
