@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 import pytest
-from conftest import load_script
+from conftest import REPO, load_script
 from scipy.integrate import quad
 
+from godobject_drake.cli import load_with_sets
 from godobject_drake.config.scenario import load_scenario
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
@@ -291,3 +292,17 @@ def test_compare_runs_prints_both_sessions_and_plots_them(tmp_path, capsys):
     with pytest.raises(SystemExit):
         compare.main(["lego", str(tmp_path / "clean.json")])
     assert "give two scenarios, or two metrics JSON files, not one of each" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("contact", ["proxies", "hydroelastic"])
+def test_the_held_brick_pushes_the_wall_along_the_devices_pull(contact):
+    """The force is the one the tool applies: at t = 1.99 s the device pulls the brick 0.3 m/s along
+    +x into the wall, so the brick pushes the wall along +x (point and hydroelastic contacts alike)."""
+    model = "point" if contact == "proxies" else "hydroelastic_with_fallback"  # as --contact sets it
+    sets = [f"contact.geometry={contact}", f"plant.contact_model={model}"]
+    scenario = load_with_sets(REPO / "diagrams/lego.yaml", sets)
+    result = simulate(build_station(scenario), duration_s=2.0, progress=False)
+    row = result.data["contacts"][1990, result.station.contact_meter.columns("")]
+    force, contacts = row[:3], row[3]
+    assert contacts >= 1
+    assert force[0] > 0.95 * np.linalg.norm(force) > 0.3  # N: along +x, about the spring's pull
