@@ -113,8 +113,12 @@ class ContactMeter(LeafSystem):
             if a is not None and b is not None:
                 touching.add((min(index[a], index[b]), max(index[a], index[b])))
 
+        if not owners and not self._soft:  # rigid tools holding nothing: nothing to look at
+            output.SetFromVector(out)
+            return
+        pair_info = results.point_pair_contact_info
         for i in range(results.num_point_pair_contacts()):
-            info = results.point_pair_contact_info(i)
+            info = pair_info(i)
             a, b = owners.get(int(info.bodyA_index())), owners.get(int(info.bodyB_index()))
             if a is not None or b is not None:
                 add(a, b, info.contact_force())
