@@ -306,3 +306,15 @@ def test_the_held_brick_pushes_the_wall_along_the_devices_pull(contact):
     force, contacts = row[:3], row[3]
     assert contacts >= 1
     assert force[0] > 0.95 * np.linalg.norm(force) > 0.3  # N: along +x, about the spring's pull
+
+
+def test_a_camera_looking_away_sees_no_tip():
+    """The brick scene's camera turned to look straight up: the tip (on the table) is out of its view
+    at every step; turned back to the table, in it at every step. A time is its rows times h, and a
+    0.3 s run logs 301 rows (t = 0 to 0.3 s), as impossible_pose_time_s counts them."""
+    away = ["visualization.camera.position_m=[-0.18, -0.20, 0.13]",
+            "visualization.camera.target_m=[-0.18, -0.20, 1.0]"]  # fmt: skip
+    for sets, out_of_view in ((away, 0.301), ([], 0.0)):
+        scenario = load_with_sets(REPO / "diagrams/lego.yaml", sets)
+        m = simulate(build_station(scenario), duration_s=0.3, progress=False).metrics
+        assert m["tip_out_of_view_s"] == pytest.approx(out_of_view, abs=1e-9)
