@@ -689,7 +689,8 @@ class SceneMetrics:
         self._god, self._name, self.h = god, next(iter(station.tools)), h
         camera = station.scenario.visualization.camera
         view = CameraView(tuple(camera.position_m), tuple(camera.target_m)) if camera is not None else None
-        self._tip = TipMotion(h, view)
+        config = station.scenario.metrics
+        self._tip = TipMotion(h, view, config.idle_speed_mps, config.smoothing_window_s)
         self._meter = getattr(station, "contact_meter", None)
         self._forces, self._collisions = ForceFold(h), CollisionFold(h)
         self._reference = None  # the tip's last reference point (tip_reference)

@@ -10,7 +10,7 @@ from conftest import REPO, load_script
 from scipy.integrate import quad
 
 from godobject_drake.cli import load_with_sets
-from godobject_drake.config.scenario import load_scenario
+from godobject_drake.config.scenario import ScenarioError, load_scenario
 from godobject_drake.simulation import simulate
 from godobject_drake.station.build import build_station
 from godobject_drake.systems.coupling import TERMS_LAYOUT
@@ -318,3 +318,22 @@ def test_a_camera_looking_away_sees_no_tip():
         scenario = load_with_sets(REPO / "diagrams/lego.yaml", sets)
         m = simulate(build_station(scenario), duration_s=0.3, progress=False).metrics
         assert m["tip_out_of_view_s"] == pytest.approx(out_of_view, abs=1e-9)
+
+
+def test_the_idle_speed_and_window_are_the_scenarios():
+    """``metrics.idle_speed_mps`` and ``metrics.smoothing_window_s`` reach the run; bad values are
+    refused naming the field, the value and an example."""
+    base = ["metrics.idle_speed_mps=1000"]  # nothing moves at 1 km/s: every estimated row is idle
+    m = simulate(build_station(load_with_sets(REPO / "diagrams/lego.yaml", base)), duration_s=0.5,
+                 progress=False).metrics  # fmt: skip
+    # 501 rows (t = 0 to 0.5 s), a 101-row window: 401 rows with a speed, all idle, none moving
+    assert m["tip_idle_time_s"] == pytest.approx(0.401, abs=1e-9) and m["task_time_s"] == 0.0
+    assert m["tip_log_dimensionless_jerk"] is None  # no time moving: undefined
+    for item, message in (
+        ("metrics.idle_speed_mps=-1",
+         r"metrics\.idle_speed_mps: -1\.0 m/s must be finite and ≥ 0 \(e\.g\. 0\.005\)"),
+        ("metrics.smoothing_window_s=0",
+         r"metrics\.smoothing_window_s: 0\.0 s must be finite and > 0 \(e\.g\. 0\.1\)"),
+    ):  # fmt: skip
+        with pytest.raises(ScenarioError, match=message):
+            load_with_sets(REPO / "diagrams/lego.yaml", [item])
