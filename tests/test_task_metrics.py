@@ -337,3 +337,16 @@ def test_the_idle_speed_and_window_are_the_scenarios():
     ):  # fmt: skip
         with pytest.raises(ScenarioError, match=message):
             load_with_sets(REPO / "diagrams/lego.yaml", [item])
+
+
+def test_the_meters_shortcut_gives_the_contact_lists_rows():
+    """A rigid tool alone holding a body reads its net contact force from the plant's generalized
+    contact forces; walking Drake's contact list gives the same rows (the brick pressed into the
+    wall, on the table and laid on another brick: the whole path)."""
+    rows = {}
+    for shortcut in (True, False):
+        station = build_station(load_scenario("diagrams/lego.yaml"))
+        station.contact_meter.shortcut = shortcut
+        rows[shortcut] = simulate(station, progress=False).data["contacts"]
+    assert np.count_nonzero(rows[True][:, 3]) > 1000  # in contact for over a second
+    np.testing.assert_allclose(rows[True], rows[False], rtol=0, atol=1e-12)

@@ -19,6 +19,7 @@ import warnings
 
 from pydrake.geometry import Meshcat
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
@@ -198,6 +199,11 @@ def add_contact_meter(builder: DiagramBuilder, scene: SceneParts, tools: dict[st
     parts = {name: tool.contact_parts(plant, scene.scene_graph) for name, tool in tools.items()}
     meter = builder.AddNamedSystem("contact_meter", ContactMeter(plant, scene.scene_graph, parts))
     builder.Connect(plant.get_contact_results_output_port(), meter.GetInputPort("contact_results"))
+    for instance, port in meter.instance_ports.items():
+        builder.Connect(
+            plant.get_generalized_contact_forces_output_port(ModelInstanceIndex(instance)),
+            meter.GetInputPort(port),
+        )
     for name, tool in tools.items():
         if parts[name].holds:
             builder.Connect(tool.held_body_port(), meter.GetInputPort(f"held_body_{name or 'tool'}"))
