@@ -27,6 +27,7 @@ from godobject_drake.limits import explicit_limit_omega_h
 from godobject_drake.outputs import dumps_metrics, write_atomically
 from godobject_drake.spatial import quats_to_rotations
 from godobject_drake.systems.coupling import GraspableBody, graspable_bodies
+from godobject_drake.task_metrics import CameraView, CollisionFold, ForceFold, TipMotion
 
 
 class PenetrationBudgetWarning(UserWarning):
@@ -657,26 +658,44 @@ class SeparationMetrics:
         return out
 
 
+TRACE_PERIOD_S = 0.01  # a kept trace's rows (SceneMetrics(trace=True)): one every 10 ms
+
+
 class SceneMetrics:
     """A station's metrics (by god-object kind), folded in from its logs chunk by chunk.
 
     Every kind gives ``max_penetration_m``, ``rms_tracking_error_m``, ``free_space_samples``
     and ``max_other_body_speed_mps`` (None where nothing else moves); rigid adds
     ``coupling_capped_steps``; articulated :class:`ToolMetrics`' keys; deformable
-    :class:`ShellMetrics`'. Rows with a non-finite value (a run stopped as diverged) are left
-    out. ``update(data)`` takes a dict of logs (one row per plant step, the station's
-    logger names); ``result()`` reads the values so far.
+    :class:`ShellMetrics`'. Every kind adds the tip's motion scores, its contact forces on other
+    bodies and its collisions with other tools (:mod:`godobject_drake.task_metrics`), its tip being
+    the point the kind's fold follows (a rigid god-object's G, an articulated tool's tip body's
+    origin, a deformable one's core). Rows with a non-finite value (a run stopped as diverged) are
+    left out. ``update(data)`` takes a dict of logs (one row per plant step, the station's logger
+    names); ``result()`` reads the values so far. ``trace``: keep the tip's position and force
+    every :data:`TRACE_PERIOD_S` (:meth:`trace`), for plots.
     """
 
-    def __init__(self, station):
+    def __init__(self, station, trace: bool = False):
         god, plant = station.god_object, station.plant
         reversals = god.source.reversals(2 * REVERSAL_MOVE_M)  # None: a device that does not say
         aids = getattr(god.source, "aids", None)  # a relative device's tether (devices.RelativeAids)
+        h = plant.time_step()
         self._sep = SeparationMetrics(
-            plant.time_step(), station.scenario.metrics.impossible_pose_distance_m, reversals,
+            h, station.scenario.metrics.impossible_pose_distance_m, reversals,
             tether_m=aids.tether_m if aids is not None else math.inf, device_period_s=god.source.period_s,
         )  # fmt: skip
         self._acc = god.new_metrics(station)  # the god-object kind's own fold
+        self._god, self._name, self.h = god, next(iter(station.tools)), h
+        camera = station.scenario.visualization.camera
+        view = CameraView(tuple(camera.position_m), tuple(camera.target_m)) if camera is not None else None
+        config = station.scenario.metrics
+        self._tip = TipMotion(h, view, config.idle_speed_mps, config.smoothing_window_s)
+        self._meter = getattr(station, "contact_meter", None)
+        self._forces, self._collisions = ForceFold(h), CollisionFold(h)
+        self._reference = None  # the tip's last reference point (tip_reference)
+        self._rows = 0
+        self._trace = [] if trace else None
 
     def update(self, data: dict) -> None:
         if not data or len(data["state"]) == 0:
@@ -687,9 +706,48 @@ class SceneMetrics:
         # every row, so that row k is at t = k h (a non-finite row gives a NaN, never the maximum)
         separation = np.linalg.norm(p_WT - p_WG, axis=1)
         self._sep.update(np.where(np.isfinite(separation), separation, 0.0), p_WG)
+        self._task(rows, p_WG, finite)
+        self._rows += len(finite)
+
+    def _task(self, rows: dict, p_WG: np.ndarray, finite: np.ndarray) -> None:
+        """The tip's motion, the tool's forces and collisions, on the finite rows."""
+        tip = np.asarray(p_WG, float)[finite]
+        reference = self._god.tip_reference(rows)
+        switched = None
+        if reference is not None and len(reference):
+            before = np.concatenate([[reference[0] if self._reference is None else self._reference],
+                                     reference[:-1]])  # fmt: skip
+            switched, self._reference = reference != before, reference[-1]
+        self._tip.update(tip, switched)
+        force = np.zeros((len(tip), 3))
+        if self._meter is not None and "contacts" in rows:
+            columns = rows["contacts"][:, self._meter.columns(self._name)]
+            force = columns[:, :3]
+            self._forces.update(force, columns[:, 3])
+            pairs = self._meter.pair_columns(self._name)
+            if pairs:
+                self._collisions.update(np.max(rows["contacts"][:, pairs], axis=1))
+        if self._trace is not None:
+            every = max(1, round(TRACE_PERIOD_S / self.h))
+            k = np.flatnonzero(finite)
+            keep = (self._rows + k) % every == 0
+            t = (self._rows + k[keep]) * self.h
+            self._trace.append(np.column_stack([t, tip[keep], np.linalg.norm(force[keep], axis=1)]))
+
+    def trace(self) -> np.ndarray:
+        """The kept trace (``trace=True``): rows ``[t, x, y, z, |F|]`` of the tip's position (m) and
+        the tool's net contact force on other bodies (N), every :data:`TRACE_PERIOD_S`."""
+        if self._trace is None:
+            raise ValueError("this fold keeps no trace: SceneMetrics(station, trace=True) keeps one")
+        return np.concatenate(self._trace) if self._trace else np.zeros((0, 5))
 
     def result(self) -> dict:
-        return {**self._acc.result(), **self._sep.result()}
+        out = {**self._acc.result(), **self._sep.result(), **self._tip.result()}
+        if self._meter is not None:
+            out.update(self._forces.result())
+            if len(self._meter.tools) > 1:  # against any other tool
+                out.update(self._collisions.result("tool_"))
+        return out
 
 
 def penetration_verdict(metrics: dict, scenario) -> dict:

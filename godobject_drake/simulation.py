@@ -44,8 +44,10 @@ from godobject_drake.safeguards import (
     install_safeguards,
 )
 from godobject_drake.station.build import Station
+from godobject_drake.systems.contacts import PER_TOOL
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.page import page_of, save_recording, server_stopped
+from godobject_drake.task_metrics import CollisionFold
 from godobject_drake.task_score import TaskFold
 
 
@@ -68,6 +70,10 @@ class RunResult:
         common length, and each soft body's summary rows as ``NAME_soft_body``
         (:class:`~godobject_drake.systems.soft_body.SoftBodyObserver`) (``simulate(keep_logs=True)``,
         the default; empty otherwise).
+    traces : dict[str, numpy.ndarray]
+        Each tool's tip position and net contact force every 10 ms, rows ``[t, x, y, z, |F|]``
+        (:meth:`~godobject_drake.metrics.SceneMetrics.trace`), by tool name (``keep_logs=True``;
+        empty otherwise).
     """
 
     metrics: dict
@@ -75,6 +81,7 @@ class RunResult:
     simulator: Simulator
     safeguards: Safeguards
     data: dict
+    traces: dict = dataclasses.field(default_factory=dict)
 
     @property
     def context(self):
@@ -282,12 +289,16 @@ class _Run:
                      for name, logger in station.soft_loggers.items()}  # fmt: skip
         self.soft_kept = {} if keep_logs else None  # each soft body's summary rows, with keep_logs
         try:  # each tool's metrics, on its own view of the station
-            self.measured = {name: SceneMetrics(view) for name, view in station.views.items()}
+            self.measured = {
+                name: SceneMetrics(view, trace=keep_logs) for name, view in station.views.items()
+            }
             self.metrics_error = None
         except Exception as e:  # a scene the metrics cannot measure still runs, and says why
             self.measured, self.metrics_error = None, f"{type(e).__name__}: {e}"
         # the task's score (scenario.task), folded from the state rows like the tools' metrics
         self.task = TaskFold(station.task, scenario.task, h) if station.task is not None else None
+        meter = station.contact_meter
+        self.collisions = CollisionFold(h) if meter is not None and len(meter.tools) > 1 else None
         self.n_steps = round(duration / h)
         self.fold_every = max(
             self.guard.every, round((REAL_TIME_FOLD_PERIOD_S if rate > 0 else FOLD_PERIOD_S) / h)
@@ -326,8 +337,15 @@ class _Run:
                         self.measured[name].update(chunk)
                     if self.task is not None and chunks:
                         self.task.update(next(iter(chunks.values()))["state"])
+                    if self.collisions is not None and chunks:  # any two tools touching
+                        self._fold_collisions(next(iter(chunks.values()))["contacts"])
             except Exception as e:  # reported, never lost: the common metrics and the logs stand
                 self.metrics_error = f"{type(e).__name__}: {e}"
+
+    def _fold_collisions(self, contacts: np.ndarray) -> None:
+        meter = self.station.contact_meter
+        pairs = contacts[:, len(meter.tools) * PER_TOOL :]
+        self.collisions.update(np.max(pairs[np.all(np.isfinite(contacts), axis=1)], axis=1))
 
     def common(self, partial: bool) -> dict:
         """The metrics every scene has: what ran, how long it took, whether it diverged."""
@@ -425,6 +443,8 @@ class _Run:
             for name, view in self.station.views.items():
                 out[name] = {**configuration(view.scenario, view), **out[name]}
             flat = {**worst_of(out), "tools": out}
+            if self.collisions is not None:
+                flat.update(self.collisions.result())
         if errors:
             flat["metrics_error"] = "; ".join(errors)
         return flat
@@ -494,7 +514,10 @@ class _Run:
         metrics.update(verdict(metrics, self.scenario, self.station.records))
         data = self.logs.kept()
         data.update({key: np.concatenate(chunks) for key, chunks in (self.soft_kept or {}).items()})
-        result = RunResult(metrics, self.station, self.simulator, self.guard, data)
+        traces = {}
+        if self.soft_kept is not None and self.measured is not None:  # keep_logs: the tips' traces too
+            traces = {name: measured.trace() for name, measured in self.measured.items()}
+        result = RunResult(metrics, self.station, self.simulator, self.guard, data, traces)
         if self.interrupted is not None:
             raise RunInterrupted(result) from self.interrupted
         return result
@@ -586,6 +609,9 @@ def _then(first, second):
     return both
 
 
+SHARED_LOGS = ("state", "contacts")  # logs every tool reads, kept once under their own name
+
+
 class _Logs:
     """The station's loggers, emptied into each tool's chunk (one row per plant step, the tool's own
     logger names, with what its kind computes from them after the run); optionally all kept."""
@@ -614,7 +640,9 @@ class _Logs:
         if self._keep is not None:  # by the station's logger names (a tool's computed rows with its name)
             kept = {}
             for tool, chunk in chunks.items():
-                kept.update({(k if k == "state" or not tool else f"{tool}/{k}"): v for k, v in chunk.items()})
+                kept.update(
+                    {(k if k in SHARED_LOGS or not tool else f"{tool}/{k}"): v for k, v in chunk.items()}
+                )
             self._keep.append(kept)
         return chunks
 

@@ -30,6 +30,7 @@ LAYERS = (
     ("godobject_drake.devices", 2),
     ("godobject_drake.metrics", 2),
     ("godobject_drake.task_score", 2),  # a task's score, beside the metrics
+    ("godobject_drake.task_metrics", 2),
     ("godobject_drake.safeguards", 2),
     ("godobject_drake.realtime", 2),
     ("godobject_drake.sleeping", 2),

@@ -331,12 +331,21 @@ class Metrics:
         A target farther than this from the god-object (m) is in a pose the god-object cannot
         take (it is blocked); ``impossible_pose_time_s`` is the time spent so. The default, 5 mm,
         is four times the shipped scenes' free-space tracking lag.
+    idle_speed_mps : float
+        A tool's tip slower than this (m/s) is idle: ``tip_idle_time_s``, and ``task_time_s`` runs
+        from the first time it is faster to the last (docs/task_metrics.md).
+    smoothing_window_s : float
+        The Savitzky–Golay window (s) the tip's speed and jerk are estimated over (a degree-5
+        polynomial fitted to this much of the trajectory; rounded to an odd count of plant steps,
+        at least 7).
     """
 
     file: str = ""
     penetration_budget_m: float = 1e-3
     checkpoint_period_s: float = 10.0
     impossible_pose_distance_m: float = 0.005
+    idle_speed_mps: float = 0.005
+    smoothing_window_s: float = 0.1
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""
@@ -347,6 +356,12 @@ class Metrics:
         far = self.impossible_pose_distance_m
         if not (math.isfinite(far) and far > 0):
             raise ValueError(f"impossible_pose_distance_m: {far!r} m must be > 0 (e.g. 0.005)")
+        idle = self.idle_speed_mps
+        if not (math.isfinite(idle) and idle >= 0):
+            raise ValueError(f"idle_speed_mps: {idle!r} m/s must be finite and ≥ 0 (e.g. 0.005)")
+        window = self.smoothing_window_s
+        if not (math.isfinite(window) and window > 0):
+            raise ValueError(f"smoothing_window_s: {window!r} s must be finite and > 0 (e.g. 0.1)")
 
 
 TISSUE_MODELS = ("rigid", "fem")

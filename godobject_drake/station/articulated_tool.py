@@ -23,6 +23,7 @@ from godobject_drake.station import loop
 from godobject_drake.station.articulated_model import add_articulated_model
 from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import SceneParts, exclude_self_collisions
+from godobject_drake.systems.contacts import ToolParts
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ToolGhostVisualizer
 from godobject_drake.systems.tissue import connect_tissue_observer, free_body, tool_capsules
 
@@ -180,6 +181,10 @@ class ArticulatedGodObject(GodObject):
                 grasp.update(plant, plant_context, float(q[grasp.jaw_index]))
 
         return step
+
+    def contact_parts(self, plant, scene_graph) -> ToolParts:
+        """Every body of its model (what the jaws hold is not the tool: a constraint holds it)."""
+        return ToolParts(bodies=frozenset(int(b) for b in plant.GetBodyIndices(self.tool.model)))
 
     def held_bodies(self, root_context) -> set[int]:
         """What the jaws hold now."""

@@ -19,6 +19,7 @@ import warnings
 
 from pydrake.geometry import Meshcat
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
@@ -30,6 +31,7 @@ from godobject_drake.station.kinds import GodObject, kind_for
 from godobject_drake.station.loop import add_device, share_grasps
 from godobject_drake.station.plant import SceneParts, add_plant, check_start_overlaps
 from godobject_drake.station.rigid_tool import penetration_fix
+from godobject_drake.systems.contacts import ContactMeter
 from godobject_drake.systems.drawing import (
     Drawing,
     TissueVisualizer,
@@ -143,6 +145,7 @@ def _finish(
     if scene.forces is not None:
         scene.forces.connect(builder)  # every tool's forces into the plant
     loggers, tool_loggers = add_loggers(builder, scene.plant, tools, records)
+    meter = add_contact_meter(builder, scene, tools, loggers, tool_loggers)
     soft_loggers, soft_observers = add_soft_body_observers(builder, scene, scenario)
     if meshcat is not None:
         add_visualization(builder, meshcat, scene, tools, scenario, records)
@@ -172,7 +175,7 @@ def _finish(
     return Station(
         scenario, diagram, scene.plant, scene.scene_graph, tools, loggers, meshcat,
         max(predicted) if predicted else None, sleeper, tool_loggers, records,
-        soft_loggers=soft_loggers, soft_bodies=scene.soft_bodies, task=task,
+        soft_loggers=soft_loggers, soft_bodies=scene.soft_bodies, task=task, contact_meter=meter,
     )  # fmt: skip
 
 
@@ -192,6 +195,30 @@ def add_loggers(
                 loggers[full].set_name(f"{full}_log")  # named, so GetGraphvizString reads well
             tool_loggers[name][key] = full
     return loggers, tool_loggers
+
+
+def add_contact_meter(builder: DiagramBuilder, scene: SceneParts, tools: dict[str, GodObject], loggers: dict,
+                      tool_loggers: dict) -> ContactMeter:  # fmt: skip
+    """The :class:`~godobject_drake.systems.contacts.ContactMeter` of every tool's contacts, on the
+    plant's contact results, and its per-step log ``contacts``, which every tool's logs share (as
+    ``state``)."""
+    plant = scene.plant
+    parts = {name: tool.contact_parts(plant, scene.scene_graph) for name, tool in tools.items()}
+    meter = builder.AddNamedSystem("contact_meter", ContactMeter(plant, scene.scene_graph, parts))
+    builder.Connect(plant.get_contact_results_output_port(), meter.GetInputPort("contact_results"))
+    for instance, port in meter.instance_ports.items():
+        builder.Connect(
+            plant.get_generalized_contact_forces_output_port(ModelInstanceIndex(instance)),
+            meter.GetInputPort(port),
+        )
+    for name, tool in tools.items():
+        if parts[name].holds:
+            builder.Connect(tool.held_body_port(), meter.GetInputPort(f"held_body_{name or 'tool'}"))
+    loggers["contacts"] = LogVectorOutput(meter.GetOutputPort("contacts"), builder, plant.time_step())
+    loggers["contacts"].set_name("contacts_log")
+    for names in tool_loggers.values():
+        names["contacts"] = "contacts"
+    return meter
 
 
 def add_soft_body_observers(builder: DiagramBuilder, scene: SceneParts, scenario: sc.Scenario):
@@ -357,6 +384,9 @@ class Station:
     soft_bodies : dict[str, FemSoftBody]
         The scene's soft bodies (``deformables``), by name
         (:class:`~godobject_drake.systems.soft_body.FemSoftBody`).
+    contact_meter : ContactMeter | None
+        Each tool's contact force on other bodies and the tools' collisions per step
+        (:class:`~godobject_drake.systems.contacts.ContactMeter`), logged as ``contacts``.
     soft_loggers : dict[str, VectorLogSink]
         Each soft body's (``deformables``) :class:`~godobject_drake.systems.soft_body.SoftBodyObserver`
         summary, per step, by its name; folded into the metrics per soft body.
@@ -385,6 +415,7 @@ class Station:
     soft_loggers: dict[str, VectorLogSink] = dataclasses.field(default_factory=dict)
     soft_bodies: dict = dataclasses.field(default_factory=dict)
     task: tuple | None = None
+    contact_meter: ContactMeter | None = None
 
     def __post_init__(self):
         if not self.views:
@@ -417,7 +448,7 @@ class Station:
         view = Station(
             record.view, self.diagram, self.plant, self.scene_graph, {name: self.tools[name]}, loggers,
             self.meshcat, self.predicted_penetration_m, self.sleeper, {name: {k: k for k in loggers}},
-            {name: record}, views={name: None},
+            {name: record}, views={name: None}, contact_meter=self.contact_meter,
         )  # fmt: skip
         view.views[name] = view  # its one tool's station is itself
         return view

@@ -17,6 +17,7 @@ from godobject_drake.config.gains import CouplingGains, FeedbackGains
 from godobject_drake.devices.sources import DeviceSource, first_pose
 from godobject_drake.metrics import ShellMetrics
 from godobject_drake.station.rigid_tool import RigidGodObject, add_god_object, impose_target
+from godobject_drake.systems.contacts import ToolParts
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, ShellVisualizer, draw_soft_body_here
 from godobject_drake.systems.shell import add_deformable_god_object, obstacle_geometries
 
@@ -84,6 +85,22 @@ class DeformableGodObject(RigidGodObject):
 
     def new_metrics(self, station):
         return _ShellFold(station, self)
+
+    def contact_parts(self, plant, scene_graph) -> ToolParts:
+        """Its shell: an FEM shell's deformable geometry, a mass-spring shell's node bodies."""
+        geometry = getattr(self.shell, "geometry_id", None)
+        if geometry is not None:
+            return ToolParts(deformable_geometries=frozenset([geometry]))
+        inspector = scene_graph.model_inspector()
+        ids = getattr(self.shell, "geometry_ids", ())
+        bodies = {int(plant.GetBodyFromFrameId(inspector.GetFrameId(g)).index()) for g in ids}
+        return ToolParts(bodies=frozenset(bodies))
+
+    def held_body_port(self):
+        return None
+
+    def tip_reference(self, data: dict):
+        return None  # its core, throughout
 
     def predict_penetration(self, scene, penetration_allowance: float = 1e-3, duration_s=None):
         return None

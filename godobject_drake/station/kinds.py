@@ -22,6 +22,7 @@ from pydrake.systems.framework import DiagramBuilder, System
 
 from godobject_drake.config.tools import TOOL_BUILDERS
 from godobject_drake.station.haptic_chain import HapticChain
+from godobject_drake.systems.contacts import ToolParts
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing
 
 if TYPE_CHECKING:
@@ -169,6 +170,22 @@ class GodObject:
     def held_bodies(self, root_context) -> set[int]:
         """The BodyIndex values the coupling holds now (none by default)."""
         return set()
+
+    def contact_parts(self, plant: MultibodyPlant, scene_graph) -> ToolParts:
+        """What the tool touches with, for its contact forces and collisions
+        (:class:`~godobject_drake.systems.contacts.ContactMeter`): nothing by default."""
+        return ToolParts()
+
+    def held_body_port(self):
+        """The output port of the BodyIndex it holds (−1: none), for a tool whose parts include
+        the body it holds (:attr:`ToolParts.holds`); None by default."""
+        return None
+
+    def tip_reference(self, data: dict):
+        """Per logged row of ``data`` (the tool's logs), which point its tip metrics follow, when
+        that point can switch (a rigid god-object: −1 the device's point, else the held body's
+        BodyIndex, its centre of mass); None: one point throughout."""
+        return None
 
     holds_free_bodies: ClassVar[bool] = False  # its coupling grasps the scene's free bodies by name
 

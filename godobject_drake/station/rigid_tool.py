@@ -29,6 +29,7 @@ from godobject_drake.station import loop
 from godobject_drake.station.haptic_chain import WARN_FRACTION, add_haptic_chain, check_haptic_gains
 from godobject_drake.station.kinds import GodObject
 from godobject_drake.station.plant import point_stiffness
+from godobject_drake.systems.contacts import ToolParts
 from godobject_drake.systems.coupling import TERMS_LAYOUT
 from godobject_drake.systems.drawing import ONE_TOOL, Drawing, GodObjectVisualizer
 from godobject_drake.systems.implicit import ImplicitCouplingError, SpringHook, add_springs, implicit_terms
@@ -94,6 +95,16 @@ class RigidGodObject(GodObject):
             first, last = spans.get(body, (t, t))
             spans[body] = (min(first, t), max(last, t))
         return spans
+
+    def contact_parts(self, plant, scene_graph) -> ToolParts:
+        """The body it holds, while it holds one (the coupling's ``held_body``)."""
+        return ToolParts(holds=True)
+
+    def held_body_port(self):
+        return self.coupling.GetOutputPort("held_body")
+
+    def tip_reference(self, data: dict):
+        return data["terms"][:, TERMS_LAYOUT["held_body"]]
 
     def held_bodies(self, root_context) -> set[int]:
         context = self.coupling.GetMyContextFromRoot(root_context)
