@@ -350,3 +350,23 @@ def test_the_meters_shortcut_gives_the_contact_lists_rows():
         rows[shortcut] = simulate(station, progress=False).data["contacts"]
     assert np.count_nonzero(rows[True][:, 3]) > 1000  # in contact for over a second
     np.testing.assert_allclose(rows[True], rows[False], rtol=0, atol=1e-12)
+
+
+def test_without_tool_forces_no_meter_runs_the_forces_are_left_out_and_the_run_is_the_same():
+    """``metrics.tool_forces: false``: no contact meter in the diagram, no force or collision key
+    (not a 0 N that would read as no force), the tips' motion measured as with it, and the plant
+    moves bit for bit as with the meter (it only reads)."""
+    from godobject_drake.config.scenario import replace
+
+    s = replace(load_scenario("diagrams/lego.yaml"), **{"simulation.duration_s": 1.0})
+    runs = []
+    for forces in (True, False):
+        station = build_station(replace(s, **{"metrics.tool_forces": forces}))
+        names = {system.get_name() for system in station.diagram.GetSystems()}
+        assert ("contact_meter" in names) == forces
+        runs.append(simulate(station, progress=False))
+    with_meter, without = runs
+    assert not any(k.startswith("tool_") and "force" in k for k in without.metrics)
+    assert "tool_contact_time_s" not in without.metrics and "tool_max_force_N" in with_meter.metrics
+    assert without.metrics["tip_path_m"] == with_meter.metrics["tip_path_m"]
+    assert np.array_equal(without.data["state"], with_meter.data["state"])

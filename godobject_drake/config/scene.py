@@ -338,6 +338,11 @@ class Metrics:
         The Savitzky–Golay window (s) the tip's speed and jerk are estimated over (a degree-5
         polynomial fitted to this much of the trajectory; rounded to an odd count of plant steps,
         at least 7).
+    tool_forces : bool
+        Measure each tool's contact force on other bodies and the contacts between tools, every
+        plant step (a contact meter on Drake's contact results: about a fifth more CPU a step on
+        the brick scene, docs/results.md); ``false``: those scores are left out and cost nothing,
+        the rest (the tips' motion) stays.
     """
 
     file: str = ""
@@ -346,6 +351,7 @@ class Metrics:
     impossible_pose_distance_m: float = 0.005
     idle_speed_mps: float = 0.005
     smoothing_window_s: float = 0.1
+    tool_forces: bool = True
 
     def check(self) -> None:
         """Raise ``ValueError`` as ``"field: value, limit and fix"``."""

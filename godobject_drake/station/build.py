@@ -145,7 +145,11 @@ def _finish(
     if scene.forces is not None:
         scene.forces.connect(builder)  # every tool's forces into the plant
     loggers, tool_loggers = add_loggers(builder, scene.plant, tools, records)
-    meter = add_contact_meter(builder, scene, tools, loggers, tool_loggers)
+    meter = (
+        add_contact_meter(builder, scene, tools, loggers, tool_loggers)
+        if scenario.metrics.tool_forces
+        else None
+    )
     soft_loggers, soft_observers = add_soft_body_observers(builder, scene, scenario)
     if meshcat is not None:
         add_visualization(builder, meshcat, scene, tools, scenario, records)
