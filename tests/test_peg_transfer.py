@@ -271,6 +271,15 @@ def test_the_clumsy_session_drops_one_and_scores_worse(expert, clumsy):
     assert c["task_time_s"] > e["task_time_s"] + 10.0
     assert c["task_fls_score"] == pytest.approx(300.0 - c["task_time_s"] - 10.0)
     assert c["task_fls_score"] < e["task_fls_score"] - 10.0
+    # each instrument's own scores (docs/task_metrics.md): the wandering carries a longer path for
+    # both (1.21 and 1.22 m against 0.95 and 0.92 measured), the right grasper's press on each ring
+    # a harder largest force (5.3 N against 1.1 N) and both a harder mean in contact
+    for side in ("left", "right"):
+        ct, et = c["tools"][side], e["tools"][side]
+        assert ct["tip_path_m"] > 1.2 * et["tip_path_m"]
+        assert ct["tool_mean_force_N"] > et["tool_mean_force_N"]
+        assert ct["tip_idle_time_s"] > et["tip_idle_time_s"]
+    assert c["tools"]["right"]["tool_max_force_N"] > 3 * e["tools"]["right"]["tool_max_force_N"]
 
 
 @pytest.mark.slow(seconds=25)
