@@ -279,6 +279,8 @@ def test_the_hand_feels_the_fem_uterus_stiffness_analyze_predicts():
 
 
 @pytest.mark.slow(seconds=60)
+@pytest.mark.realtime  # the rendered force against the scene's at the hold: at load 4-5 the scene ran at
+# 0.01 of real time and the driver rendered 0.654 N against the scene's 0.629 (4 %, past its 2 %)
 def test_a_driver_process_presses_the_fem_uterus_with_the_grasper_and_feels_its_stiffness(tmp_path):
     """The same press from a haptic device: the emulated device (its simulated hand: 0.1 kg
     handle, 400 N/m, 8 N·s/m) in a ``godobject-driver`` process of its own, on loopback
