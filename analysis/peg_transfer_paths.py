@@ -151,7 +151,9 @@ def session(clumsy: bool) -> dict[str, Path_]:
         centre = at(peg, 0, 0, RING_REST_Z)
         g = side_towards("left", centre, level)
         down = across("left", reach("left", at(g, 0, 0, PICK_Z - RING_REST_Z)), g - centre)
-        left.go(0.8 * slow, across("left", reach("left", at(g, 0, 0, 0.012), down[3]), g - centre), OPEN)
+        over = across("left", reach("left", at(g, 0, 0, LIFT_Z), down[3]), g - centre)
+        left.go(0.5 * slow, over, OPEN)  # over the ring's side, the open jaws clear of the peg's top
+        left.go(0.3 * slow, across("left", reach("left", at(g, 0, 0, 0.012), down[3]), g - centre))
         left.go(0.5 * slow, down)  # down on its side
         left.go(0.25, jaw=SHUT)  # the jaws close: the ring is held
         left.go(0.15)

@@ -272,14 +272,19 @@ def test_the_clumsy_session_drops_one_and_scores_worse(expert, clumsy):
     assert c["task_fls_score"] == pytest.approx(300.0 - c["task_time_s"] - 10.0)
     assert c["task_fls_score"] < e["task_fls_score"] - 10.0
     # each instrument's own scores (docs/task_metrics.md): the wandering carries a longer path for
-    # both (1.21 and 1.22 m against 0.95 and 0.92 measured), the right grasper's press on each ring
-    # a harder largest force (5.3 N against 1.1 N) and both a harder mean in contact
+    # both (1.27 and 1.22 m against 1.01 and 0.92 measured) and more idle time; the right grasper's
+    # press on each ring a harder largest and mean force (5.2 N against 1.1 N; 0.76 against 0.26 N)
     for side in ("left", "right"):
         ct, et = c["tools"][side], e["tools"][side]
         assert ct["tip_path_m"] > 1.2 * et["tip_path_m"]
-        assert ct["tool_mean_force_N"] > et["tool_mean_force_N"]
         assert ct["tip_idle_time_s"] > et["tip_idle_time_s"]
-    assert c["tools"]["right"]["tool_max_force_N"] > 3 * e["tools"]["right"]["tool_max_force_N"]
+    right_c, right_e = c["tools"]["right"], e["tools"]["right"]
+    assert right_c["tool_max_force_N"] > 3 * right_e["tool_max_force_N"]
+    assert right_c["tool_mean_force_N"] > 2 * right_e["tool_mean_force_N"]
+    # the expert presses as the FLS's experts do: under their 2.6 N largest force (Horeman et al.
+    # 2010) on both instruments (1.1 N measured: the graspers' touch at each hand-off). Its first
+    # approach once swept the left jaws into peg_l6's top at 17 N.
+    assert max(e["tools"][side]["tool_max_force_N"] for side in ("left", "right")) < 2.6
 
 
 @pytest.mark.slow(seconds=25)
