@@ -303,3 +303,16 @@ def test_a_metric_that_fails_leaves_the_recording_and_the_other_metrics(tmp_path
     assert "penetration of quarry::rock into the half space quarry::ground" in m["metrics_error"]
     assert m["recording_bytes"] == html.stat().st_size > 100_000
     assert m["sim_time_s"] == pytest.approx(0.3) and not m["diverged"]
+
+
+def test_a_package_path_set_on_a_device_after_loading_is_taken_as_loading_takes_it():
+    """A ``package://godobject_models/`` path set from Python after the scenario was loaded (a
+    device's ``path``) is the models' file, as in a scenario file: before, the check passed it on
+    and the path's reader raised a bare FileNotFoundError."""
+    from godobject_drake.config.scenario import MODELS_DIR, check_scenario, shipped_scenario
+
+    s = shipped_scenario("peg_transfer")
+    s.tools["left"].device.path = "package://godobject_models/peg_transfer/clumsy_left_path.yaml"
+    check_scenario(s)
+    assert s.tools["left"].device.path == str(MODELS_DIR / "peg_transfer" / "clumsy_left_path.yaml")
+    assert s.tools["left"].device.joint_path().waypoints[-1].t > 50.0  # the clumsy one's 50.77 s

@@ -604,6 +604,11 @@ def check_scenario(s: Scenario, where: str = "scenario") -> dict[str, ToolRecord
             default = getattr(MultibodyPlantConfig(), field)
             _fail(where, f"plant.{field}", f"{value!r} must be a finite number {'>' if strict else '≥'} 0 "
                   f"(Drake's default: {default:g})")  # fmt: skip
+    for device in [s.device, *(tool.device for tool in s.tools.values())]:  # set after loading (Python)
+        for attribute in ("path", "log"):
+            value = getattr(device, attribute, "")
+            if isinstance(value, str) and value.startswith(PACKAGE_URL):  # what loading makes of it
+                setattr(device, attribute, _resolve(value, Path.cwd()))
     try:  # every file Drake or a device will read: a FIFO, a device, a loop, a huge file (config.inputs)
         check_inputs(s, MODELS_DIR, where)
     except InputFileError as e:
