@@ -18,7 +18,18 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, HalfSpace, Role, SceneGraph, Sphere
+from pydrake.geometry import (
+    Box,
+    Capsule,
+    CollisionFilterDeclaration,
+    Cylinder,
+    Ellipsoid,
+    GeometrySet,
+    HalfSpace,
+    Role,
+    SceneGraph,
+    Sphere,
+)
 from pydrake.multibody.plant import MultibodyPlant
 
 from godobject_drake.config.scenario import tool_records
@@ -417,6 +428,7 @@ class ToolMetrics:
         self._query_port = plant.get_geometry_query_input_port()
         self._inspector = scene_graph.model_inspector()
         self._tool_frames = {plant.GetBodyFrameIdOrThrow(b) for b in plant.GetBodyIndices(tool.model)}
+        self._only_tool_pairs(scene_graph)
         self._tip = plant.GetBodyByName(tip_body, tool.model)
         self._p_WP = None
         if pivot_body is not None:
@@ -433,6 +445,21 @@ class ToolMetrics:
         self._device_tip, self._last_q = None, None
         self._sep_tip, self._sep_q = None, None  # the device's tip at every row, for the separation
         self._tips: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def _only_tool_pairs(self, scene_graph: SceneGraph) -> None:
+        """In this measure's own context, filter every pair of rigid shapes but the tool's against
+        the rest: the penetration reads only those, and the query's broad phase then skips the
+        scene's own contacts (the peg transfer's 72 beads resting on the board and around the
+        pegs: measured 2.3 s of a 32 s run's 8.4 s of wall time, and a 0.1 s pause a second at
+        real time). The distances of the pairs kept are the same, bit for bit."""
+        tool, rest = [], []
+        for g in self._inspector.GetAllGeometryIds(Role.kProximity):
+            if not self._inspector.IsDeformableGeometry(g):
+                (tool if self._inspector.GetFrameId(g) in self._tool_frames else rest).append(g)
+        context = scene_graph.GetMyMutableContextFromRoot(self._context)
+        scene_graph.collision_filter_manager(context).Apply(
+            CollisionFilterDeclaration().ExcludeWithin(GeometrySet(rest)).ExcludeWithin(GeometrySet(tool))
+        )
 
     def take_tips(self, n: int, finite: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The device's and the tool's tip positions (N, 3) at the last :meth:`update`'s rows,
@@ -465,8 +492,13 @@ class ToolMetrics:
                 self._sep_tip, self._sep_q = plant.EvalBodyPoseInWorld(device, self._tip).translation(), qd
             self._tips.append((self._sep_tip, X_WTip.translation()))
             if self._p_WP is not None:
-                axis = X_WTip.rotation().col(2)
-                offset = float(np.linalg.norm(np.cross(self._p_WP - X_WTip.translation(), axis)))
+                a, b = self._p_WP - X_WTip.translation(), X_WTip.rotation().col(2)
+                # a × b, as np.cross computes it (each product rounded, then the difference), at a
+                # tenth of its cost on one pair of 3-vectors: the same number, bit for bit
+                a_x_b = np.array(
+                    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+                )
+                offset = float(np.linalg.norm(a_x_b))
                 self.max_offset = max(self.max_offset, offset)
             if closest >= FREE_SPACE_MARGIN_M:
                 if self._last_q is None or not np.array_equal(qd, self._last_q):
