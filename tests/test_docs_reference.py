@@ -38,7 +38,7 @@ def test_the_scenes_and_flags_tables_are_fresh():
     )  # fmt: skip
     assert page == made.stdout, "docs/guide/flags.md is stale: run python analysis/flags_reference.py"
     scenes = {path.stem for path in (REPO / "diagrams").glob("*.yaml")}
-    assert len(scenes) == 9 and all(f"| `{name}` |" in page for name in scenes)
+    assert len(scenes) == 10 and all(f"| `{name}` |" in page for name in scenes)
 
 
 def test_every_example_of_the_reference_loads():

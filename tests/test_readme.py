@@ -147,6 +147,9 @@ NOT_RUN = {
     "godobject run laparoscopy_bimanual_drivers": (
         "waits for its two drivers, in two other terminals (tests/test_bimanual_drivers.py)"
     ),
+    "godobject run peg_transfer_drivers": (
+        "waits for its two drivers, in two other terminals (tests/test_peg_drivers.py)"
+    ),
     "python -m godobject_drake run diagrams/lego_haptic.yaml": "waits for its driver (tests/test_pairing.py)",
     "godobject run diagrams/lego_haptic.yaml": "waits for its driver (tests/test_pairing.py)",
     "godobject run lego --device lcm": "waits for a device on LCM (tests/test_lcm.py)",
@@ -308,6 +311,14 @@ def docs_folder(tmp_path_factory) -> Path:
         (folder / name).symlink_to(REPO / name)
     for name in ("cube_post.yaml", "cube_post.sdf"):
         shutil.copy(EXAMPLES / name, folder / name)
+    # the device logs the pages' --replay-devices commands read: a short session of the peg
+    # transfer recorded here, under each name the pages give it
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    subprocess.run([sys.executable, "-m", "godobject_drake", "run", "peg_transfer", "--duration", "0.2",
+                    "--no-progress", "--record-devices", "session.csv"], cwd=folder, env=env, check=True,
+                   capture_output=True, timeout=300)  # fmt: skip
+    for side in ("left", "right"):
+        shutil.copy(folder / f"session.{side}.csv", folder / f"s01_haptic.{side}.csv")
     return folder
 
 

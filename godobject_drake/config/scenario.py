@@ -320,6 +320,7 @@ SHIPPED = (
     "lego_driver",
     "laparoscopy_bimanual_drivers",
     "peg_transfer",
+    "peg_transfer_drivers",
 )
 
 
