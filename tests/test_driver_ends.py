@@ -255,6 +255,26 @@ def test_a_write_error_on_the_log_stops_the_driver_with_zero_and_says_why(tmp_pa
     assert np.any(np.isclose(forces(drv.read_log(log)), PUSH_N))  # it was pushing when the log filled
 
 
+def test_a_log_cut_short_is_read_to_its_last_whole_line(tmp_path):
+    """A log cut by a full disk or a file-size limit (or read while the driver writes it) ends in
+    a partial line; cut after a comma it has every field, the last one empty, and reading it
+    raised ``could not convert string to float: ''`` (the test above, at one cut in some).
+    Its whole lines are read, at every cut of the last one."""
+    header = drv.Driver.LOG_HEADER
+    row = "1.5,0,0,0,0,0,6,0,0,6,0.25,ok,0,1,1,0,0"
+    assert len(row.split(",")) == len(header.split(","))
+    whole = f"{header}\n{row}\n"
+    for cut in range(len(row) + 1):
+        path = tmp_path / f"cut_{cut}.csv"
+        path.write_text(whole + row[:cut])
+        log = drv.read_log(path)
+        assert log["fz"].tolist() == [6.0] and log["state"].tolist() == ["ok"], cut
+    path.write_text(whole)
+    assert drv.read_log(path)["t"].tolist() == [1.5]
+    path.write_text(header[:20])  # the header itself cut short: no rows
+    assert drv.read_log(path)["t"].tolist() == []
+
+
 # -- the device's own watchdog, where the vendor's SDK has one ----------------------------------------------
 
 

@@ -525,9 +525,11 @@ class Driver:
 
 def read_log(path: str | Path) -> dict:
     """A driver's ``--log`` as arrays by column (``state`` as strings)."""
-    lines = Path(path).read_text().splitlines() or [Driver.LOG_HEADER]  # not yet flushed: empty
-    names = lines[0].split(",")
-    # a running log's last line may be cut short
+    text = Path(path).read_text()
+    lines = text.splitlines()
+    if text and not text.endswith("\n"):  # a running log's, or a log cut by a full disk: its last line
+        lines = lines[:-1]  # cut short, even after a comma (as many fields, the last one empty)
+    names = (lines or [Driver.LOG_HEADER])[0].split(",")  # not yet flushed: empty
     rows = [r for r in (line.split(",") for line in lines[1:]) if len(r) == len(names)]
     out = {}
     for i, name in enumerate(names):
