@@ -141,7 +141,7 @@ def driver_press(tmp_path, s, hold_s: float, *flags):
     tissue's indentation (the scene's, over its last 50 ms)."""
     import json
 
-    from test_driver import free_port, start_driver
+    from test_driver import free_port, rendered, start_driver, trips_and_work
     from test_pose_to_joints import pressed
 
     from godobject_drake.config import devices as dk
@@ -159,16 +159,13 @@ def driver_press(tmp_path, s, hold_s: float, *flags):
         driver.kill()
     log = drv.read_log(tmp_path / "driver.csv")
     summary = json.loads((tmp_path / "driver.json").read_text())
-    x, f = np.c_[log["x"], log["y"], log["z"]], np.c_[log["fx"], log["fy"], log["fz"]]
-    running = log["state"] != "stopped"
-    tripped = (log["state"][1:] == "watchdog") & (log["state"][:-1] != "watchdog") & running[1:]
-    hold = running & (log["t_scene"] >= s.simulation.duration_s - hold_s)
+    f = rendered(log)
+    trips, work = trips_and_work(log)
+    hold = (log["state"] != "stopped") & (log["t_scene"] >= s.simulation.duration_s - hold_s)
     norm = np.linalg.norm(f, axis=1)
-    moved = np.isfinite(x[1:, 0]) & np.isfinite(x[:-1, 0])  # the last row (the exit) has no pose
     F, u = pressed(result)
     out = {
-        "trips": int(tripped.sum()), "ripple_N": float(np.ptp(norm[hold])) if hold.any() else np.nan,
-        "work_J": float(np.sum(np.einsum("ij,ij->i", f[:-1][moved], (x[1:] - x[:-1])[moved]))),
+        "trips": trips, "ripple_N": float(np.ptp(norm[hold])) if hold.any() else np.nan, "work_J": work,
         "force_N": float(np.median(f[hold, 2])) if hold.any() else np.nan, "u_m": u,
         "hold_rows": int(hold.sum()), "scene_force_N": float(F[5]),
         "models": summary["local_model"]["models"], "heartbeats": summary["local_model"]["heartbeats"],

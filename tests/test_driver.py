@@ -101,6 +101,18 @@ def rendered(log):
     return np.c_[log["fx"], log["fy"], log["fz"]]
 
 
+def trips_and_work(log) -> tuple[int, float]:
+    """A driver's log read as a haptics person checks it: the watchdog's trips while the scene ran
+    (each fall into ``watchdog``; the final ``stopped`` is the scene's end, not a trip) and the
+    work the rendered force did on the handle over the run, Σ f · Δx (J: ≤ 0 for a passive
+    rendering, less what the damping spent)."""
+    running = log["state"] != "stopped"
+    tripped = (log["state"][1:] == "watchdog") & (log["state"][:-1] != "watchdog") & running[1:]
+    x, f = np.c_[log["x"], log["y"], log["z"]], rendered(log)
+    moved = np.isfinite(x[1:, 0]) & np.isfinite(x[:-1, 0])  # the last row (the exit) has no pose
+    return int(tripped.sum()), float(np.sum(np.einsum("ij,ij->i", f[:-1][moved], (x[1:] - x[:-1])[moved])))
+
+
 # -- the device frame -------------------------------------------------------------------------------------
 
 

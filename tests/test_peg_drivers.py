@@ -18,7 +18,7 @@ import json
 
 import numpy as np
 import pytest
-from test_driver import free_port, rendered, start_driver
+from test_driver import free_port, rendered, start_driver, trips_and_work
 
 from godobject_drake.config.scenario import MODELS_DIR, shipped_scenario
 from godobject_drake.driver import process as drv
@@ -97,20 +97,17 @@ def test_two_driver_processes_each_press_a_ring_onto_its_peg_and_feel_a_steady_p
 
         log = drv.read_log(folders[name] / "driver.csv")
         summary = json.loads((folders[name] / "driver.json").read_text())
-        x, f = np.c_[log["x"], log["y"], log["z"]], rendered(log)
-        running = log["state"] != "stopped"
-        tripped = (log["state"][1:] == "watchdog") & (log["state"][:-1] != "watchdog") & running[1:]
+        f = rendered(log)
+        trips, work = trips_and_work(log)
         ok = log["state"] == "ok"
         t_hand = log["t"] - log["t"][np.argmax(ok)]  # the hand's clock starts as the scene is first heard
         pressed = ok & (t_hand >= PRESSED[0]) & (t_hand <= PRESSED[1])
-        moved = np.isfinite(x[1:, 0]) & np.isfinite(x[:-1, 0])
-        work = float(np.sum(np.einsum("ij,ij->i", f[:-1][moved], (x[1:] - x[:-1])[moved])))
         norm = np.linalg.norm(f[pressed], axis=1)
         report[name] = {
             "pressed_rows": int(pressed.sum()),
             "force_N": np.round(np.median(f[pressed], axis=0), 4).tolist(),
             "ripple_N": round(float(np.ptp(norm)), 4), "work_mJ": round(work * 1e3, 4),
-            "trips": int(tripped.sum()), "models": summary["local_model"]["models"],
+            "trips": trips, "models": summary["local_model"]["models"],
             "overruns": summary["counts"]["overruns"],
         }  # fmt: skip
     print(f"peg transfer from two drivers: {report}")
